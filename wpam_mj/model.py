@@ -1,0 +1,46 @@
+"""Load the shipped MJCF and apply a parameter set to it by small, named edits."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mujoco
+
+from wpam_mj.geometry import BraidGeometry
+from wpam_mj.params import STANDARD_GRAVITY, Params, check_range
+from wpam_mj.paths import MODEL_XML
+
+LOAD_RANGE_N = (1.0, 2000.0)  # N: what a hanging mass on this rig can sensibly be
+DT_RANGE_S = (1e-5, 0.005)  # s: the pneumatics need a step well below their time constants
+
+
+def check_load(load: float) -> float:
+    """Validate a hanging load [N]."""
+    return check_range("load", load, *LOAD_RANGE_N, "N")
+
+
+def check_dt(dt: float) -> float:
+    """Validate a physics time step [s]."""
+    return check_range("dt", dt, *DT_RANGE_S, "s")
+
+
+def build_model(params: Params, load: float, dt: float = 1e-3, *,
+                xml: str | Path = MODEL_XML) -> mujoco.MjModel:
+    """Compile the hung-muscle MJCF and set load mass, stops, damping and time step.
+
+    Args:
+      params: muscle parameters (SI).
+      load: hanging load [N]; the load mass is load / g.
+      dt: physics time step [s].
+      xml: MJCF file (the scene file for rendering).
+    """
+    load = check_load(load)
+    dt = check_dt(dt)
+    model = mujoco.MjModel.from_xml_path(str(xml))
+    model.opt.timestep = dt
+    model.opt.gravity[:] = (0.0, 0.0, -STANDARD_GRAVITY)
+    model.body("load").mass[0] = load / STANDARD_GRAVITY
+    joint = model.joint("contraction")
+    joint.range[:] = (0.0, BraidGeometry.from_params(params.braid).max_contraction)
+    model.dof_damping[joint.dofadr[0]] = params.muscle.damping
+    return model

@@ -1,0 +1,239 @@
+"""Model parameters: one frozen, typed, validated object per concern, SI units.
+
+Every field carries its unit, its allowed range and its source in the field metadata;
+`validate` checks them all in one place. Users read mm and MPa: conversion happens at
+the edges (CLI, plots, CSV headers), never here.
+
+Presets:
+  * ``wpam``     the paper's double-air-chamber muscle (RLAM inside an outer bag);
+                 calibrated values come from ``models/wpam/calibrated.toml``.
+  * ``rlam``     the same inner muscle with no usable outer chamber (Po is forced to the
+                 regulator minimum by the experiments).
+  * ``mckibben`` a rubber-tube McKibben muscle of the same braid: elastic Fco term
+                 (paper eq. 7), low bag/sleeve friction.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+from wpam_mj.paths import MODELS_DIR
+
+MPA = 1e6  # Pa per MPa
+MM = 1e-3  # m per mm
+STANDARD_GRAVITY = 9.80665  # m/s^2, ISO 80000-3
+
+
+class ParameterError(ValueError):
+    """A parameter or input lies outside its allowed range."""
+
+
+def _p(default: float, unit: str, lo: float, hi: float, source: str, *,
+       lo_open: bool = False) -> Any:
+    return field(default=default, metadata=dict(unit=unit, lo=lo, hi=hi, source=source,
+                                                lo_open=lo_open))
+
+
+def check_range(name: str, value: float, lo: float, hi: float, unit: str = "", *,
+                lo_open: bool = False) -> float:
+    """Return ``float(value)`` or raise ParameterError naming the value and the range."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{name} = {value!r} is not a number") from None
+    below = v <= lo if lo_open else v < lo
+    if not math.isfinite(v) or below or v > hi:
+        bracket = "(" if lo_open else "["
+        raise ParameterError(
+            f"{name} = {value!r} {unit} is outside the allowed range "
+            f"{bracket}{lo:g}, {hi:g}] {unit}".replace("  ", " "))
+    return v
+
+
+class _Validated:
+    """Mixin: range-check every float field from its metadata after construction."""
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):  # type: ignore[arg-type]
+            md = f.metadata
+            if "lo" in md:
+                check_range(f"{type(self).__name__.lower()}.{f.name}", getattr(self, f.name),
+                            md["lo"], md["hi"], md["unit"], lo_open=md["lo_open"])
+                object.__setattr__(self, f.name, float(getattr(self, f.name)))
+
+
+@dataclass(frozen=True)
+class Braid(_Validated):
+    """Braided sleeve and bags (pantograph geometry, see `wpam_mj.geometry`)."""
+
+    natural_length: float = _p(0.350, "m", 0.05, 2.0, "paper §2.3 (effective natural length)")
+    natural_diameter: float = _p(0.022, "m", 0.003, 0.2, "paper §2.3")
+    max_diameter: float = _p(0.042, "m", 0.004, 0.4, "paper §2.3 (bag at maximum inflation)")
+    braid_angle: float = _p(math.radians(20.0), "rad", math.radians(5), math.radians(50),
+                            "calibrated (thread angle to the axis at natural length)")
+    outer_bag_length: float = _p(0.420, "m", 0.05, 3.0, "paper §2.3")
+    outer_bag_diameter: float = _p(0.060, "m", 0.005, 0.5, "paper §2.3")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.max_diameter <= self.natural_diameter:
+            raise ParameterError(f"braid.max_diameter = {self.max_diameter} m must exceed "
+                                 f"braid.natural_diameter = {self.natural_diameter} m")
+        if self.outer_bag_diameter <= self.max_diameter:
+            raise ParameterError(f"braid.outer_bag_diameter = {self.outer_bag_diameter} m must"
+                                 f" exceed braid.max_diameter = {self.max_diameter} m")
+
+
+@dataclass(frozen=True)
+class Muscle(_Validated):
+    """Force terms of the tension model (`wpam_mj.muscle`)."""
+
+    output_coeff: float = _p(0.30, "1", 0.01, 2.0, "calibrated (paper Kf, Table 1)", lo_open=True)
+    friction_coeff: float = _p(0.05, "1", 0.0, 1.0, "calibrated (paper mu, eq. 4)")
+    friction_const: float = _p(5.0, "N", 0.0, 500.0, "calibrated (pressure-independent part)")
+    axial_area: float = _p(1.0e-3, "m^2", 0.0, 0.05,
+                           "calibrated (Po on the end fittings; order of the outer annulus)")
+    rubber_stiffness: float = _p(0.0, "N/m", 0.0, 1e6,
+                                 "paper eq. 7 K_R; 0 for a non-stretchable bag (RLAM)")
+    damping: float = _p(200.0, "N s/m", 0.0, 1e5, "calibrated (viscous losses of the slide)")
+
+
+@dataclass(frozen=True)
+class Pneumatics(_Validated):
+    """Two SMC ITV2031-like regulators feeding the chambers (`wpam_mj.pneumatics`)."""
+
+    p_min: float = _p(0.005 * MPA, "Pa", 0.0, 1.0 * MPA, "ITV2031 range, paper §2.3")
+    p_max: float = _p(0.5 * MPA, "Pa", 0.0, 1.0 * MPA, "ITV2031 range, paper §2.3")
+    time_constant: float = _p(0.03, "s", 0.0, 5.0, "calibrated (ITV response ~0.1 s settling)")
+    dead_time: float = _p(0.01, "s", 0.0, 1.0, "calibrated")
+    sonic_conductance: float = _p(3e-9, "m^3/(s Pa)", 0.0, 1e-6,
+                                  "calibrated (ISO 6358 C of valve + tubing)", lo_open=True)
+    critical_ratio: float = _p(0.5, "1", 0.0, 0.99, "ISO 6358 b, typical valve value")
+    tube_volume: float = _p(2e-5, "m^3", 0.0, 0.01, "estimate (2 m of 4 mm bore tube)")
+    atmosphere: float = _p(101325.0, "Pa", 5e4, 2e5, "standard atmosphere")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.p_min >= self.p_max:
+            raise ParameterError(f"pneumatics.p_min = {self.p_min} Pa must be below "
+                                 f"pneumatics.p_max = {self.p_max} Pa")
+
+
+@dataclass(frozen=True)
+class Controller(_Validated):
+    """PI/PID on Po and the equilibrium-model feedforward on Pi (`wpam_mj.control`).
+
+    Gains are the paper's §4 values read in the paper's own display units: error
+    e = x - x_r in mm, output Po in MPa, time in s; u = Kp e + Ki int(e) dt + Kd de/dt.
+    """
+
+    kp: float = _p(0.1, "MPa/mm", 0.0, 1e3, "paper §4.1")
+    ki: float = _p(0.008, "MPa/(mm s)", 0.0, 1e3, "paper §4.1")
+    kd: float = _p(0.004, "MPa s/mm", 0.0, 1e3, "paper §4.2 (used in PID mode only)")
+    derivative_filter: float = _p(0.02, "s", 0.0, 10.0, "our choice (first-order D filter)")
+    po_cap: float = _p(0.08 * MPA, "Pa", 0.0, 1.0 * MPA, "paper §4.2 (bag durability)")
+    po_feedforward: float = _p(0.04 * MPA, "Pa", 0.0, 1.0 * MPA,
+                               "our choice: mid-range Po assumed by the Pi feedforward")
+
+
+@dataclass(frozen=True)
+class Params:
+    """Everything that defines one simulated muscle and its drive."""
+
+    braid: Braid = field(default_factory=Braid)
+    muscle: Muscle = field(default_factory=Muscle)
+    pneumatics: Pneumatics = field(default_factory=Pneumatics)
+    controller: Controller = field(default_factory=Controller)
+    preset: str = "wpam"
+
+    def __post_init__(self) -> None:
+        pn, c = self.pneumatics, self.controller
+        check_range("controller.po_cap", c.po_cap / MPA, pn.p_min / MPA, pn.p_max / MPA, "MPa")
+        check_range("controller.po_feedforward", c.po_feedforward / MPA, pn.p_min / MPA,
+                    c.po_cap / MPA, "MPa")
+
+    def replace(self, **sections: Mapping[str, float]) -> "Params":
+        """Copy with some fields changed: ``p.replace(muscle={"friction_coeff": 0})``."""
+        return apply_overrides(self, sections)
+
+    def as_dict(self) -> dict[str, dict[str, float]]:
+        return {s: dataclasses.asdict(getattr(self, s)) for s in _SECTIONS}
+
+
+_SECTIONS = {"braid": Braid, "muscle": Muscle, "pneumatics": Pneumatics,
+             "controller": Controller}
+
+
+def apply_overrides(params: Params, overrides: Mapping[str, Any]) -> Params:
+    """Return `params` with ``{section: {field: value}}`` applied; unknown keys raise."""
+    new = {}
+    for section, values in overrides.items():
+        if section not in _SECTIONS:
+            raise ParameterError(f"unknown parameter section {section!r}; "
+                                 f"valid sections: {', '.join(_SECTIONS)}")
+        if not isinstance(values, Mapping):
+            raise ParameterError(f"section [{section}] must be a table of values")
+        cls = _SECTIONS[section]
+        names = {f.name for f in dataclasses.fields(cls)}
+        for key in values:
+            if key not in names:
+                raise ParameterError(f"unknown parameter {section}.{key}; "
+                                     f"valid names: {', '.join(sorted(names))}")
+        new[section] = dataclasses.replace(getattr(params, section), **values)
+    return dataclasses.replace(params, **new)
+
+
+def load_toml(path: str | Path) -> dict[str, Any]:
+    """Read a parameter TOML file (sections as in `Params`, SI values)."""
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except tomllib.TOMLDecodeError as err:
+        raise ParameterError(f"malformed TOML in {path}: {err}") from None
+    except OSError as err:
+        raise ParameterError(f"cannot read parameter file {path}: {err.strerror}") from None
+
+
+CALIBRATION_FILE = MODELS_DIR / "wpam" / "calibrated.toml"
+
+# Rubber McKibben muscle of the same braid: K_R is an estimate for a 1.5 mm latex tube
+# (Chou & Hannaford 1996 report tens of N of elastic loss over the stroke), friction
+# between a rubber tube and a sleeve is much lower than for a loose airbag (paper §2.2).
+_MCKIBBEN = {"muscle": {"rubber_stiffness": 3000.0, "friction_coeff": 0.01,
+                        "friction_const": 1.0}}
+# A bare RLAM has no outer bag: nothing for Po to push on.
+_RLAM = {"muscle": {"axial_area": 0.0}}
+PRESETS = ("wpam", "rlam", "mckibben")
+
+
+def preset(name: str = "wpam", *, calibration: str | Path | None = CALIBRATION_FILE) -> Params:
+    """Parameters of a named muscle type, with the calibrated values applied.
+
+    The RLAM and McKibben presets share the W-PAM's calibrated braid and regulators.
+    """
+    if name not in PRESETS:
+        raise ParameterError(f"unknown preset {name!r}; valid presets: {', '.join(PRESETS)}")
+    params = Params(preset=name)
+    if calibration is not None and Path(calibration).exists():
+        params = apply_overrides(params, load_toml(calibration))
+    if name == "mckibben":
+        params = apply_overrides(params, _MCKIBBEN)
+    elif name == "rlam":
+        params = apply_overrides(params, _RLAM)
+    return params
+
+
+def describe(params: Params) -> list[tuple[str, float, str, str]]:
+    """Rows (name, value, unit, source) for reports and the README table."""
+    rows = []
+    for s in _SECTIONS:
+        obj = getattr(params, s)
+        for f in dataclasses.fields(obj):
+            rows.append((f"{s}.{f.name}", getattr(obj, f.name), f.metadata["unit"],
+                         f.metadata["source"]))
+    return rows
