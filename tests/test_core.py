@@ -1,0 +1,430 @@
+"""Physics tests of the core model: geometry, equilibria, stiction, hysteresis, feedback,
+numerical convergence, determinism, input validation and the shipped MJCF.
+
+Every simulated figure is compared with the closed-form model of `wpam_mj.muscle`
+(tolerances in mm or relative, stated next to each assertion). Runs use the plain Python
+loop (`engine="python"`, the reference), 1 ms steps unless stated; the whole file runs
+in well under a minute.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import cache
+
+import mujoco
+import numpy as np
+import pytest
+from scipy.optimize import brentq
+
+from wpam_mj.analysis import loop_area
+from wpam_mj.control import PoFeedback, pi_feedforward
+from wpam_mj.model import build_model, check_dt, check_load
+from wpam_mj.muscle import MuscleModel
+from wpam_mj.params import (MM, MPA, Controller, Params, ParameterError, check_range,
+                            preset)
+from wpam_mj.paths import MODEL_XML, SCENE_XML
+from wpam_mj.simulate import Drive, SimulationDiverged, simulate
+
+ENGINE = "python"
+DT = 1e-3  # s
+LOADS = (50.0, 100.0, 150.0)  # N, paper §2.3
+
+WPAM = preset("wpam")
+FRICTIONLESS = WPAM.replace(muscle={"friction_coeff": 0.0, "friction_const": 0.0})
+
+
+def open_loop(params: Params, load: float, pi_cmd: np.ndarray, *, dt: float = DT,
+              record_dt: float = 0.01):
+    """Open-loop run with Po vented (po_cmd = 0) and the given Pi command [Pa]."""
+    n = len(pi_cmd)
+    drive = Drive(pi_cmd, np.zeros(n), np.full(n, np.nan))
+    return simulate(params, load, drive, dt=dt, record_dt=record_dt, engine=ENGINE)
+
+
+def hold(value: float, duration: float, dt: float = DT) -> np.ndarray:
+    return np.full(round(duration / dt), float(value))
+
+
+def ramp_up_down(top: float, ramp_time: float, dt: float = DT) -> np.ndarray:
+    """Pi command [Pa]: 0 -> top in ramp_time [s], then back to 0 in ramp_time."""
+    up = np.linspace(0.0, top, round(ramp_time / dt) + 1)
+    return np.concatenate([up, up[-2::-1]])
+
+
+# ---------------------------------------------------------------------- geometry
+
+GEOM = MuscleModel.from_params(WPAM).geometry
+X_GRID = np.linspace(0.0, GEOM.max_contraction, 9)  # m
+
+
+def test_effective_area_is_volume_derivative():
+    h = 1e-7  # m
+    for x in X_GRID[1:-1]:
+        dv_dx = (GEOM.volume(x + h) - GEOM.volume(x - h)) / (2 * h)
+        assert GEOM.area(x) == pytest.approx(dv_dx, rel=1e-6), f"S(x) at x = {x / MM:.1f} mm"
+
+
+def test_bag_reaches_its_max_diameter_at_the_stop():
+    assert GEOM.diameter(GEOM.max_contraction) == pytest.approx(WPAM.braid.max_diameter,
+                                                                rel=1e-12)
+    assert GEOM.diameter(0.0) == pytest.approx(WPAM.braid.natural_diameter, rel=1e-12)
+    # the stop lies before the 54.7 deg locking angle: S > 0 all the way
+    assert min(GEOM.area(x) for x in X_GRID) > 0.0
+
+
+def test_length_and_diameter_follow_the_braid_angle():
+    b, n = GEOM.thread_length, GEOM.turns
+    assert math.acos(GEOM.length(0.0) / b) == pytest.approx(WPAM.braid.braid_angle, rel=1e-12)
+    for x in X_GRID:
+        theta = math.acos(GEOM.length(x) / b)  # L = b cos(theta)
+        d = b * math.sin(theta) / (n * math.pi)  # D = b sin(theta) / (n pi)
+        assert GEOM.diameter(x) == pytest.approx(d, rel=1e-12)
+        assert GEOM.volume(x) == pytest.approx(math.pi * d * d * GEOM.length(x) / 4, rel=1e-12)
+    # contraction swells the sleeve
+    assert np.all(np.diff([GEOM.diameter(x) for x in X_GRID]) > 0.0)
+
+
+@pytest.mark.parametrize("name", ["wpam", "mckibben"])
+@pytest.mark.parametrize("direction", [-1, 0, 1])
+def test_equilibrium_pressure_and_contraction_invert_each_other(name, direction):
+    muscle = MuscleModel.from_params(preset(name))
+    for load in LOADS:
+        for po in (0.0, 0.04 * MPA):
+            for x in (5 * MM, 20 * MM, 40 * MM, 60 * MM):
+                pi = muscle.equilibrium_pressure(x, load, po, direction)
+                back = muscle.equilibrium_contraction(pi, po, load, direction)
+                assert back == pytest.approx(x, abs=1e-9), (
+                    f"{name} load {load} N Po {po / MPA} MPa x {x / MM} mm dir {direction}")
+                s = direction
+                net = muscle.tension(x, pi, po) - s * muscle.friction(x, pi, po) - load
+                assert net == pytest.approx(0.0, abs=1e-9 * load)
+
+
+def test_equilibrium_contraction_is_clipped_to_the_stops():
+    muscle = MuscleModel.from_params(WPAM)
+    assert muscle.equilibrium_contraction(0.0, 0.0, 100.0) == 0.0
+    assert muscle.equilibrium_contraction(0.5 * MPA, 0.0, 50.0) == GEOM.max_contraction
+
+
+# ---------------------------------------------------------- static equilibrium
+
+@pytest.mark.parametrize("load", LOADS)
+@pytest.mark.parametrize("x_target_mm", [10.0, 25.0, 40.0])
+def test_frictionless_rest_matches_the_closed_form_equilibrium(load, x_target_mm):
+    muscle = MuscleModel.from_params(FRICTIONLESS)
+    pi = muscle.equilibrium_pressure(x_target_mm * MM, load, 0.0)
+    res = open_loop(FRICTIONLESS, load, hold(pi, 10.0))
+    last = res.time >= 9.0
+    assert np.abs(res.velocity[last]).max() < 5e-5, "load still moving [m/s] in the last 1 s"
+    expected = muscle.equilibrium_contraction(res.pi[-1], res.po[-1], load)
+    err_mm = (res.x[-1] - expected) / MM
+    print(f"load {load:.0f} N, x {x_target_mm:.0f} mm: rest error {err_mm:+.2e} mm")
+    assert abs(err_mm) < 0.1, "rest contraction minus closed-form equilibrium [mm]"
+
+
+# ------------------------------------------------------------------- stiction
+
+@cache
+def resting_at_25mm(load: float):
+    """Contract onto the contracting branch at 25 mm and come to rest (8 s)."""
+    muscle = MuscleModel.from_params(WPAM)
+    pi1 = muscle.equilibrium_pressure(25 * MM, load, 0.0, direction=+1)
+    return pi1, open_loop(WPAM, load, hold(pi1, 8.0))
+
+
+def pressure_for_net_force(load: float, x: float, po: float, net_over_friction: float):
+    """Pi [Pa] such that T(x) - load = net_over_friction * Ff(x) at Po = po."""
+    muscle = MuscleModel.from_params(WPAM)
+
+    def residual(pi):
+        return (muscle.tension(x, pi, po) - load
+                - net_over_friction * muscle.friction(x, pi, po))
+    return brentq(residual, po, WPAM.pneumatics.p_max)
+
+
+@pytest.mark.parametrize("load", LOADS)
+@pytest.mark.parametrize("sign", [-1, +1], ids=["extend", "contract"])
+def test_stiction_holds_below_the_friction_level_and_slips_above(load, sign):
+    pi1, rest = resting_at_25mm(load)
+    x0, po0 = rest.x[-1], rest.po[-1]
+    assert abs(rest.velocity[-1]) < 1e-4, "load at rest [m/s] before the hold"
+    moved = {}
+    for ratio in (2 / 3, 4 / 3):
+        pi2 = pressure_for_net_force(load, x0, po0, sign * ratio)
+        res = open_loop(WPAM, load, np.concatenate([hold(pi1, 8.0), hold(pi2, 10.0)]))
+        after = res.time >= 8.0 - 1e-9
+        moved[ratio] = np.abs(res.x[after] - x0).max() / MM
+    print(f"load {load:.0f} N, {'contract' if sign > 0 else 'extend'}: creep "
+          f"{moved[2 / 3]:.2e} mm at 2/3 of Ff, slip {moved[4 / 3]:.2f} mm at 4/3 of Ff")
+    assert moved[2 / 3] < 0.01, "creep in 10 s under a net force of 2/3 the friction [mm]"
+    assert moved[4 / 3] > 1.0, "slip in 10 s under a net force of 4/3 the friction [mm]"
+
+
+# ---------------------------------------------------- open-loop Pi-x hysteresis
+
+RAMP_TOP = 0.3 * MPA
+RAMP_TIME = 20.0  # s each way
+
+
+@cache
+def ramp_run(load: float, top: float = RAMP_TOP, dt: float = DT):
+    return open_loop(WPAM, load, ramp_up_down(top, RAMP_TIME, dt), dt=dt)
+
+
+@pytest.mark.parametrize("load, top", [(50.0, RAMP_TOP), (100.0, RAMP_TOP), (150.0, RAMP_TOP),
+                                       (100.0, 0.15 * MPA)])
+def test_open_loop_release_waits_for_friction(load, top):
+    """On release x stays put until Pi falls to the extending-branch pressure Pi_E
+    (paper eq. 6), well below the frictionless pressure, then extends to x = 0.
+
+    At 0.3 MPa the muscle reaches its stop; at 100 N and 0.15 MPa it does not (55.9 mm),
+    so there only friction holds it."""
+    res = ramp_run(load, top)
+    muscle = MuscleModel.from_params(WPAM)
+    slow = 1e-5  # m/s: "at rest" / "moving" threshold (0.01 mm/s)
+    turn = int(np.argmax(res.pi))  # measured Pi starts to fall
+    stop = turn + int(np.argmax(res.velocity[turn:] <= slow))  # contraction has ended
+    x_hold = res.x[stop]
+    release = stop + int(np.argmax(res.velocity[stop:] < -slow))
+    assert release > stop, "the load never extends"
+    pi_release = res.pi[release]
+    pi_e = muscle.equilibrium_pressure(x_hold, load, res.po[release], direction=-1)
+    pi_0 = muscle.equilibrium_pressure(x_hold, load, res.po[release], direction=0)
+    holding = np.arange(res.time.size) >= stop
+    holding &= res.pi > 1.01 * pi_e
+    creep_mm = np.abs(res.x[holding] - x_hold).max() / MM
+    held_s = res.time[release] - res.time[turn]
+    print(f"load {load:.0f} N, top {top / MPA:.2f} MPa: x {x_hold / MM:.2f} mm held "
+          f"{held_s:.2f} s (moved {creep_mm:.3f} mm); release at Pi {pi_release / MPA:.4f} MPa,"
+          f" Pi_E {pi_e / MPA:.4f}, frictionless {pi_0 / MPA:.4f} MPa")
+    assert res.time[stop] - res.time[turn] < 1.0, "contraction ends soon after the turn [s]"
+    assert creep_mm < 0.05, "x moves while Pi > 1.01 Pi_E on the way down [mm]"
+    assert held_s > 2.0, "x stays put for a while after the turning point [s]"
+    assert pi_release == pytest.approx(pi_e, rel=0.01), "release pressure vs Pi_E"
+    assert pi_release < pi_0 - 0.5 * (pi_0 - pi_e), "release is held by friction"
+    assert res.x[-1] < 0.1 * MM, "extended back to x = 0 at the end [m]"
+
+
+def test_open_loop_loop_area_grows_with_load():
+    areas = [loop_area(ramp_run(load).pi, ramp_run(load).x) for load in LOADS]
+    print("open-loop loop areas [MPa mm] at 50/100/150 N:",
+          ", ".join(f"{a / (MPA * MM):.3f}" for a in areas))
+    # the ramp covers the whole stroke at every load, so the loops are comparable
+    for load in LOADS:
+        assert ramp_run(load).x.max() > GEOM.max_contraction - 0.1 * MM
+    assert 0.0 < areas[0] < areas[1] < areas[2]
+
+
+# --------------------------------------------------------------- feedback
+
+STEP_LEVELS = np.array([0.0, 10.0, 20.0, 30.0]) * MM
+STEP_TIME = 8.0  # s per plateau
+SETTLED = 2.0  # s: the last part of each plateau that must hold the target
+
+
+def step_target(dt: float = DT) -> np.ndarray:
+    return np.repeat(STEP_LEVELS, round(STEP_TIME / dt))
+
+
+@cache
+def feedback_run(load: float = 100.0, control: str = "pi", params: Params = WPAM):
+    x_ref = step_target()
+    muscle = MuscleModel.from_params(params)
+    pi_cmd = pi_feedforward(muscle, params, x_ref, load, params.controller.po_feedforward)
+    drive = Drive(pi_cmd, np.zeros_like(x_ref), x_ref)
+    return simulate(params, load, drive, dt=DT, control=control, engine=ENGINE)
+
+
+def test_feedback_holds_each_plateau():
+    res = feedback_run()
+    errors_mm = []
+    for i, level in enumerate(STEP_LEVELS):
+        t1 = (i + 1) * STEP_TIME
+        w = (res.time >= t1 - SETTLED - 1e-9) & (res.time < t1 - 1e-9)
+        errors_mm.append(np.abs(res.x[w] - level).max() / MM)
+    print("PI at 100 N, max |x - x_r| in the last 2 s of each plateau [mm]:",
+          ", ".join(f"{e:.3f}" for e in errors_mm))
+    assert max(errors_mm) < 0.5, "plateau error after settling [mm]"
+
+
+def test_feedback_keeps_po_within_regulator_and_cap():
+    res = feedback_run()
+    p_min, cap = WPAM.pneumatics.p_min, WPAM.controller.po_cap
+    assert res.po_cmd.min() >= p_min and res.po_cmd.max() <= cap, "Po command [Pa]"
+    # The chamber starts vented at atmosphere and needs ~0.3 s to fill up to p_min;
+    # after that it follows the clamped command through the valve. Only compression
+    # by the moving muscle can push it past the command: allow 1 kPa.
+    filled = res.time >= 0.5
+    po = res.po[filled]
+    print(f"PI at 100 N: Po in [{po.min() / MPA:.4f}, {po.max() / MPA:.4f}] MPa after 0.5 s")
+    assert po.min() >= p_min - 1e3 and po.max() <= cap + 1e3, "chamber Po [Pa]"
+
+
+@pytest.mark.parametrize("derivative", [False, True], ids=["pi", "pid"])
+def test_po_feedback_does_not_wind_up(derivative):
+    ctl = PoFeedback(WPAM, DT, derivative=derivative)
+    cap, p_min = WPAM.controller.po_cap, WPAM.pneumatics.p_min
+    for _ in range(20_000):  # 20 s over-contracted by 5 mm: Po pinned at the cap
+        u = ctl.update(5.0 * MM, 0.0)
+    assert u == cap
+    # A wound-up integral (100 mm s -> 0.8 MPa) would hold the cap for minutes.
+    leaves = [ctl.update(-0.5 * MM, 0.0) for _ in range(3)]
+    assert min(leaves) < cap, "Po leaves the cap within 3 steps of the error reversing"
+    assert abs(WPAM.controller.ki * ctl.integral) < 0.08, "integral term [MPa]"
+    for _ in range(20_000):  # and the same at the lower limit
+        u = ctl.update(-5.0 * MM, 0.0)
+    assert u == p_min
+    leaves = [ctl.update(0.5 * MM, 0.0) for _ in range(3)]
+    assert max(leaves) > p_min, "Po leaves p_min within 3 steps of the error reversing"
+
+
+def test_po_feedback_follows_the_pi_law_in_its_linear_range():
+    """Po = Kp e + Ki int(e) dt with e in mm and Po in MPa (paper §4.1 gains)."""
+    ctl = PoFeedback(WPAM, DT, derivative=False)
+    c = WPAM.controller
+    e_mm = 0.2
+    for _ in range(10_000):
+        u = ctl.update(e_mm * MM, 0.0)
+    expected = (c.kp * e_mm + c.ki * e_mm * 10.0) * MPA
+    assert u == pytest.approx(expected, rel=1e-9)
+
+
+# ------------------------------------------------------- numerical convergence
+
+def test_halving_dt_keeps_the_rest_contraction():
+    muscle = MuscleModel.from_params(WPAM)
+    pi = muscle.equilibrium_pressure(25 * MM, 100.0, 0.0, direction=+1)
+    x = [open_loop(WPAM, 100.0, hold(pi, 8.0, dt), dt=dt).x[-1] for dt in (DT, DT / 2)]
+    delta_mm = abs(x[1] - x[0]) / MM
+    print(f"constant Pi at 100 N: rest x {x[0] / MM:.5f} mm, dt/2 changes it by "
+          f"{delta_mm:.2e} mm")
+    assert delta_mm < 0.05, "rest contraction change on halving dt [mm]"
+
+
+def test_halving_dt_keeps_the_loop_area():
+    a1 = loop_area(ramp_run(100.0).pi, ramp_run(100.0).x)
+    a2 = loop_area(ramp_run(100.0, dt=DT / 2).pi, ramp_run(100.0, dt=DT / 2).x)
+    print(f"open-loop loop area at 100 N: {a1 / (MPA * MM):.4f} MPa mm, dt/2 changes it by "
+          f"{100 * abs(a2 / a1 - 1):.3f} %")
+    assert a2 == pytest.approx(a1, rel=0.02), "loop area on halving dt"
+
+
+# ------------------------------------------------------------- determinism
+
+def test_same_run_twice_is_bit_identical():
+    x_ref = step_target()[:10_000]
+    muscle = MuscleModel.from_params(WPAM)
+    pi_cmd = pi_feedforward(muscle, WPAM, x_ref, 100.0, WPAM.controller.po_feedforward)
+    drive = Drive(pi_cmd, np.zeros_like(x_ref), x_ref)
+    a, b = (simulate(WPAM, 100.0, drive, control="pid", engine=ENGINE) for _ in range(2))
+    for name, arr in a.arrays().items():
+        assert np.array_equal(arr, b.arrays()[name], equal_nan=True), name
+
+
+# ------------------------------------------------------------------ bad input
+
+@pytest.mark.parametrize("load", [-10.0, 0.0, float("nan"), float("inf")])
+def test_bad_load_is_rejected_naming_value_and_range(load):
+    with pytest.raises(ParameterError, match=r"load = .* outside the allowed range \[1, 2000\]"):
+        check_load(load)
+    n = 10
+    with pytest.raises(ParameterError, match="load"):
+        simulate(WPAM, load, Drive(np.zeros(n), np.zeros(n), np.full(n, np.nan)),
+                 engine=ENGINE)
+
+
+@pytest.mark.parametrize("dt", [0.0, -1e-3, 0.01, float("nan")])
+def test_bad_dt_is_rejected(dt):
+    with pytest.raises(ParameterError, match=r"dt = .* outside the allowed range"):
+        check_dt(dt)
+    n = 10
+    with pytest.raises(ParameterError, match="dt"):
+        simulate(WPAM, 100.0, Drive(np.zeros(n), np.zeros(n), np.full(n, np.nan)), dt=dt,
+                 engine=ENGINE)
+
+
+def test_check_range_names_value_unit_and_bracket():
+    with pytest.raises(ParameterError, match=r"pi = 0.7 MPa is outside the allowed range "
+                                             r"\[0.005, 0.5\] MPa"):
+        check_range("pi", 0.7, 0.005, 0.5, "MPa")
+    with pytest.raises(ParameterError, match=r"\(0, 1\]"):
+        check_range("x", 0.0, 0.0, 1.0, lo_open=True)
+    with pytest.raises(ParameterError, match="not a number"):
+        check_range("x", "abc", 0.0, 1.0)
+
+
+def test_non_finite_commands_are_rejected():
+    n = 10
+    with pytest.raises(ParameterError, match="pi_cmd contains NaN"):
+        Drive(np.full(n, np.nan), np.zeros(n), np.full(n, np.nan))
+    with pytest.raises(ParameterError, match="po_cmd contains NaN or infinite"):
+        Drive(np.zeros(n), np.full(n, np.inf), np.full(n, np.nan))
+    with pytest.raises(ParameterError, match=r"drive.po_cmd has shape \(9,\)"):
+        Drive(np.zeros(n), np.zeros(n - 1), np.full(n, np.nan))
+    with pytest.raises(ParameterError, match="finite target"):
+        simulate(WPAM, 100.0, Drive(np.zeros(n), np.zeros(n), np.full(n, np.nan)),
+                 control="pi", engine=ENGINE)
+
+
+def test_out_of_range_commands_saturate_at_the_regulator_limits():
+    """Finite commands outside 0..p_max are not rejected: the regulator clamps them."""
+    res = open_loop(WPAM, 100.0, hold(2.0 * MPA, 3.0))
+    assert res.pi.max() <= WPAM.pneumatics.p_max * (1 + 1e-9), "Pi above the regulator max"
+    assert res.pi[-1] == pytest.approx(WPAM.pneumatics.p_max, rel=1e-3)
+    # a negative command vents; the only pressure left is from the load settling onto
+    # the lower stop (tens of Pa of compression), which then vents too
+    res = open_loop(WPAM, 100.0, hold(-1.0 * MPA, 1.0))
+    assert np.abs(res.pi).max() < 1e3 and abs(res.pi[-1]) < 1.0, "Pi with Pi_cmd < 0 [Pa]"
+
+
+def test_bad_parameters_are_rejected():
+    with pytest.raises(ParameterError, match=r"controller.po_cap = 0.6 MPa .*\[0.005, 0.5\]"):
+        Params(controller=Controller(po_cap=0.6 * MPA))
+    with pytest.raises(ParameterError, match="valid presets: wpam, rlam, mckibben"):
+        preset("nope")
+    with pytest.raises(ParameterError, match="unknown parameter muscle.mu; valid names"):
+        WPAM.replace(muscle={"mu": 0.1})
+    with pytest.raises(ParameterError, match="muscle.friction_coeff = -0.1"):
+        WPAM.replace(muscle={"friction_coeff": -0.1})
+    with pytest.raises(ParameterError, match="unknown control 'pd'; valid: open, pi, pid"):
+        simulate(WPAM, 100.0, Drive(np.zeros(3), np.zeros(3), np.zeros(3)), control="pd",
+                 engine=ENGINE)
+
+
+def test_diverging_run_raises_instead_of_returning_nans():
+    bad = WPAM.replace(pneumatics={"sonic_conductance": 1e-6})
+    with pytest.raises(SimulationDiverged, match=r"diverged at t = [0-9.]+ s: .*reduce dt"):
+        open_loop(bad, 100.0, hold(0.3 * MPA, 2.0, 0.005), dt=0.005)
+
+
+# ------------------------------------------------------------------------ MJCF
+
+@pytest.mark.parametrize("xml", [MODEL_XML, SCENE_XML], ids=["model", "scene"])
+def test_mjcf_compiles_and_steps_without_warnings(xml):
+    model = mujoco.MjModel.from_xml_path(str(xml))
+    data = mujoco.MjData(model)
+    mujoco.mj_step(model, data, nstep=round(1.0 / model.opt.timestep))
+    warnings = {mujoco.mjtWarning(i).name: data.warning[i].number
+                for i in range(len(data.warning)) if data.warning[i].number}
+    assert not warnings, f"MuJoCo warnings: {warnings}"
+    assert np.all(np.isfinite(data.qpos))
+    obj = mujoco.mjtObj
+    counts = {obj.mjOBJ_BODY: model.nbody, obj.mjOBJ_JOINT: model.njnt,
+              obj.mjOBJ_GEOM: model.ngeom, obj.mjOBJ_SITE: model.nsite,
+              obj.mjOBJ_TENDON: model.ntendon, obj.mjOBJ_ACTUATOR: model.nu}
+    for kind, count in counts.items():
+        start = 1 if kind == obj.mjOBJ_BODY else 0  # body 0 is the world
+        for i in range(start, count):
+            assert mujoco.mj_id2name(model, kind, i), f"unnamed {kind.name} {i} in {xml.name}"
+
+
+@pytest.mark.parametrize("name", ["wpam", "rlam", "mckibben"])
+def test_built_models_step_without_warnings(name):
+    params = preset(name)
+    for load in LOADS:
+        model = build_model(params, load)
+        data = mujoco.MjData(model)
+        mujoco.mj_step(model, data, nstep=1000)
+        assert all(w.number == 0 for w in data.warning), f"{name} at {load} N"
+        assert model.body("load").mass[0] * 9.80665 == pytest.approx(load, rel=1e-12)

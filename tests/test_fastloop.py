@@ -1,0 +1,113 @@
+"""The compiled loop (wpam_mj/_fastloop.c) matches the Python reference loop bit for bit.
+
+Fast paths must match a plain reference loop exactly (STYLE.md; as mujoco's
+python/mujoco/rollout_test.py does for rollout vs. mj_step): every recorded array of
+engine="c" must equal engine="python" byte for byte, for open loop, PI and PID, with and
+without regulator dead time, and both engines must report a divergence the same way.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from wpam_mj import Drive, SimulationDiverged, fastloop, preset, simulate
+from wpam_mj.control import pi_feedforward
+from wpam_mj.muscle import MuscleModel
+from wpam_mj.params import MPA
+
+pytestmark = pytest.mark.skipif(
+    not fastloop.available(),
+    reason=f"compiled loop unavailable: {fastloop.unavailable_reason()}")
+
+LOAD = 100.0  # N (paper §4.1)
+DT = 1e-3  # s
+
+PARAMS = {
+    "dead_time": preset("wpam"),
+    "no_dead_time": preset("wpam").replace(pneumatics={"dead_time": 0.0}),
+}
+
+
+def assert_engines_identical(params, drive, **kwargs) -> None:
+    """Run both engines and compare every SimResult array byte for byte."""
+    ref = simulate(params, LOAD, drive, engine="python", **kwargs)
+    fast = simulate(params, LOAD, drive, engine="c", **kwargs)
+    assert ref.time.size > 0
+    for name, want in ref.arrays().items():
+        got = fast.arrays()[name]
+        assert got.shape == want.shape, name
+        # tobytes: exact equality that also tells -0.0 from 0.0 and compares NaNs
+        if got.tobytes() != want.tobytes():
+            diff = np.abs(got - want)
+            first = int(np.flatnonzero(~((got == want) | (np.isnan(got) & np.isnan(want))))[0])
+            pytest.fail(f"{name} differs between engines: first at t = {ref.time[first]} s, "
+                        f"max |c - python| = {np.nanmax(diff):.3g}")
+
+
+def feedback_drive(params, x_ref: np.ndarray) -> Drive:
+    muscle = MuscleModel.from_params(params)
+    pi = pi_feedforward(muscle, params, x_ref, LOAD, params.controller.po_feedforward)
+    return Drive(pi_cmd=pi, po_cmd=np.zeros_like(x_ref), x_ref=x_ref)
+
+
+@pytest.mark.parametrize("variant", PARAMS)
+def test_open_loop_ramp_identical(variant):
+    """Pi ramp up then down (Po = 0.04 MPa on the way down, the paper's Fig. 9)."""
+    n = int(3.0 / DT)
+    t = np.arange(n) * DT
+    up = t < 1.5
+    pi = np.where(up, t / 1.5, (3.0 - t) / 1.5) * 0.4 * MPA
+    po = np.where(up, 0.0, 0.04 * MPA)
+    drive = Drive(pi_cmd=pi, po_cmd=po, x_ref=np.full(n, np.nan))
+    assert_engines_identical(PARAMS[variant], drive, control="open")
+
+
+@pytest.mark.parametrize("variant", PARAMS)
+def test_pi_step_identical(variant):
+    """PI on Po: target 10 mm, then a 20 mm step at 1 s (paper Figs. 12-13)."""
+    n = int(2.5 / DT)
+    t = np.arange(n) * DT
+    x_ref = np.where(t < 1.0, 0.01, 0.03)
+    params = PARAMS[variant]
+    assert_engines_identical(params, feedback_drive(params, x_ref), control="pi")
+
+
+@pytest.mark.parametrize("variant", PARAMS)
+def test_pid_sine_identical(variant):
+    """PID on Po: 0.5 Hz sine target around 25 mm (paper Fig. 17), every step recorded."""
+    n = int(2.0 / DT)
+    t = np.arange(n) * DT
+    x_ref = 0.025 + 0.015 * np.sin(2.0 * np.pi * 0.5 * t)
+    params = PARAMS[variant]
+    assert_engines_identical(params, feedback_drive(params, x_ref), control="pid",
+                             record_dt=DT)
+
+
+def test_divergence_reported_by_both_engines():
+    """A huge conductance at a coarse step overshoots the chambers: same error, same text."""
+    params = preset("wpam").replace(pneumatics={"sonic_conductance": 1e-6})
+    dt = 0.005
+    n = int(1.0 / dt)
+    drive = Drive(pi_cmd=np.full(n, 0.3 * MPA), po_cmd=np.zeros(n), x_ref=np.full(n, np.nan))
+    messages = []
+    for engine in ("python", "c"):
+        with pytest.raises(SimulationDiverged, match="chamber pressure") as err:
+            simulate(params, LOAD, drive, dt=dt, engine=engine)
+        messages.append(str(err.value))
+    assert messages[0] == messages[1]
+
+
+def test_env_var_disables_compiled_path():
+    """WPAM_MJ_NO_COMPILE=1: available() is False and engine="auto" uses Python."""
+    code = ("import importlib; from wpam_mj import fastloop; "
+            "s = importlib.import_module('wpam_mj.simulate'); "
+            "print(fastloop.available(), s._select_engine('auto') is s.run_python)")
+    env = dict(os.environ, WPAM_MJ_NO_COMPILE="1")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, check=True).stdout.split()
+    assert out == ["False", "True"]
