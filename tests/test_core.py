@@ -393,7 +393,7 @@ def test_bad_parameters_are_rejected():
 
 
 def test_diverging_run_raises_instead_of_returning_nans():
-    bad = WPAM.replace(pneumatics={"sonic_conductance": 1e-6})
+    bad = WPAM.replace(pneumatics={"inner_conductance": 1e-6, "outer_conductance": 1e-6})
     with pytest.raises(SimulationDiverged, match=r"diverged at t = [0-9.]+ s: .*reduce dt"):
         open_loop(bad, 100.0, hold(0.3 * MPA, 2.0, 0.005), dt=0.005)
 

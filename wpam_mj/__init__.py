@@ -1,5 +1,11 @@
 """wpam-mj: MuJoCo simulator of the double-air-chamber pneumatic artificial muscle (W-PAM)."""
 
+import os as _os
+import sys as _sys
+
+if _sys.platform.startswith("linux") and not _os.environ.get("DISPLAY"):
+    _os.environ.setdefault("MUJOCO_GL", "egl")  # headless EGL; must precede `import mujoco`
+
 from wpam_mj.params import Params, ParameterError, preset
 from wpam_mj.results import SimResult
 from wpam_mj.simulate import Drive, SimulationDiverged, simulate

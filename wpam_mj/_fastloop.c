@@ -35,7 +35,8 @@ enum {
   K_DELAY_STEPS,     /* regulator dead time [steps] */
   K_ATMOSPHERE,      /* [Pa] */
   K_P_MAX,           /* regulator command clamp [Pa] */
-  K_CONDUCTANCE,     /* ISO 6358 sonic conductance C [m^3/(s Pa)] */
+  K_CONDUCTANCE_I,   /* ISO 6358 sonic conductance C of the Pi line [m^3/(s Pa)] */
+  K_CONDUCTANCE_O,   /* ISO 6358 sonic conductance C of the Po line [m^3/(s Pa)] */
   K_CRITICAL_RATIO,  /* ISO 6358 b [1] */
   K_TUBE_VOLUME,     /* [m^3] */
   K_BAG_VOLUME,      /* outer bag volume [m^3] */
@@ -136,8 +137,8 @@ static double iso6358_psi(const double* k, double r, double b) {
   return sqrt(1.0 - q * q) * (1.0 - r) / (1.0 - k[K_R_LAMINAR]);
 }
 
-static double mass_flow(const double* k, double p_source, double p_chamber) {
-  double c = k[K_CONDUCTANCE], b = k[K_CRITICAL_RATIO];
+static double mass_flow(const double* k, double p_source, double p_chamber, double c) {
+  double b = k[K_CRITICAL_RATIO];
   if (p_source >= p_chamber)
     return c * k[K_RHO0] * p_source * iso6358_psi(k, p_chamber / p_source, b);
   return -c * k[K_RHO0] * p_chamber * iso6358_psi(k, p_source / p_chamber, b);
@@ -205,8 +206,8 @@ static int plant_advance(const double* k, Plant* s, double x, double v, double p
   /* chambers */
   area = geom_area(k, x);
   vol = geom_volume(k, x);
-  m_i = mass_flow(k, s->set_i + pa, p_i);
-  m_o = mass_flow(k, s->set_o + pa, p_o);
+  m_i = mass_flow(k, s->set_i + pa, p_i, k[K_CONDUCTANCE_I]);
+  m_o = mass_flow(k, s->set_o + pa, p_o, k[K_CONDUCTANCE_O]);
   v_i = vol + k[K_TUBE_VOLUME];
   v_o = k[K_BAG_VOLUME] + k[K_TUBE_VOLUME] - vol - k[K_AXIAL_AREA] * x;
   s->p_i = p_i + k[K_DT] * (k[K_RT0] * m_i - p_i * area * v) / v_i;

@@ -33,8 +33,8 @@ def pi_feedforward(muscle: MuscleModel, params: Params, x_ref: np.ndarray, load:
     regulator range.
     """
     pn = params.pneumatics
-    return np.array([min(max(muscle.equilibrium_pressure(float(x), load, po), pn.p_min),
-                         pn.p_max) for x in np.asarray(x_ref, dtype=float)])
+    pi = muscle.equilibrium_pressure(np.asarray(x_ref, dtype=float), load, po)
+    return np.clip(pi, pn.p_min, pn.p_max)
 
 
 class PoFeedback:

@@ -44,7 +44,7 @@ CFLAGS = ("-O2", "-fPIC", "-shared", "-std=c11", "-ffp-contract=off", "-fno-fast
 _CONSTS = (
     # RunConstants
     "dt", "record_every", "feedback", "lag_alpha", "delay_steps", "atmosphere", "p_max",
-    "conductance", "critical_ratio", "tube_volume", "bag_volume",
+    "conductance_i", "conductance_o", "critical_ratio", "tube_volume", "bag_volume",
     # wpam_mj.pneumatics
     "rt0", "rho0", "r_laminar",
     # MuscleModel
@@ -88,7 +88,8 @@ def pack_constants(model, muscle, params, k) -> np.ndarray:
     values = dict(
         dt=k.dt, record_every=k.record_every, feedback=float(k.feedback),
         lag_alpha=k.lag_alpha, delay_steps=k.delay_steps, atmosphere=k.atmosphere,
-        p_max=k.p_max, conductance=k.conductance, critical_ratio=k.critical_ratio,
+        p_max=k.p_max, conductance_i=k.conductance_i, conductance_o=k.conductance_o,
+        critical_ratio=k.critical_ratio,
         tube_volume=k.tube_volume, bag_volume=k.bag_volume,
         rt0=pn.RT0, rho0=pn.RHO_0, r_laminar=pn.R_LAMINAR,
         output_coeff=muscle.output_coeff, friction_coeff=muscle.friction_coeff,

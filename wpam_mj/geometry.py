@@ -12,13 +12,16 @@ with the contraction x = L0 - L (m, positive = shorter). S is the effective area
 turns a pressure difference into axial tension (paper eq. 3). The bag cannot grow past
 its maximum diameter, which bounds the contraction at `max_contraction` (a hard stop).
 
-Functions take and return Python floats: they run inside the per-step loop.
+Methods take floats (inside the per-step loop) or numpy arrays (feedforward, plots);
+np.sqrt of a float is the correctly rounded IEEE sqrt, like C's (see `wpam_mj.fastloop`).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+
+import numpy as np
 
 from wpam_mj.params import Braid, ParameterError
 
@@ -57,7 +60,7 @@ class BraidGeometry:
     def diameter(self, x: float) -> float:
         """Sleeve diameter D(x) [m] (Chou & Hannaford eq. 2)."""
         L = self.natural_length - x
-        return math.sqrt(self.thread_length ** 2 - L * L) / (self.turns * math.pi)
+        return np.sqrt(self.thread_length ** 2 - L * L) / (self.turns * math.pi)
 
     def volume(self, x: float) -> float:
         """Inner-bag volume V(x) [m^3]."""

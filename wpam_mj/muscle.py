@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
 from scipy.optimize import brentq
 
 from wpam_mj.geometry import BraidGeometry
@@ -69,14 +70,15 @@ class MuscleModel:
 
         direction = +1: on the contracting branch (paper eq. 5, Pi_C); -1: extending
         (eq. 6, Pi_E); 0: frictionless (the mechanical equilibrium model).
+        Works elementwise on arrays of x; inf where the braid cannot hold the load.
         """
         s = float(direction)
-        area = self.geometry.area(x)
-        gain = (self.output_coeff - s * self.friction_coeff) * area
-        if gain <= 0.0:
-            return math.inf
-        rhs = load + self.axial_area * po + self.rubber_force(x) + s * self.friction_const
-        return po + max(rhs, 0.0) / gain
+        gain = (self.output_coeff - s * self.friction_coeff) * self.geometry.area(x)
+        rhs = np.maximum(load + self.axial_area * po + self.rubber_force(x)
+                         + s * self.friction_const, 0.0)
+        safe_gain = np.where(gain > 0.0, gain, 1.0)
+        pi = np.where(gain > 0.0, po + rhs / safe_gain, np.inf)
+        return float(pi) if pi.ndim == 0 else pi
 
     def equilibrium_contraction(self, pi: float, po: float, load: float,
                                 direction: int = 0) -> float:

@@ -74,7 +74,7 @@ class Braid(_Validated):
     natural_length: float = _p(0.350, "m", 0.05, 2.0, "paper §2.3 (effective natural length)")
     natural_diameter: float = _p(0.022, "m", 0.003, 0.2, "paper §2.3")
     max_diameter: float = _p(0.042, "m", 0.004, 0.4, "paper §2.3 (bag at maximum inflation)")
-    braid_angle: float = _p(math.radians(20.0), "rad", math.radians(5), math.radians(50),
+    braid_angle: float = _p(0.3477, "rad", math.radians(5), math.radians(50),
                             "calibrated (thread angle to the axis at natural length)")
     outer_bag_length: float = _p(0.420, "m", 0.05, 3.0, "paper §2.3")
     outer_bag_diameter: float = _p(0.060, "m", 0.005, 0.5, "paper §2.3")
@@ -93,10 +93,10 @@ class Braid(_Validated):
 class Muscle(_Validated):
     """Force terms of the tension model (`wpam_mj.muscle`)."""
 
-    output_coeff: float = _p(0.30, "1", 0.01, 2.0, "calibrated (paper Kf, Table 1)", lo_open=True)
-    friction_coeff: float = _p(0.05, "1", 0.0, 1.0, "calibrated (paper mu, eq. 4)")
-    friction_const: float = _p(5.0, "N", 0.0, 500.0, "calibrated (pressure-independent part)")
-    axial_area: float = _p(1.0e-3, "m^2", 0.0, 0.05,
+    output_coeff: float = _p(0.127, "1", 0.01, 2.0, "calibrated (paper Kf, Table 1)", lo_open=True)
+    friction_coeff: float = _p(0.01226, "1", 0.0, 1.0, "calibrated (paper mu, eq. 4)")
+    friction_const: float = _p(5.78, "N", 0.0, 500.0, "calibrated (pressure-independent part)")
+    axial_area: float = _p(5.41e-4, "m^2", 0.0, 0.05,
                            "calibrated (Po on the end fittings; order of the outer annulus)")
     rubber_stiffness: float = _p(0.0, "N/m", 0.0, 1e6,
                                  "paper eq. 7 K_R; 0 for a non-stretchable bag (RLAM)")
@@ -109,10 +109,12 @@ class Pneumatics(_Validated):
 
     p_min: float = _p(0.005 * MPA, "Pa", 0.0, 1.0 * MPA, "ITV2031 range, paper §2.3")
     p_max: float = _p(0.5 * MPA, "Pa", 0.0, 1.0 * MPA, "ITV2031 range, paper §2.3")
-    time_constant: float = _p(0.03, "s", 0.0, 5.0, "calibrated (ITV response ~0.1 s settling)")
-    dead_time: float = _p(0.01, "s", 0.0, 1.0, "calibrated")
-    sonic_conductance: float = _p(3e-9, "m^3/(s Pa)", 0.0, 1e-6,
-                                  "calibrated (ISO 6358 C of valve + tubing)", lo_open=True)
+    time_constant: float = _p(0.003, "s", 0.0, 5.0, "calibrated (see models/README.md)")
+    dead_time: float = _p(0.001, "s", 0.0, 1.0, "calibrated (see models/README.md)")
+    inner_conductance: float = _p(6e-9, "m^3/(s Pa)", 0.0, 1e-6,
+                                  "calibrated (ISO 6358 C, Pi valve + tubing)", lo_open=True)
+    outer_conductance: float = _p(6e-9, "m^3/(s Pa)", 0.0, 1e-6,
+                                  "calibrated (ISO 6358 C, Po valve + tubing)", lo_open=True)
     critical_ratio: float = _p(0.5, "1", 0.0, 0.99, "ISO 6358 b, typical valve value")
     tube_volume: float = _p(2e-5, "m^3", 0.0, 0.01, "estimate (2 m of 4 mm bore tube)")
     atmosphere: float = _p(101325.0, "Pa", 5e4, 2e5, "standard atmosphere")

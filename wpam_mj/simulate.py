@@ -69,7 +69,8 @@ class RunConstants:
     delay_steps: int  # regulator dead time in steps
     atmosphere: float
     p_max: float
-    conductance: float
+    conductance_i: float
+    conductance_o: float
     critical_ratio: float
     tube_volume: float
     bag_volume: float
@@ -89,7 +90,8 @@ class RunConstants:
             derivative=control == "pid",
             lag_alpha=1.0 if tau == 0.0 else -math.expm1(-dt / tau),
             delay_steps=round(p.dead_time / dt), atmosphere=p.atmosphere, p_max=p.p_max,
-            conductance=p.sonic_conductance, critical_ratio=p.critical_ratio,
+            conductance_i=p.inner_conductance, conductance_o=p.outer_conductance,
+            critical_ratio=p.critical_ratio,
             tube_volume=p.tube_volume,
             bag_volume=pn.outer_bag_volume(params.braid.outer_bag_length,
                                            params.braid.outer_bag_diameter))
@@ -188,8 +190,8 @@ class Plant:
         # chambers
         area = geom.area(x)
         vol = geom.volume(x)
-        m_i = pn.mass_flow(self.set_i + pa, p_i, k.conductance, k.critical_ratio)
-        m_o = pn.mass_flow(self.set_o + pa, p_o, k.conductance, k.critical_ratio)
+        m_i = pn.mass_flow(self.set_i + pa, p_i, k.conductance_i, k.critical_ratio)
+        m_o = pn.mass_flow(self.set_o + pa, p_o, k.conductance_o, k.critical_ratio)
         v_i = vol + k.tube_volume
         v_o = k.bag_volume + k.tube_volume - vol - muscle.axial_area * x
         self.p_i = p_i + k.dt * (pn.RT0 * m_i - p_i * area * v) / v_i

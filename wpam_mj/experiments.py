@@ -1,0 +1,145 @@
+"""The paper's experiments as protocols: commands in, `SimResult` out (no plotting here).
+
+  * `static_loop`   slow Pi ramp up then down, open loop; Po = 0 or a constant Po while
+                    Pi falls (paper §2.3, Figs. 8-9).
+  * `step_run`      target 0 -> 50 mm in 10-mm steps of 10 s, then back to 0, open loop or
+                    Po feedback (§4.1, Figs. 12-15).
+  * `sine_run`      sinusoidal target, 25 mm amplitude about a 25 mm mean (§4.2, Figs. 17-19).
+
+Targets and pressures are SI; the defaults carry the paper's values in its units.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from wpam_mj.control import CONTROLS, pi_feedforward
+from wpam_mj.model import check_dt, check_load
+from wpam_mj.muscle import MuscleModel
+from wpam_mj.params import MM, MPA, Params, ParameterError, check_range
+from wpam_mj.results import SimResult
+from wpam_mj.simulate import Drive, simulate
+
+STEP_LEVELS_MM = (0, 10, 20, 30, 40, 50, 40, 30, 20, 10, 0)  # paper §4.1
+STEP_HOLD_S = 10.0  # paper §4.1
+SINE_AMPLITUDE_MM = 25.0  # paper §4.2
+SINE_MEAN_MM = 25.0  # our choice: the target spans 0-50 mm, the range of the step runs
+STATIC_TOP_MM = 50.0  # our choice: ramp until the contracting branch reaches this
+STATIC_RAMP_S = 60.0  # our choice: "slow" (near quasi-static), each direction
+PO_DOWN_STATIC_MPA = 0.04  # paper §2.3, Fig. 9
+
+
+def check_po(name: str, po: float, params: Params) -> float:
+    """A Po setting [Pa]: 0 (vented) or within the regulator range."""
+    if po == 0.0:
+        return 0.0
+    pn = params.pneumatics
+    return check_range(name, po / MPA, pn.p_min / MPA, pn.p_max / MPA, "MPa") * MPA
+
+
+def check_control(control: str) -> str:
+    if control not in CONTROLS:
+        raise ParameterError(f"unknown control {control!r}; valid: {', '.join(CONTROLS)}")
+    return control
+
+
+def _steps(duration: float, dt: float) -> tuple[int, np.ndarray]:
+    n = int(round(duration / dt)) + 1
+    return n, np.arange(n) * dt
+
+
+def static_top_pressure(params: Params, load: float, x_top: float = STATIC_TOP_MM * MM) -> float:
+    """Pi [Pa] at which the contracting branch (paper eq. 5) reaches `x_top` [m]."""
+    pi_top = MuscleModel.from_params(params).equilibrium_pressure(x_top, load, 0.0, +1)
+    return min(pi_top, params.pneumatics.p_max)
+
+
+def static_loop(params: Params, load: float, *, po_down: float = 0.0,
+                pi_top: float | None = None, ramp_time: float = STATIC_RAMP_S,
+                dt: float = 1e-3, engine: str = "auto") -> SimResult:
+    """Open-loop Pi ramp p_min -> pi_top -> p_min with Po = 0 rising, `po_down` falling.
+
+    Args:
+      load: hanging load [N].
+      po_down: constant Po while Pi decreases [Pa] (0 = vented, paper Fig. 8).
+      pi_top: top of the ramp [Pa]; default: the Pi whose contracting-branch equilibrium
+        is 50 mm for this load, so every load sweeps the working range of the step runs.
+      ramp_time: duration of each ramp [s]. A 1 s dwell at each end lets the state settle.
+    """
+    load, dt = check_load(load), check_dt(dt)
+    po_down = check_po("po_down", po_down, params)
+    p_min = params.pneumatics.p_min
+    pi_top = static_top_pressure(params, load) if pi_top is None else \
+        check_po("pi_top", pi_top, params)
+    check_range("ramp_time", ramp_time, 1.0, 3600.0, "s")
+    dwell = 1.0
+    n, t = _steps(2 * dwell + 2 * ramp_time, dt)
+    knots_t = [0.0, dwell, dwell + ramp_time, dwell + 2 * ramp_time, 2 * dwell + 2 * ramp_time]
+    pi_cmd = np.interp(t, knots_t, [p_min, p_min, pi_top, p_min, p_min])
+    po_cmd = np.where(t > dwell + ramp_time, po_down, 0.0)
+    drive = Drive(pi_cmd=pi_cmd, po_cmd=po_cmd, x_ref=np.full(n, np.nan))
+    return simulate(params, load, drive, dt=dt, control="open", engine=engine)
+
+
+def step_targets(t: np.ndarray, levels_mm=STEP_LEVELS_MM, hold: float = STEP_HOLD_S) -> np.ndarray:
+    """Staircase target x_r(t) [m] for times t [s]."""
+    idx = np.minimum((t / hold).astype(int), len(levels_mm) - 1)
+    return np.asarray(levels_mm, dtype=float)[idx] * MM
+
+
+def drive_for_targets(params: Params, load: float, x_ref: np.ndarray, control: str) -> Drive:
+    """Pi from the mechanical equilibrium model for x_ref; Po fed back (or 0 in open loop).
+
+    Feedback runs assume Po = po_feedforward (over-contraction until Po rises, paper
+    §4.1); the open-loop run assumes Po = 0, the only Po it has (paper Fig. 12).
+    """
+    muscle = MuscleModel.from_params(params)
+    po_ff = 0.0 if control == "open" else params.controller.po_feedforward
+    pi_cmd = pi_feedforward(muscle, params, x_ref, load, po_ff)
+    return Drive(pi_cmd=pi_cmd, po_cmd=np.zeros(len(x_ref)), x_ref=x_ref)
+
+
+def step_run(params: Params, load: float, control: str, *, levels_mm=STEP_LEVELS_MM,
+             hold: float = STEP_HOLD_S, dt: float = 1e-3, engine: str = "auto") -> SimResult:
+    """Staircase target (paper §4.1): open loop or PI/PID on Po."""
+    load, dt, control = check_load(load), check_dt(dt), check_control(control)
+    n, t = _steps(len(levels_mm) * hold - dt, dt)
+    x_ref = step_targets(t, levels_mm, hold)
+    return simulate(params, load, drive_for_targets(params, load, x_ref, control), dt=dt,
+                    control=control, engine=engine)
+
+
+@dataclass(frozen=True)
+class SineSpec:
+    """Sinusoidal target x_r = mean - amplitude cos(2 pi f t) (starts at rest at 0 mm)."""
+
+    freq: float  # Hz
+    amplitude: float = SINE_AMPLITUDE_MM * MM  # m
+    mean: float = SINE_MEAN_MM * MM  # m
+    settle_cycles: int = 2
+    cycles: int = 3  # analysed cycles after settling
+
+    def __post_init__(self) -> None:
+        check_range("freq", self.freq, 0.0, 20.0, "Hz", lo_open=True)
+        check_range("amplitude", self.amplitude / MM, 0.0, 100.0, "mm", lo_open=True)
+        check_range("mean", self.mean / MM, 0.0, 100.0, "mm")
+
+    @property
+    def duration(self) -> float:
+        return (self.settle_cycles + self.cycles) / self.freq
+
+    def target(self, t: np.ndarray) -> np.ndarray:
+        return self.mean - self.amplitude * np.cos(2.0 * math.pi * self.freq * t)
+
+
+def sine_run(params: Params, load: float, control: str, spec: SineSpec, *,
+             dt: float = 1e-3, engine: str = "auto") -> SimResult:
+    """Sinusoidal target (paper §4.2) under PI/PID on Po (or open loop)."""
+    load, dt, control = check_load(load), check_dt(dt), check_control(control)
+    n, t = _steps(spec.duration, dt)
+    x_ref = spec.target(t)
+    return simulate(params, load, drive_for_targets(params, load, x_ref, control), dt=dt,
+                    control=control, engine=engine)
