@@ -283,6 +283,9 @@ int wpam_run(mjModel* m, mjData* d, const double* consts, int n, const double* p
       rec[6 * n_rec + j] = pi_c;
       rec[7 * n_rec + j] = po_c;
       rec[8 * n_rec + j] = tension;
+      rec[9 * n_rec + j] = friction;
+      rec[10 * n_rec + j] = plant.set_i;
+      rec[11 * n_rec + j] = plant.set_o;
       j++;
     }
     mj_step(m, d);

@@ -32,6 +32,7 @@ import numpy as np
 
 from wpam_mj import pneumatics as pn
 from wpam_mj.params import MM, MPA
+from wpam_mj.simulate import REC_ROWS
 
 SOURCE = Path(__file__).with_name("_fastloop.c")
 MUJOCO_DIR = Path(mujoco.__file__).resolve().parent
@@ -120,8 +121,8 @@ def run_compiled(model, data, muscle, params, k, drive, rec: np.ndarray):
         raise RuntimeError(f"the compiled loop is unavailable ({_reason}); "
                            "use engine='python' or engine='auto'")
     n = len(drive.pi_cmd)
-    if rec.dtype != np.float64 or not rec.flags.c_contiguous or rec.shape[0] != 9:
-        raise ValueError("rec must be a C-contiguous float64 array of shape (9, n_rec)")
+    if rec.dtype != np.float64 or not rec.flags.c_contiguous or rec.shape[0] != REC_ROWS:
+        raise ValueError(f"rec must be a C-contiguous float64 array of shape ({REC_ROWS}, n_rec)")
     if n >= 2**31:
         raise ValueError(f"{n} steps exceed the compiled loop's int range; split the run")
     consts = pack_constants(model, muscle, params, k)

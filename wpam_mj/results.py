@@ -21,7 +21,10 @@ def write_atomic(path: str | Path, write: Callable[[Path], None]) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
     os.close(fd)
+    umask = os.umask(0)
+    os.umask(umask)
     try:
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; give the usual permissions
         write(Path(tmp))
         os.replace(tmp, path)
     except BaseException:
@@ -46,6 +49,8 @@ _COLUMNS = (
     ("po_cmd", "po_cmd_mpa", 1 / MPA),
     ("tension", "tension_n", 1.0),
     ("friction", "friction_n", 1.0),
+    ("pi_reg", "pi_reg_mpa", 1 / MPA),
+    ("po_reg", "po_reg_mpa", 1 / MPA),
 )
 
 
@@ -55,7 +60,9 @@ class SimResult:
 
     time [s], x contraction [m], velocity [m/s], x_ref target [m] (NaN in open loop),
     pi/po chamber gauge pressures [Pa], pi_cmd/po_cmd regulator commands [Pa],
-    tension frictionless muscle tension [N], friction dry-friction level [N].
+    tension frictionless muscle tension [N], friction dry-friction level [N],
+    pi_reg/po_reg the regulators' outlet pressures [Pa] (what the ITV2031's own gauge reads,
+    the pressures the paper plots), before the line restriction into the chambers.
     """
 
     time: np.ndarray
@@ -68,6 +75,8 @@ class SimResult:
     po_cmd: np.ndarray
     tension: np.ndarray
     friction: np.ndarray
+    pi_reg: np.ndarray
+    po_reg: np.ndarray
     load: float
     dt: float
     control: str

@@ -26,6 +26,12 @@ from wpam_mj.params import MM, MPA, Params, ParameterError
 from wpam_mj.results import SimResult
 
 
+# Rows of the recording array filled by both loops, in this order.
+REC_FIELDS = ("time", "x", "velocity", "x_ref", "pi", "po", "pi_cmd", "po_cmd", "tension",
+              "friction", "pi_reg", "po_reg")
+REC_ROWS = len(REC_FIELDS)
+
+
 class SimulationDiverged(RuntimeError):
     """The state left its physical range (non-finite or negative absolute pressure)."""
 
@@ -120,18 +126,15 @@ def simulate(params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
     data = mujoco.MjData(model)
     muscle = MuscleModel.from_params(params)
     n = len(drive.pi_cmd)
-    rec = np.zeros((9, (n - 1) // k.record_every + 1))
+    rec = np.zeros((REC_ROWS, (n - 1) // k.record_every + 1))
     run = _select_engine(engine)
     status = run(model, data, muscle, params, k, drive, rec)
     if status is not None:
         step, what = status
         raise SimulationDiverged(f"simulation diverged at t = {step * dt:.4f} s: {what}; "
                                  "reduce dt or check the gains and pneumatic parameters")
-    t, x, v, x_ref, pi, po, pi_cmd, po_cmd, tension = rec
-    friction = np.array([muscle.friction(a, b, c) for a, b, c in zip(x, pi, po)])
-    return SimResult(time=t, x=x, velocity=v, x_ref=x_ref, pi=pi, po=po, pi_cmd=pi_cmd,
-                     po_cmd=po_cmd, tension=tension, friction=friction, load=load, dt=dt,
-                     control=control, preset=params.preset)
+    return SimResult(**dict(zip(REC_FIELDS, rec)), load=load, dt=dt, control=control,
+                     preset=params.preset)
 
 
 def _select_engine(engine: str):
@@ -226,7 +229,8 @@ def run_python(model, data, muscle: MuscleModel, params: Params, k: RunConstants
         ctrl[0] = -tension
         frictionloss[0] = friction
         if step % k.record_every == 0:
-            rec[:, j] = (step * k.dt, x, v, xr, pi_gauge, po_gauge, pi_c, po_c, tension)
+            rec[:, j] = (step * k.dt, x, v, xr, pi_gauge, po_gauge, pi_c, po_c, tension,
+                         friction, plant.set_i, plant.set_o)
             j += 1
         mujoco.mj_step(model, data)
     return None

@@ -1,0 +1,213 @@
+"""The `wpam` command line: bad arguments give exit status 2 and one line, runs write files.
+
+Most cases call `wpam_mj.cli.main` in-process (the imports are paid once); one test runs
+the installed entry point as a subprocess.
+"""
+
+import csv
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from wpam_mj.cli import main
+from wpam_mj.params import CALIBRATION_FILE
+
+
+def _run(capsys, *argv):
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def _assert_one_line_error(code, err):
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("wpam: error: "), err
+    assert "Traceback" not in err
+
+
+@pytest.fixture
+def files(tmp_path, monkeypatch):
+    """Work in a temporary folder holding a plain file and some broken TOML files."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "afile").write_text("not a folder\n")
+    (tmp_path / "malformed.toml").write_text("[muscle\nfriction_coeff = \n")
+    (tmp_path / "unknown.toml").write_text("[muscle]\nno_such_field = 1.0\n")
+    (tmp_path / "wrongtype.toml").write_text('[muscle]\nfriction_coeff = "high"\n')
+    return tmp_path
+
+
+BAD_ARGUMENTS = {
+    "negative load": ["step", "--load", "-5"],
+    "NaN load": ["step", "--load", "nan"],
+    "non-numeric load": ["static", "--load", "heavy"],
+    "zero frequency": ["sweep", "--freqs", "0"],
+    "zero frequency in a list": ["sweep", "--freqs", "0.5,0"],
+    "render frequency": ["render", "--freq", "0"],
+    "Po above the regulator range": ["static", "--po-down", "0.7"],
+    "Po below the regulator range": ["static", "--po-down", "0.001"],
+    "unknown controller": ["step", "--control", "bangbang"],
+    "unknown controller in a list": ["sweep", "--controllers", "pi,bangbang"],
+    "unwritable --out": ["step", "--out", "afile/sub"],
+    "unwritable table2 --out": ["table2", "--out", "afile"],
+    "unwritable render --out": ["render", "--out", "afile/video.mp4"],
+    "malformed TOML": ["step", "--config", "malformed.toml"],
+    "unknown TOML field": ["step", "--config", "unknown.toml"],
+    "wrongly typed TOML value": ["step", "--config", "wrongtype.toml"],
+    "missing TOML": ["step", "--config", "missing.toml"],
+    "unknown preset": ["step", "--preset", "hydraulic"],
+    "bad time step": ["sweep", "--dt", "0.5"],
+    "zero jobs": ["table2", "--jobs", "0"],
+    "bad video size": ["render", "--size", "640by480"],
+    "bad video suffix": ["render", "--out", "video.avi"],
+    "unknown command": ["fly"],
+    "no command": [],
+}
+
+
+@pytest.mark.parametrize("argv", BAD_ARGUMENTS.values(), ids=BAD_ARGUMENTS.keys())
+def test_bad_arguments_exit_2_with_one_line(files, capsys, argv):
+    code, out, err = _run(capsys, *argv)
+    _assert_one_line_error(code, err)
+    assert out == ""
+
+
+def test_bad_argument_names_the_value(files, capsys):
+    _, _, err = _run(capsys, "static", "--po-down", "0.7")
+    assert "0.7" in err and "MPa" in err
+    _, _, err = _run(capsys, "step", "--control", "bangbang")
+    assert "bangbang" in err and "pid" in err
+
+
+def test_help_lists_commands_and_units(capsys):
+    code, out, _ = _run(capsys, "--help")
+    assert code == 0
+    for command in ("static", "step", "table2", "sweep", "reproduce", "calibrate", "render"):
+        assert command in out
+    code, out, _ = _run(capsys, "sweep", "--help")
+    assert code == 0
+    for unit in ("[N]", "[Hz]", "[s]", "[MPa]"):
+        assert unit in out
+
+
+def test_entry_point_help_runs_as_a_program():
+    proc = subprocess.run([sys.executable, "-m", "wpam_mj.cli", "step", "--help"],
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert "--load N" in proc.stdout
+
+
+def _read_csv(path):
+    with open(path) as fh:
+        rows = list(csv.reader(line for line in fh if not line.startswith("#")))
+    head, body = rows[0], np.array(rows[1:], dtype=float)
+    return {name: body[:, i] for i, name in enumerate(head)}
+
+
+def test_step_writes_csv_and_png_and_tracks(files, capsys):
+    code, out, err = _run(capsys, "step", "--load", "100", "--control", "pi", "--out", "tmp")
+    assert code == 0, err
+    csv_path = files / "tmp" / "step_wpam_100N_pi.csv"
+    assert csv_path.is_file() and csv_path.with_suffix(".png").is_file()
+    data = _read_csv(csv_path)
+    t, err_mm = data["time_s"], data["x_mm"] - data["x_ref_mm"]
+    last = t >= t[-1] - 5.0  # settled part of the last plateau (target 0 mm)
+    assert abs(err_mm[last].mean()) < 0.5, "last-plateau mean error [mm]"
+
+
+def test_sweep_json(files, capsys):
+    code, out, err = _run(capsys, "sweep", "--loads", "100", "--freqs", "0.5",
+                          "--controllers", "pi", "--json", "--out", "sw")
+    assert code == 0, err
+    (point,) = json.loads(out)
+    assert set(point) == {"load_n", "freq_hz", "controller", "gain", "phase_lag_deg",
+                          "po_max_mpa"}
+    assert (point["load_n"], point["freq_hz"], point["controller"]) == (100.0, 0.5, "pi")
+    assert 0.0 < point["gain"] <= 1.2
+    assert point["phase_lag_deg"] > 0.0
+    assert 0.0 < point["po_max_mpa"] <= 0.5
+    with open(files / "sw" / "sweep.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 1 and math.isclose(float(rows[0]["gain"]), point["gain"],
+                                           rel_tol=1e-5)
+    for name in ("sweep_gain_phase.png", "sine_100N_0.5Hz_pi.png", "sine_100N_0.5Hz_pi.csv"):
+        assert (files / "sw" / name).is_file(), name
+
+
+def test_static_compare_presets(files, capsys):
+    code, out, err = _run(capsys, "static", "--load", "100", "--compare-presets",
+                          "--out", "st", "--jobs", "2")
+    assert code == 0, err
+    for name in ("wpam", "rlam", "mckibben"):
+        assert (files / "st" / f"static_{name}_100N.csv").is_file()
+        assert f"{name}    100 N:" in out
+    assert (files / "st" / "static_presets.png").is_file()
+
+
+def test_config_overrides_reach_the_run(files, capsys):
+    (files / "stiff.toml").write_text("[controller]\nkp = 0.0\nki = 0.0\n")
+    code, out, err = _run(capsys, "step", "--load", "100", "--config", "stiff.toml",
+                          "--out", "cfg")
+    assert code == 0, err
+    po = _read_csv(files / "cfg" / "step_wpam_100N_pi.csv")["po_cmd_mpa"]
+    # zero gains: the controller output sits at the regulator minimum, 0.005 MPa
+    assert np.allclose(po[1:], 0.005, atol=1e-6)
+
+
+class _FakeCalibration:
+    def table(self):
+        return "fitted values"
+
+
+def test_calibrate_calls_the_library(files, capsys, monkeypatch):
+    import types
+
+    seen = {}
+
+    def calibrate(*, out, jobs, dt, progress):
+        seen.update(out=out, jobs=jobs, dt=dt, progress=progress)
+        return _FakeCalibration()
+
+    monkeypatch.setitem(sys.modules, "wpam_mj.calibrate",
+                        types.SimpleNamespace(calibrate=calibrate))
+    code, out, err = _run(capsys, "calibrate", "--out", "fit.toml", "--jobs", "3",
+                          "--dt", "0.0005", "--no-progress")
+    assert code == 0, err
+    assert out.strip() == "fitted values"
+    assert seen == {"out": Path("fit.toml"), "jobs": 3, "dt": 0.0005, "progress": False}
+    _run(capsys, "calibrate", "--no-progress")
+    assert seen["out"] == CALIBRATION_FILE  # the file `preset` reads
+
+
+def test_calibrate_without_the_module_fails_cleanly(files, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "wpam_mj.calibrate", None)  # import raises
+    code, _, err = _run(capsys, "calibrate")
+    assert code == 1
+    assert err.startswith("wpam: error: calibration is not available") and \
+        len(err.strip().splitlines()) == 1
+
+
+def test_render_simulates_only_what_it_shows(files, capsys, monkeypatch):
+    import wpam_mj.render
+
+    calls = []
+
+    def render_video(result, params, out, *, fps, size):
+        calls.append((result, out, fps, size))
+        return out
+
+    monkeypatch.setattr(wpam_mj.render, "render_video", render_video)
+    code, out, err = _run(capsys, "render", "--experiment", "sweep", "--freq", "1",
+                          "--duration", "1.5", "--fps", "24", "--size", "320x240",
+                          "--out", "v.gif")
+    assert code == 0, err
+    (result, path, fps, size), = calls
+    assert str(path) == "v.gif" and fps == 24 and size == (320, 240)
+    assert result.time[-1] == pytest.approx(1.5, abs=result.time[1])
+    assert np.all(np.isfinite(result.x_ref))  # the sinusoid, under feedback

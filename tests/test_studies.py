@@ -1,0 +1,140 @@
+"""Studies: a process pool gives the serial results bit for bit; result structures; the
+checks of the paper's findings on hand-made data."""
+
+import json
+
+import numpy as np
+import pytest
+
+from wpam_mj import plots, report, studies
+from wpam_mj.params import MPA, ParameterError, preset
+from wpam_mj.studies import SweepPoint, SweepResult
+
+
+@pytest.fixture(scope="module")
+def params():
+    return preset("wpam")
+
+
+def _same_result(a, b):
+    arrays_a, arrays_b = a.arrays(), b.arrays()
+    assert arrays_a.keys() == arrays_b.keys()
+    for name in arrays_a:
+        assert np.array_equal(arrays_a[name], arrays_b[name], equal_nan=True), name
+
+
+@pytest.fixture(scope="module")
+def table2_pair(params):
+    """Table 2 at one load, serial and with two worker processes."""
+    return [studies.table2(params, loads=(100.0,), jobs=jobs) for jobs in (1, 2)]
+
+
+def test_table2_pool_equals_serial(table2_pair):
+    serial, pooled = table2_pair
+    assert serial.as_json() == pooled.as_json()
+    for a, b in zip(serial.open_loops + serial.po_loops, pooled.open_loops + pooled.po_loops):
+        assert a.area == b.area
+        _same_result(a.result, b.result)
+    for a, b in zip(serial.feedback_runs, pooled.feedback_runs):
+        for name in ("x_mean", "pi_mean", "po_mean"):
+            assert np.array_equal(getattr(a, name), getattr(b, name)), name
+        _same_result(a.result, b.result)
+
+
+def test_sweep_pool_equals_serial(params):
+    runs = [studies.sweep(params, (100.0,), (1.0,), ("pi", "pid"), jobs=jobs)
+            for jobs in (1, 2)]
+    assert runs[0].points == runs[1].points  # exact float equality
+    assert runs[0].series.keys() == runs[1].series.keys() == {(100.0, 1.0, "pi")}
+    _same_result(runs[0].series[(100.0, 1.0, "pi")], runs[1].series[(100.0, 1.0, "pi")])
+
+
+def test_table2_json_structure(table2_pair):
+    t2 = table2_pair[0]
+    doc = json.loads(json.dumps(t2.as_json()))  # plain JSON types only
+    assert set(doc) == {"open_po", "feedback", "paper"}
+    assert set(doc["open_po"]) == set(doc["feedback"]) == {"100"}
+    assert doc["open_po"]["100"] > 0.0 and doc["feedback"]["100"] >= 0.0
+    assert doc["paper"]["open_po"] == {"100": 0.1899}  # paper Table 2
+    assert doc["paper"]["feedback"] == {"100": 0.0019}
+    # normalized = area / open-loop (Po = 0) area of the same load
+    assert doc["open_po"]["100"] == t2.po_loops[0].area / t2.open_loops[0].area
+
+
+def test_feedback_area_uses_plateau_means(table2_pair):
+    run = table2_pair[0].feedback_runs[0]
+    n = len(studies.STEP_LEVELS_MM)
+    assert run.x_mean.shape == run.pi_mean.shape == run.target.shape == (n,)
+    assert int(np.argmax(run.pi_mean)) == n // 2  # up branch to 50 mm, then down
+    assert run.area == studies.loop_area(run.pi_mean, run.x_mean, method="branches")
+
+
+def test_worker_errors_reach_the_caller(params):
+    bad = studies.StaticTask(params, -1.0, 0.0, 1e-3)  # skips the up-front validation
+    good = studies.StaticTask(params, 100.0, 0.0, 1e-3)
+    with pytest.raises(ParameterError, match="load"):
+        studies.run_tasks([good, bad], jobs=2)
+
+
+def test_inputs_are_checked_before_running(params):
+    with pytest.raises(ParameterError, match="freq"):
+        studies.sweep(params, (100.0,), (0.5, 0.0), ("pi",))
+    with pytest.raises(ParameterError, match="control"):
+        studies.sweep(params, (100.0,), (0.5,), ("pi", "bangbang"))
+    with pytest.raises(ParameterError, match="po_down"):
+        studies.static_study(params, (100.0,), 0.7 * MPA)
+    with pytest.raises(ParameterError, match="jobs"):
+        studies.run_tasks([], jobs=0)
+
+
+def test_figure_run_key():
+    assert studies.figure_run_key(studies.PAPER_LOADS_N, studies.PAPER_FREQS_HZ,
+                                  ("pi", "pid")) == (150.0, 0.5, "pi")
+    assert studies.figure_run_key((50.0, 80.0), (0.2, 1.0), ("pid",)) == (80.0, 0.2, "pid")
+
+
+def test_figures_from_a_small_study(table2_pair, tmp_path):
+    t2 = table2_pair[0]
+    for name, fig in {"static.png": plots.static_figure(t2.open_loops + t2.po_loops),
+                      "step.png": plots.step_figure([r.result for r in t2.feedback_runs]),
+                      "fig16.png": plots.closed_loop_static_figure(t2.feedback_runs,
+                                                                   preset("wpam")),
+                      "table2.png": plots.table2_figure(t2)}.items():
+        path = plots.save_figure(fig, tmp_path / name)
+        assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
+    for obj in (t2, t2.open_loops[0], t2.feedback_runs[0]):
+        assert obj.plot().axes, type(obj).__name__
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        ["static.png", "step.png", "fig16.png", "table2.png"])  # no temporary files left
+
+
+# ---------------------------------------------------------------- checks on made-up data
+
+
+def _sweep(gain, lag, po_max=0.08 * MPA):
+    """A sweep whose gain/lag are functions of (load, freq, controller)."""
+    points = tuple(SweepPoint(load, f, c, gain(load, f, c), lag(load, f, c), po_max)
+                   for load in studies.PAPER_LOADS_N for c in ("pi", "pid")
+                   for f in studies.PAPER_FREQS_HZ)
+    return SweepResult(points=points)
+
+
+def test_sweep_checks_pass_on_the_papers_picture():
+    sw = _sweep(gain=lambda load, f, c: 1.0 / (1.0 + f),
+                lag=lambda load, f, c: 40 * f + (load / 100 if f < 0.5 else 0)
+                - (2.0 if c == "pid" else 0.0))
+    checks = report.sweep_checks(sw, 0.08 * MPA)
+    assert [c.passed for c in checks] == [True] * 5, report.checks_text(checks)
+
+
+def test_sweep_checks_fail_where_the_paper_does_not_hold():
+    sw = _sweep(gain=lambda load, f, c: (1.0 + f) * (1.0 + load / 1000),  # rises, load-dependent
+                lag=lambda load, f, c: 40 * f - load / 100 + (2.0 if c == "pid" else 0.0),
+                po_max=0.05 * MPA)
+    checks = report.sweep_checks(sw, 0.08 * MPA)
+    assert [c.passed for c in checks] == [False] * 5, report.checks_text(checks)
+
+
+def test_sweep_checks_need_their_data():
+    sw = SweepResult(points=(SweepPoint(100.0, 0.5, "pi", 0.9, 30.0, 0.07 * MPA),))
+    assert [c.passed for c in report.sweep_checks(sw, 0.08 * MPA)] == [None] * 5
