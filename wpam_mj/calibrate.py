@@ -17,7 +17,6 @@ The fitted values go to a TOML file (default `models/wpam/calibrated.toml`) that
 from __future__ import annotations
 
 import math
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Sequence
@@ -25,17 +24,15 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.optimize import minimize
 
-from wpam_mj.analysis import frequency_response, loop_area
-from wpam_mj.experiments import (SineSpec, sine_run, static_loop, static_top_pressure,
-                                 step_run)
+from wpam_mj.experiments import PO_DOWN_STATIC_MPA, static_top_pressure
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import (CALIBRATION_FILE, MM, MPA, Params, ParameterError, preset)
 from wpam_mj.results import write_text_atomic
+from wpam_mj.studies import (PAPER_FREQS_HZ, PAPER_LOADS_N, PAPER_TABLE2, StaticTask,
+                             run_tasks, step_study, sweep)
 
-LOADS_N = (50.0, 100.0, 150.0)  # paper §2.3
-FREQS_HZ = (0.1, 0.2, 0.25, 0.5, 1.0)  # paper §4.2
-PAPER_PO_ROW = (0.7042, 0.1899, 0.0638)  # paper Table 2, open loop with Po = 0.04 MPa
-PO_DOWN = 0.04 * MPA  # paper Fig. 9
+CONTROLLERS = ("pi", "pid")  # index 0 and 1 of the sweep metrics
+PO_DOWN = PO_DOWN_STATIC_MPA * MPA  # paper Fig. 9
 
 
 @dataclass(frozen=True)
@@ -80,68 +77,40 @@ def with_values(params: Params, fit: Sequence[FitParameter], values: Sequence[fl
     return params.replace(**overrides)
 
 
-# ---- runs (module level: they go to worker processes) ----
-
-def _static_ratio(task) -> float:
-    params, load, dt = task
-    a0 = _area(static_loop(params, load, dt=dt))
-    a1 = _area(static_loop(params, load, po_down=PO_DOWN, dt=dt))
-    return a1 / a0
-
-
-def _area(result) -> float:
-    return loop_area(result.pi, result.x)
-
-
-def _sine_point(task) -> tuple[float, float, float]:
-    params, load, control, freq, dt = task
-    spec = SineSpec(freq)
-    r = sine_run(params, load, control, spec, dt=dt)
-    fr = frequency_response(r.time, r.x_ref, r.x, freq, settle_cycles=spec.settle_cycles,
-                            n_cycles=spec.cycles)
-    return fr.gain, fr.phase_lag_deg, float(r.po_reg.max())  # the paper's gauge: regulator
-
-
-def _step_error(task) -> float:
-    """Worst |x - x_r| over the last 3 s of each 10 s plateau [m]."""
-    params, load, control, dt = task
-    r = step_run(params, load, control, dt=dt)
-    hold = 10.0
-    settled = (r.time % hold) >= hold - 3.0
-    return float(np.max(np.abs(r.x - r.x_ref)[settled]))
-
-
 # ---- residuals ----
 
-def static_residuals(params: Params, pool_map, dt: float) -> np.ndarray:
+def static_residuals(params: Params, jobs: int, dt: float) -> np.ndarray:
     """Relative errors of the Table-2 'Po = 0.04' row, plus penalties if 150 N at 50 mm
     would need more than 95 % of the regulator's 0.5 MPa (static ramp top, feedforward)."""
-    ratios = pool_map(_static_ratio, [(params, load, dt) for load in LOADS_N])
-    rel = [(r - t) / t for r, t in zip(ratios, PAPER_PO_ROW)]
+    loops = run_tasks([StaticTask(params, load, po, dt) for load in PAPER_LOADS_N
+                       for po in (0.0, PO_DOWN)], jobs=jobs)
+    ratios = [with_po.area / without.area for without, with_po in zip(loops[::2], loops[1::2])]
+    paper = [PAPER_TABLE2["open_po"][load] for load in PAPER_LOADS_N]
+    rel = [(r - t) / t for r, t in zip(ratios, paper)]
     # least squares, plus a steep wall past 12 % so no cell is sacrificed to the others
     res = rel + [10.0 * max(0.0, abs(e) - 0.12) for e in rel]
     p_max = params.pneumatics.p_max
     muscle = MuscleModel.from_params(params)
-    worst = LOADS_N[-1]
+    worst = PAPER_LOADS_N[-1]
     need_ramp = static_top_pressure(params, worst) / p_max
     need_ff = muscle.equilibrium_pressure(50 * MM, worst, params.controller.po_feedforward) / p_max
     res += [max(0.0, need_ramp - 0.95) * 10.0, max(0.0, need_ff - 0.95) * 10.0]
     return np.array(res)
 
 
-def sweep_metrics(params: Params, pool_map, dt: float) -> dict:
-    tasks = [(params, load, c, f, dt) for c in ("pi", "pid") for load in LOADS_N
-             for f in FREQS_HZ]
-    out = pool_map(_sine_point, tasks)
-    gain = np.array([o[0] for o in out]).reshape(2, len(LOADS_N), len(FREQS_HZ))
-    lag = np.array([o[1] for o in out]).reshape(gain.shape)
-    po_max = np.array([o[2] for o in out]).reshape(gain.shape)
-    return dict(gain=gain, lag=lag, po_max=po_max)
+def sweep_metrics(params: Params, jobs: int, dt: float) -> dict[str, np.ndarray]:
+    """Gain, lag [deg] and regulator-gauge Po max [Pa], shape (controller, load, freq)."""
+    sw = sweep(params, PAPER_LOADS_N, PAPER_FREQS_HZ, CONTROLLERS, keep=(), dt=dt, jobs=jobs)
+    curves = [[sw.curve(load, c) for load in PAPER_LOADS_N] for c in CONTROLLERS]
+    return {name: np.array([[[getattr(p, attr) for p in curve] for curve in per_load]
+                            for per_load in curves])
+            for name, attr in (("gain", "gain"), ("lag", "phase_lag_deg"),
+                               ("po_max", "po_max"))}
 
 
-def dynamic_residuals(params: Params, pool_map, dt: float) -> np.ndarray:
+def dynamic_residuals(params: Params, jobs: int, dt: float) -> np.ndarray:
     """Hinge residuals of the §4.2 findings and of step convergence (0 when they hold)."""
-    m = sweep_metrics(params, pool_map, dt)
+    m = sweep_metrics(params, jobs, dt)
     gain, lag, po_max = m["gain"], m["lag"], m["po_max"]
     hinge = lambda v, margin: np.maximum(0.0, v + margin)  # noqa: E731 (v <= -margin holds)
     res = [
@@ -156,8 +125,8 @@ def dynamic_residuals(params: Params, pool_map, dt: float) -> np.ndarray:
         # Po reaches its cap at 150 N, 0.5 Hz (PI)
         [hinge(params.controller.po_cap - po_max[0, -1, 3], 0.0) / params.controller.po_cap * 10],
     ]
-    steps = pool_map(_step_error, [(params, load, "pi", dt) for load in LOADS_N])
-    res.append(hinge(np.array(steps) / MM - 0.4, 0.0))
+    steps = step_study(params, [(load, "pi") for load in PAPER_LOADS_N], dt=dt, jobs=jobs)
+    res.append(hinge(np.array([s.worst_error() for s in steps]) / MM - 0.4, 0.0))
     return np.concatenate([np.atleast_1d(np.asarray(r, dtype=float)) for r in res])
 
 
@@ -225,19 +194,14 @@ def calibrate(*, out: Path | None = CALIBRATION_FILE, jobs: int = 2, dt: float =
               maxiter: int = 150, start: Params | None = None) -> CalibrationResult:
     """Fit STATIC_FIT then DYNAMIC_FIT; write the TOML to `out` (None: do not write)."""
     params = start if start is not None else preset("wpam")
-    with ProcessPoolExecutor(max_workers=jobs) as pool:
-        def pool_map(fn, tasks):
-            return list(pool.map(fn, tasks)) if jobs > 1 else [fn(t) for t in tasks]
-
-        if "static" in stages:
-            params, _ = _search(params, STATIC_FIT, lambda p: static_residuals(p, pool_map, dt),
-                                maxiter, progress, "static")
-        if "dynamic" in stages:
-            params, _ = _search(params, DYNAMIC_FIT,
-                                lambda p: dynamic_residuals(p, pool_map, dt),
-                                maxiter, progress, "dynamic")
-        s_res = static_residuals(params, pool_map, dt)
-        d_res = dynamic_residuals(params, pool_map, dt)
+    if "static" in stages:
+        params, _ = _search(params, STATIC_FIT, lambda p: static_residuals(p, jobs, dt),
+                            maxiter, progress, "static")
+    if "dynamic" in stages:
+        params, _ = _search(params, DYNAMIC_FIT, lambda p: dynamic_residuals(p, jobs, dt),
+                            maxiter, progress, "dynamic")
+    s_res = static_residuals(params, jobs, dt)
+    d_res = dynamic_residuals(params, jobs, dt)
     fitted = {f"{p.section}.{p.name}": getattr(getattr(params, p.section), p.name)
               for p in (*STATIC_FIT, *DYNAMIC_FIT)}
     result = CalibrationResult(params, fitted, s_res, d_res)

@@ -21,8 +21,8 @@ from wpam_mj.params import CALIBRATION_FILE, MM, MPA, Params, describe, preset
 from wpam_mj.results import write_text_atomic
 from wpam_mj.studies import (FIG18_FREQ_HZ, FIG18_LOAD_N, PAPER_CONTROLLERS, PAPER_FREQS_HZ,
                              PAPER_LOADS_N, PAPER_TABLE2_SOURCE, StaticLoop,
-                             StaticTask, StepRun, StepTask, SweepResult, Table2Result,
-                             figure_run_key, run_tasks, sweep, table2)
+                             StaticTask, StepRun, StepTask, SweepResult, Table2Result, Batch,
+                             figure_run_key, run_batches, run_tasks, sweep_batch, table2_batch)
 
 # thresholds of the checks (from the task's fidelity targets, SPEC.md)
 TABLE2_PO_RTOL = 0.15  # Po = 0.04 MPa row: within 15 % of the paper per cell
@@ -256,6 +256,31 @@ def checks_text(checks: Sequence[Check]) -> str:
 # ------------------------------------------------------------------ reproduce
 
 
+class _CsvTask:
+    """Write one run's CSV (a pool task)."""
+
+    cost = 1.0
+
+    def __init__(self, path: Path, result) -> None:
+        self.path, self.result = path, result
+
+    def run(self) -> Path:
+        return self.result.to_csv(self.path)
+
+
+class _FigureTask:
+    """Build one figure with `wpam_mj.plots.<builder>` and save it (a pool task)."""
+
+    cost = 3.0
+
+    def __init__(self, path: Path, builder: str, args: tuple, kwargs: dict) -> None:
+        self.path, self.builder, self.args, self.kwargs = path, builder, args, kwargs
+
+    def run(self) -> Path:
+        return plots.save_figure(getattr(plots, self.builder)(*self.args, **self.kwargs),
+                                 self.path)
+
+
 @dataclass(frozen=True)
 class Reproduction:
     report: Path
@@ -278,28 +303,24 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
     data = out / "data"
     compare = list(compare) if compare is not None else [preset("mckibben"), preset("rlam"),
                                                           params]
-    t2 = table2(params, dt=dt, jobs=jobs, progress=progress)
-    reuse = PRESET_COMPARE_LOAD_N in t2.loads  # the W-PAM loop at 100 N is in Table 2
-
-    def own(p: Params) -> bool:
-        return reuse and p == params
-
+    # One pool for every run: the studies balance each other on few cores.
     extra = ([StepTask(params, 100.0, "open", dt)]
-             + [StaticTask(p, PRESET_COMPARE_LOAD_N, 0.0, dt) for p in compare if not own(p)])
-    extra_res = run_tasks(extra, jobs=jobs, progress=progress, desc="extra runs")
+             + [StaticTask(p, PRESET_COMPARE_LOAD_N, 0.0, dt) for p in compare if p != params])
+    t2, extra_res, sw = run_batches(
+        [table2_batch(params, dt=dt), Batch(extra, list), sweep_batch(params, dt=dt)],
+        jobs=jobs, progress=progress, desc="reproduce")
     open_step, ran = extra_res[0], iter(extra_res[1:])
-    preset_loops = [t2.open_loops[t2.loads.index(PRESET_COMPARE_LOAD_N)] if own(p)
-                    else next(ran) for p in compare]
+    own_loop = t2.open_loops[t2.loads.index(PRESET_COMPARE_LOAD_N)]
+    preset_loops = [own_loop if p == params else next(ran) for p in compare]
     fig_key = figure_run_key(PAPER_LOADS_N, PAPER_FREQS_HZ, PAPER_CONTROLLERS)
-    sw = sweep(params, dt=dt, jobs=jobs, progress=progress)
     pi_100 = t2.feedback_runs[t2.loads.index(100.0)]
 
-    # time series
-    for loop in (*t2.open_loops, *t2.po_loops, *preset_loops):
-        loop.result.to_csv(data / static_csv_name(loop))
-    for run in (*t2.feedback_runs, open_step):
-        run.result.to_csv(data / step_csv_name(run))
-    sw.series[fig_key].to_csv(data / sine_csv_name(fig_key))
+    # time series and figures, written in parallel
+    outputs: list = [_CsvTask(data / static_csv_name(loop), loop.result)
+                     for loop in (*t2.open_loops, *t2.po_loops, *preset_loops)]
+    outputs += [_CsvTask(data / step_csv_name(run), run.result)
+                for run in (*t2.feedback_runs, open_step)]
+    outputs.append(_CsvTask(data / sine_csv_name(fig_key), sw.series[fig_key]))
     # summaries
     write_text_atomic(out / "table2.json", json.dumps(t2.as_json(), indent=2) + "\n")
     write_text_atomic(out / "table2.csv", table2_csv_text(t2))
@@ -309,27 +330,24 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
     write_text_atomic(out / "checks.json", json.dumps(
         [{"finding": c.finding, "passed": c.passed, "detail": c.detail} for c in checks],
         indent=2) + "\n")
-    # figures
     figs = {
-        "fig03_presets.png": plots.static_figure(
-            preset_loops, title="Muscle types, open loop, Po = 0 (cf. paper Fig. 3)"),
-        "fig08_static_po0.png": plots.static_figure(t2.open_loops),
-        "fig09_static_po.png": plots.static_figure(t2.po_loops),
-        "fig12_13_step_100N.png": plots.step_figure(
-            [open_step.result, pi_100.result],
-            title="Step response at 100 N: open loop vs PI on Po (cf. Figs. 12-13)"),
-        "fig14_15_step_pi.png": plots.step_figure(
-            [r.result for r in t2.feedback_runs],
-            title="PI on Po at each load (cf. Figs. 14-15)"),
-        "fig16_closed_loop_static.png": plots.closed_loop_static_figure(t2.feedback_runs,
-                                                                        params),
-        "table2.png": plots.table2_figure(t2),
-        "fig17_frequency_response.png": plots.sweep_figure(sw),
-        "fig18_19_sine.png": plots.sine_figure(sw.series[fig_key], fig_key[1],
-                                               params.controller.po_cap),
+        "fig03_presets.png": ("static_figure", (preset_loops,), dict(
+            title="Muscle types, open loop, Po = 0 (cf. paper Fig. 3)")),
+        "fig08_static_po0.png": ("static_figure", (t2.open_loops,), {}),
+        "fig09_static_po.png": ("static_figure", (t2.po_loops,), {}),
+        "fig12_13_step_100N.png": ("step_figure", ([open_step.result, pi_100.result],), dict(
+            title="Step response at 100 N: open loop vs PI on Po (cf. Figs. 12-13)")),
+        "fig14_15_step_pi.png": ("step_figure", ([r.result for r in t2.feedback_runs],), dict(
+            title="PI on Po at each load (cf. Figs. 14-15)")),
+        "fig16_closed_loop_static.png": ("closed_loop_static_figure",
+                                         (t2.feedback_runs, params), {}),
+        "table2.png": ("table2_figure", (t2,), {}),
+        "fig17_frequency_response.png": ("sweep_figure", (sw,), {}),
+        "fig18_19_sine.png": ("sine_figure", (sw.series[fig_key], fig_key[1],
+                                              params.controller.po_cap), {}),
     }
-    for name, fig in figs.items():
-        plots.save_figure(fig, out / name)
+    outputs += [_FigureTask(out / name, *spec) for name, spec in figs.items()]
+    run_tasks(outputs, jobs=jobs, progress=progress, desc="figures")
     text = _report_markdown(params, dt, t2, sw, open_step, preset_loops, checks)
     report = write_text_atomic(out / "report.md", text)
     return Reproduction(report=report, table2=t2, sweep=sw, checks=tuple(checks))

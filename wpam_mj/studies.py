@@ -23,7 +23,7 @@ import os
 import sys
 from concurrent.futures import FIRST_EXCEPTION, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
-from typing import Iterable, Mapping, Sequence
+from typing import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 from tqdm import tqdm
@@ -108,6 +108,27 @@ def run_tasks(tasks: Sequence, *, jobs: int = 1, progress: bool = False,
                             other.cancel()
                         raise fut.exception()
             return [futures[i].result() for i in range(len(tasks))]
+
+
+@dataclass(frozen=True)
+class Batch:
+    """Tasks of one study and the function that turns their results into its response."""
+
+    tasks: Sequence
+    assemble: Callable[[list], object]
+
+
+def run_batches(batches: Sequence[Batch], *, jobs: int = 1, progress: bool = False,
+                desc: str = "runs") -> list:
+    """Run the tasks of several studies in one pool (better balanced on few cores) and
+    return each study's assembled response, in the order given."""
+    flat = [t for b in batches for t in b.tasks]
+    results = run_tasks(flat, jobs=jobs, progress=progress, desc=desc)
+    out, start = [], 0
+    for b in batches:
+        out.append(b.assemble(results[start:start + len(b.tasks)]))
+        start += len(b.tasks)
+    return out
 
 
 # ------------------------------------------------------------------ static loops
@@ -215,6 +236,12 @@ class StepRun:
     def error(self) -> np.ndarray:
         """Settled error x - target per plateau [m]."""
         return self.x_mean - self.target
+
+    def worst_error(self, settle: float = 3.0) -> float:
+        """Largest |x - x_r| over the last `settle` s of every plateau [m]."""
+        r = self.result
+        settled = (r.time % STEP_HOLD_S) >= STEP_HOLD_S - settle
+        return float(np.max(np.abs(r.x - r.x_ref)[settled]))
 
     def plot(self):
         """Figure of x, target, Pi and Po against time (`wpam_mj.plots.step_figure`)."""
@@ -324,20 +351,29 @@ def table2(params: Params, *, loads: Iterable[float] = PAPER_LOADS_N,
            progress: bool = False) -> Table2Result:
     """Run the open-loop ramps (Po = 0 and Po = `po_down` [Pa]) and the PI staircase at
     each load [N], and compute the Table 2 areas."""
+    batch = table2_batch(params, loads=loads, po_down=po_down, dt=dt)
+    return run_batches([batch], jobs=jobs, progress=progress, desc="table 2")[0]
+
+
+def table2_batch(params: Params, *, loads: Iterable[float] = PAPER_LOADS_N,
+                 po_down: float = PO_DOWN_STATIC_MPA * MPA, dt: float = 1e-3) -> Batch:
+    """The runs of `table2` as a `Batch` (to share a pool with other studies)."""
     loads, dt = _check_loads(loads), check_dt(dt)
     po_down = check_po("po_down", po_down, params)
     tasks = ([StaticTask(params, load, 0.0, dt) for load in loads]
              + [StaticTask(params, load, po_down, dt) for load in loads]
              + [StepTask(params, load, "pi", dt) for load in loads])
-    res = run_tasks(tasks, jobs=jobs, progress=progress, desc="table 2")
-    n = len(loads)
-    open_loops, po_loops, fb = tuple(res[:n]), tuple(res[n:2 * n]), tuple(res[2 * n:])
-    for o in open_loops:
-        if not o.area > 0.0:
-            raise ParameterError(f"the open-loop Po = 0 loop at {o.load:g} N has no area; "
-                                 "cannot normalize Table 2 (is there any friction?)")
-    return Table2Result(loads=loads, po_down=po_down, open_loops=open_loops,
-                        po_loops=po_loops, feedback_runs=fb)
+
+    def assemble(res: list) -> Table2Result:
+        n = len(loads)
+        open_loops, po_loops, fb = tuple(res[:n]), tuple(res[n:2 * n]), tuple(res[2 * n:])
+        for o in open_loops:
+            if not o.area > 0.0:
+                raise ParameterError(f"the open-loop Po = 0 loop at {o.load:g} N has no "
+                                     "area; cannot normalize Table 2 (is there friction?)")
+        return Table2Result(loads=loads, po_down=po_down, open_loops=open_loops,
+                            po_loops=po_loops, feedback_runs=fb)
+    return Batch(tasks, assemble)
 
 
 # ------------------------------------------------------------------ frequency sweep
@@ -462,6 +498,15 @@ def sweep(params: Params, loads: Iterable[float] = PAPER_LOADS_N,
       keep: (load, freq, controller) runs whose time series to return; default: the
         `figure_run_key` run.
     """
+    batch = sweep_batch(params, loads, freqs, controllers, keep=keep, dt=dt)
+    return run_batches([batch], jobs=jobs, progress=progress, desc="sweep")[0]
+
+
+def sweep_batch(params: Params, loads: Iterable[float] = PAPER_LOADS_N,
+                freqs: Iterable[float] = PAPER_FREQS_HZ,
+                controllers: Iterable[str] = PAPER_CONTROLLERS, *,
+                keep: Iterable[SweepKey] | None = None, dt: float = 1e-3) -> Batch:
+    """The runs of `sweep` as a `Batch` (to share a pool with other studies)."""
     loads, dt = _check_loads(loads), check_dt(dt)
     freqs = tuple(SineSpec(f).freq for f in freqs)  # validates each
     controllers = tuple(check_control(c) for c in controllers)
@@ -470,7 +515,9 @@ def sweep(params: Params, loads: Iterable[float] = PAPER_LOADS_N,
     keep = {figure_run_key(loads, freqs, controllers)} if keep is None else set(keep)
     tasks = [SineTask(params, load, c, f, dt, (load, f, c) in keep)
              for load in loads for c in controllers for f in freqs]
-    res = run_tasks(tasks, jobs=jobs, progress=progress, desc="sweep")
-    series = {(p.load, p.freq, p.controller): r for p, r in res if r is not None}
-    return SweepResult(points=tuple(p for p, _ in res), series=series)
+
+    def assemble(res: list) -> SweepResult:
+        series = {(p.load, p.freq, p.controller): r for p, r in res if r is not None}
+        return SweepResult(points=tuple(p for p, _ in res), series=series)
+    return Batch(tasks, assemble)
 
