@@ -1,0 +1,79 @@
+"""Benchmark: render a 10 s run as a 640x480, 30 fps MP4 (target <= 3 s on 2 cores).
+
+The run is simulated first (not timed); the figure is the wall time of `render_video`
+(replay, rendering, overlay, H.264 encoding), best of --repeat runs. Also printed: the CPU
+time of this process (main thread + llvmpipe's threads) and of the ffmpeg subprocess in
+that run, and the load average: on a shared 2-core machine other jobs inflate the wall time.
+
+    python benchmarks/bench_render.py [--repeat 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import resource
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+import wpam_mj
+from wpam_mj.control import pi_feedforward
+from wpam_mj.muscle import MuscleModel
+from wpam_mj.params import MM
+from wpam_mj.render import render_video
+
+TARGET_S = 3.0  # s for 10 s of 640x480 at 30 fps (lead engineer's brief)
+DURATION_S = 10.0
+FPS = 30
+SIZE = (640, 480)
+
+
+def make_run(params: wpam_mj.Params, load: float = 100.0) -> wpam_mj.SimResult:
+    """A 10 s PI step run: 0 -> 20 mm at t = 1 s -> 40 mm at t = 5 s (100 N)."""
+    dt = 1e-3
+    t = np.arange(round(DURATION_S / dt)) * dt
+    x_ref = np.where(t < 1.0, 0.0, np.where(t < 5.0, 20 * MM, 40 * MM))
+    muscle = MuscleModel.from_params(params)
+    pi = pi_feedforward(muscle, params, x_ref, load, params.controller.po_feedforward)
+    drive = wpam_mj.Drive(pi_cmd=pi, po_cmd=np.zeros_like(t), x_ref=x_ref)
+    return wpam_mj.simulate(params, load, drive, dt=dt, control="pi", engine="python")
+
+
+def _children_cpu() -> float:
+    """CPU time [s] of finished child processes (the ffmpeg encoder)."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=3, help="timed renders (best is kept)")
+    args = parser.parse_args(argv)
+    params = wpam_mj.preset()
+    result = make_run(params)
+    best = (float("inf"), 0.0, 0.0)
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "bench.mp4"
+        for _ in range(args.repeat):
+            w0, c0, f0 = time.perf_counter(), time.process_time(), _children_cpu()
+            render_video(result, params, out, fps=FPS, size=SIZE)
+            best = min(best, (time.perf_counter() - w0, time.process_time() - c0,
+                              _children_cpu() - f0))
+        size_kb = out.stat().st_size / 1024
+    wall, cpu, ffmpeg_cpu = best
+    print(f"figure: render_video, {DURATION_S:g} s run, {SIZE[0]}x{SIZE[1]} px, {FPS} fps "
+          f"MP4 ({int(DURATION_S * FPS)} frames, {size_kb:.0f} kB)")
+    print(f"measured: {wall:.2f} s wall (best of {args.repeat}), "
+          f"{1e3 * wall / (DURATION_S * FPS):.1f} ms/frame; CPU {cpu:.2f} s in-process + "
+          f"{ffmpeg_cpu:.2f} s ffmpeg; load average {os.getloadavg()[0]:.2f} on "
+          f"{os.cpu_count()} cores")
+    print(f"target: <= {TARGET_S:.1f} s wall")
+    print(f"pass: {wall <= TARGET_S}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,106 @@
+"""Whole-reproduction figures: wall time, parallel speed-up, peak memory.
+
+Figures (measured in one run, side by side; this machine is shared, so the ratio is the
+robust figure and absolute times vary):
+  reproduce wall time   `wpam reproduce` (no video) in a fresh process, default --jobs.
+                        Target <= 10 s on 2 cores.
+  peak memory           the largest total resident memory of that process and its pool
+                        workers, sampled every 20 ms from /proc. Target < 500 MB.
+  sweep speed-up        the paper's 30-run sweep with jobs=1 against jobs=2, timed
+                        alternately, best of --repeats. Target >= 1.7x.
+
+Run: python benchmarks/bench_reproduce.py [--repeats R] [--out DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from wpam_mj.params import preset
+from wpam_mj.studies import sweep
+
+TARGETS = {"reproduce wall time [s]": (10.0, "<="), "peak memory [MB]": (500.0, "<"),
+           "sweep speed-up, 2 jobs vs 1 [x]": (1.7, ">=")}
+
+
+def _tree_rss_mb(pid: int) -> float:
+    """Resident memory of `pid` and all its descendants [MB] (Linux /proc)."""
+    children: dict[int, list[int]] = {}
+    rss: dict[int, int] = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/status") as fh:
+                fields = dict(line.split(":", 1) for line in fh if ":" in line)
+        except OSError:
+            continue
+        p = int(entry)
+        children.setdefault(int(fields["PPid"]), []).append(p)
+        rss[p] = int(fields.get("VmRSS", "0 kB").split()[0])
+    total, stack = 0, [pid]
+    while stack:
+        p = stack.pop()
+        total += rss.get(p, 0)
+        stack.extend(children.get(p, []))
+    return total / 1024.0
+
+
+def time_reproduce(out: Path) -> tuple[float, float]:
+    """Wall time [s] and peak tree memory [MB] of `wpam reproduce --out out`."""
+    cmd = [sys.executable, "-m", "wpam_mj.cli", "reproduce", "--out", str(out), "--no-progress"]
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL)
+    peak = 0.0
+    while proc.poll() is None:
+        peak = max(peak, _tree_rss_mb(proc.pid))
+        time.sleep(0.02)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise SystemExit(f"wpam reproduce failed with exit code {proc.returncode}")
+    return wall, peak
+
+
+def time_sweep(jobs: int) -> float:
+    params = preset("wpam")
+    t0 = time.perf_counter()
+    sweep(params, keep=(), jobs=jobs)
+    return time.perf_counter() - t0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--repeats", type=int, default=2, help="timing repeats (best of)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="folder for the reproduction (default: a temporary folder)")
+    args = parser.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        out = args.out or Path(tmp) / "reproduce"
+        wall, peak = min(time_reproduce(out) for _ in range(args.repeats))
+    serial = parallel = float("inf")
+    for _ in range(args.repeats):
+        serial = min(serial, time_sweep(1))
+        parallel = min(parallel, time_sweep(2))
+    measured = {"reproduce wall time [s]": wall, "peak memory [MB]": peak,
+                "sweep speed-up, 2 jobs vs 1 [x]": serial / parallel}
+    print(f"cores: {os.cpu_count()}; sweep jobs=1 {serial:.2f} s, jobs=2 {parallel:.2f} s")
+    print(f"{'figure':<34}{'measured':>10}{'target':>10}  result")
+    ok = True
+    for name, value in measured.items():
+        target, op = TARGETS[name]
+        passed = {"<=": value <= target, "<": value < target, ">=": value >= target}[op]
+        ok &= passed
+        print(f"{name:<34}{value:>10.2f}{op + format(target, 'g'):>10}  "
+              f"{'pass' if passed else 'FAIL'}")
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,168 @@
+"""The dm_env environment: interface contract, same physics as simulate(), a PI reaches."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from absl.testing import absltest
+from dm_env import test_utils
+
+import wpam_mj
+from wpam_mj.control import PoFeedback
+from wpam_mj.env import OBSERVATIONS, make_env
+from wpam_mj.params import MM, MPA, STANDARD_GRAVITY, ParameterError
+from wpam_mj.simulate import Drive
+
+# Code defaults, not the calibration file: these tests pin the environment, not the fit.
+PARAMS = wpam_mj.preset("wpam", calibration=None)
+
+
+class EnvironmentConformanceTest(test_utils.EnvironmentTestMixin, absltest.TestCase):
+    """dm_env's reusable checks (specs, FIRST/MID/LAST sequence, reset behaviour)."""
+
+    def make_object_under_test(self):
+        # 0.1 s episodes: the mixin's 20-action sequence crosses an episode end
+        return make_env(PARAMS, seed=0, time_limit=0.1)
+
+
+class BothActionsConformanceTest(test_utils.EnvironmentTestMixin, absltest.TestCase):
+    def make_object_under_test(self):
+        return make_env(PARAMS, action="both", seed=0, time_limit=0.1)
+
+
+class FlatObservationConformanceTest(test_utils.EnvironmentTestMixin, absltest.TestCase):
+    def make_object_under_test(self):
+        return make_env(PARAMS, seed=0, time_limit=0.1, flat_observation=True)
+
+
+def test_specs_carry_units_and_bounds() -> None:
+    env = make_env(PARAMS)
+    assert list(env.observation_spec()) == list(OBSERVATIONS)
+    spec = env.action_spec()
+    assert spec.shape == (1,)
+    assert spec.minimum[0] == PARAMS.pneumatics.p_min
+    assert spec.maximum[0] == PARAMS.controller.po_cap == pytest.approx(0.08 * MPA)
+    both = make_env(PARAMS, action="both").action_spec()
+    np.testing.assert_array_equal(both.maximum, [PARAMS.pneumatics.p_max,
+                                                 PARAMS.controller.po_cap])
+    assert env.control_timestep() == pytest.approx(0.01)
+
+
+def test_episode_length_and_load_mass() -> None:
+    env = make_env(PARAMS, seed=1, time_limit=0.5)
+    ts = env.reset()
+    load = ts.observation["load_n"][0]
+    assert 50.0 <= load <= 150.0
+    assert 0.0 <= ts.observation["target_m"][0] <= 50 * MM
+    assert env.physics.model.body("load").mass[0] == pytest.approx(load / STANDARD_GRAVITY)
+    steps = 0
+    while not ts.last():
+        ts = env.step([0.02 * MPA])
+        steps += 1
+    assert steps == 50
+    assert env.physics.time() == pytest.approx(0.5, abs=1e-9)
+
+
+def test_steps_match_simulate_exactly() -> None:
+    """Plant advanced once per physics step, same order as the reference loop."""
+    load, pi_cmd, po_cmd, n_ctrl = 100.0, 0.4 * MPA, 0.005 * MPA, 80
+    env = make_env(PARAMS, action="both", target=0.02, load=load, time_limit=n_ctrl * 0.01)
+    env.reset()
+    obs = [env.step([pi_cmd, po_cmd]).observation for _ in range(n_ctrl)]
+    n = 10 * n_ctrl + 1
+    ref = wpam_mj.simulate(PARAMS, load, Drive(np.full(n, pi_cmd), np.full(n, po_cmd),
+                                               np.full(n, np.nan)),
+                           dt=1e-3, control="open", record_dt=0.01, engine="python")
+    # the env observes after each control step; simulate records before each step
+    for name, field in (("x_m", "x"), ("velocity_m_s", "velocity"), ("pi_pa", "pi"),
+                        ("po_pa", "po")):
+        got = np.array([o[name][0] for o in obs])
+        np.testing.assert_array_equal(got, getattr(ref, field)[1:n_ctrl + 1], err_msg=name)
+    assert ref.x[n_ctrl] > 1 * MM, "the comparison should include motion"
+
+
+def run_pi_episode(env, params) -> tuple[float, list[dict]]:
+    """Run one episode with the library's PI on Po; returns (final |error| [m], observations)."""
+    ts = env.reset()
+    pid = PoFeedback(params, env.control_timestep(), derivative=False)
+    history = [ts.observation]
+    while not ts.last():
+        o = ts.observation
+        ts = env.step([pid.update(o["x_m"][0], o["target_m"][0])])
+        history.append(ts.observation)
+    o = ts.observation
+    return abs(o["x_m"][0] - o["target_m"][0]), history
+
+
+# Gains for the 10 ms control step (MPa/mm, MPa/(mm s)). The paper's Kp = 0.1 MPa/mm
+# hunts by about +-1 mm with the current parameters (stick-slip limit cycle, also in
+# simulate() at 1 ms), so this test pins the environment with a gentler PI.
+PI_GAINS = {"kp": 0.02, "ki": 0.008}
+
+
+@pytest.mark.parametrize("target, load", [(20 * MM, 100.0), (40 * MM, 50.0)])
+def test_pi_policy_reaches_the_target(target, load) -> None:
+    params = PARAMS.replace(controller=PI_GAINS)
+    env = make_env(params, target=target, load=load, time_limit=10.0)
+    error, _ = run_pi_episode(env, params)
+    assert error < 0.5 * MM, (f"|x - x_r| = {error / MM:.3f} mm after 10 s (target "
+                              f"{target / MM:.0f} mm, {load:.0f} N), limit 0.5 mm")
+
+
+def test_same_seed_same_episodes() -> None:
+    params = PARAMS.replace(controller=PI_GAINS)
+    runs = []
+    for _ in range(2):
+        env = make_env(params, seed=7, time_limit=1.0)
+        runs.append([run_pi_episode(env, params)[1] for _ in range(2)])  # two episodes each
+    for ep_a, ep_b in zip(*runs):
+        assert len(ep_a) == len(ep_b)
+        for a, b in zip(ep_a, ep_b):
+            for name in OBSERVATIONS:
+                np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+    first, second = runs[0]
+    assert first[0]["target_m"][0] != second[0]["target_m"][0], "reset draws a new target"
+    other = make_env(params, seed=8).reset().observation
+    assert other["target_m"][0] != first[0]["target_m"][0]
+
+
+def test_actions_are_clipped_to_the_bounds() -> None:
+    env = make_env(PARAMS, action="both", target=0.02, load=100.0)
+    env.reset()
+    env.step([10 * MPA, 10 * MPA])
+    assert env.physics.pi_cmd == PARAMS.pneumatics.p_max
+    assert env.physics.po_cmd == PARAMS.controller.po_cap
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"action": "pi"}, "valid actions: po, both"),
+    ({"control_timestep": 0.0105}, "whole multiple of dt"),
+    ({"time_limit": 0.0}, "time_limit"),
+    ({"target": 0.2}, "target = 0.2"),
+    ({"load": 0.0}, "load = 0.0"),
+    ({"load_range": (150.0, 50.0)}, "low <= high"),
+])
+def test_bad_options_raise_parameter_error(kwargs, message) -> None:
+    with pytest.raises(ParameterError) as err:
+        make_env(PARAMS, **kwargs)
+    assert message in str(err.value)
+
+
+def test_bad_action_raises_parameter_error() -> None:
+    env = make_env(PARAMS)
+    env.reset()
+    with pytest.raises(ParameterError, match="1 finite number"):
+        env.step([np.nan])
+    with pytest.raises(ParameterError, match="po_cmd_pa"):
+        env.step([0.01 * MPA, 0.02 * MPA])
+
+
+def test_physics_copy_continues_identically() -> None:
+    env = make_env(PARAMS, action="both", target=0.02, load=100.0)
+    env.reset()
+    env.step([0.4 * MPA, 0.01 * MPA])
+    twin = env.physics.copy()
+    env.physics.step(50)
+    twin.step(50)
+    assert twin.contraction() == env.physics.contraction()
+    assert twin.pressures() == env.physics.pressures()

@@ -1,0 +1,309 @@
+"""The W-PAM as a control / reinforcement-learning environment (dm_env interface).
+
+    env = make_env(seed=0)                      # action: Po command [Pa]
+    timestep = env.reset()
+    while not timestep.last():
+        timestep = env.step(policy(timestep.observation))
+
+Built on dm_control's `rl.control.Environment` with a `Task` (reward, observations,
+random targets and loads) and a `dm_control.mujoco.Physics` subclass, `MusclePhysics`,
+whose `step` IS the project's physics step. Why a Physics subclass and not the Task hooks:
+the muscle is not a plain actuator: every physics step the regulators, chambers and
+muscle force (`wpam_mj.simulate.Plant`) must be advanced at the current state, and the
+tendon's friction level rewritten before MuJoCo builds its constraints. dm_control's
+default (legacy) `Physics.step` runs `mj_step2` on a state whose constraints `mj_step1`
+already built, so a friction level written in `Task.before_step` would act one step late,
+and `Task.before_step/after_step` run once per control step, not per physics step.
+`MusclePhysics.step(n)` therefore runs, n times, exactly the loop of
+`wpam_mj.simulate.run_python`:
+
+    tension, friction = plant.advance(x, v, Pi_cmd, Po_cmd)   # once per physics step
+    ctrl[muscle] = -tension;  tendon_frictionloss[muscle] = friction;  mj_step
+
+so an episode reproduces `wpam_mj.simulate.simulate(..., control="open")` driven by the
+same commands exactly (tests/test_env.py checks this), and no force code is duplicated.
+
+Observations (each a float64 array of shape (1,), SI units, named with their unit):
+    x_m           contraction x [m] (positive = shorter muscle)
+    velocity_m_s  contraction velocity dx/dt [m/s]
+    pi_pa         inner-chamber gauge pressure Pi [Pa]
+    po_pa         outer-chamber gauge pressure Po [Pa]
+    target_m      target contraction x_r [m] (constant over an episode)
+    load_n        hanging load F [N] (constant over an episode)
+Actions (`BoundedArray`, float64, [Pa]; out-of-range values are clipped):
+    action="po"   shape (1,): Po command in [p_min, po_cap]; Pi is the equilibrium-model
+                  feedforward for (target, load) at the nominal Po (`control.pi_feedforward`,
+                  as in the paper's §4 controller).
+    action="both" shape (2,): (Pi command in [p_min, p_max], Po command in [p_min, po_cap]);
+                  Po keeps the bag's 0.08 MPa durability cap (paper §4.2).
+Reward: `dm_control.utils.rewards.tolerance(x - x_r)`: 1 within +-0.5 mm of the target,
+Gaussian fall-off to 0.1 at 2 mm outside that band. Discount 1; episodes end at
+`time_limit` [s]. At each reset the muscle hangs at rest at x = 0 with vented chambers, and
+target and load are drawn uniformly from `target_range` [m] and `load_range` [N] with the
+task's seeded `numpy.random.RandomState` (or fixed with `target=` / `load=`); the load
+mass is load / g.
+"""
+
+from __future__ import annotations
+
+import collections
+import copy
+
+import mujoco
+import numpy as np
+from dm_control.mujoco import engine
+from dm_control.mujoco.wrapper import core as wrapper
+from dm_control.rl import control
+from dm_control.utils import rewards
+from dm_env import specs
+
+from wpam_mj.control import pi_feedforward
+from wpam_mj.geometry import BraidGeometry
+from wpam_mj.model import build_model, check_dt, check_load
+from wpam_mj.muscle import MuscleModel
+from wpam_mj.params import MM, STANDARD_GRAVITY, ParameterError, Params, check_range, preset
+from wpam_mj.simulate import Plant, RunConstants, SimulationDiverged
+
+ACTIONS = ("po", "both")
+TARGET_RANGE = (0.0, 50 * MM)  # m: the paper's step experiment spans 0-50 mm (§4.1)
+LOAD_RANGE = (50.0, 150.0)  # N: the paper's loads (§4)
+REWARD_BOUND = 0.5 * MM  # m: reward 1 inside +-bound
+REWARD_MARGIN = 2 * MM  # m: reward 0.1 this far outside the bound
+TIME_LIMIT_RANGE = (1e-3, 3600.0)  # s
+CONTROL_TIMESTEP_RANGE = (1e-5, 1.0)  # s
+
+OBSERVATIONS = ("x_m", "velocity_m_s", "pi_pa", "po_pa", "target_m", "load_n")
+
+
+class MusclePhysics(engine.Physics):
+    """dm_control Physics of the hung muscle whose `step` is the project's physics step.
+
+    Holds the pneumatic state (`Plant`) next to MuJoCo's mechanical state; `reset` resets
+    both. Set the regulator commands with `set_commands` before stepping.
+    """
+
+    @classmethod
+    def create(cls, params: Params, dt: float = 1e-3, load: float = 100.0) -> MusclePhysics:
+        """Build the MJCF model for `params`, physics step `dt` [s], `load` [N]."""
+        dt = check_dt(dt)
+        physics = cls(wrapper.MjData(mujoco.MjData(build_model(params, load, dt))))
+        physics._setup(params, dt)
+        return physics
+
+    def _setup(self, params: Params, dt: float) -> None:
+        m = self.model.ptr
+        self.params = params
+        self.muscle = MuscleModel.from_params(params)
+        self.constants = RunConstants.make(params, dt, "open", record_dt=dt)
+        joint = m.joint("contraction")
+        self._qadr, self._vadr = int(joint.qposadr[0]), int(joint.dofadr[0])
+        self._act = m.actuator("muscle").id
+        self._tendon = m.tendon("muscle").id
+        self._load_body = m.body("load").id
+        self.pi_cmd = self.po_cmd = 0.0
+        self.plant = Plant(self.muscle, self.constants)
+
+    def reset(self, keyframe_id=None) -> None:
+        """Reset MuJoCo's state and the pneumatics (chambers vented, regulators at 0)."""
+        super().reset(keyframe_id)
+        self.plant = Plant(self.muscle, self.constants)
+        self.pi_cmd = self.po_cmd = 0.0
+
+    _STATE = ("params", "muscle", "constants", "_qadr", "_vadr", "_act", "_tendon",
+              "_load_body", "pi_cmd", "po_cmd")
+
+    def copy(self, share_model: bool = False) -> MusclePhysics:
+        """A copy with its own MuJoCo data and pneumatic state."""
+        new = super().copy(share_model)
+        for name in self._STATE:
+            setattr(new, name, getattr(self, name))
+        new.plant = copy.deepcopy(self.plant)
+        return new
+
+    def set_load(self, load: float) -> None:
+        """Hang `load` [N]: the load body's mass becomes load / g."""
+        self.model.ptr.body_mass[self._load_body] = check_load(load) / STANDARD_GRAVITY
+
+    def load(self) -> float:
+        """Hanging load [N]."""
+        return float(self.model.ptr.body_mass[self._load_body]) * STANDARD_GRAVITY
+
+    def set_commands(self, pi_cmd: float, po_cmd: float) -> None:
+        """Regulator commands [Pa] (gauge) applied from the next physics step on."""
+        self.pi_cmd, self.po_cmd = float(pi_cmd), float(po_cmd)
+
+    def contraction(self) -> float:
+        """x [m]."""
+        return float(self.data.ptr.qpos[self._qadr])
+
+    def velocity(self) -> float:
+        """dx/dt [m/s]."""
+        return float(self.data.ptr.qvel[self._vadr])
+
+    def pressures(self) -> tuple[float, float]:
+        """Chamber gauge pressures (Pi, Po) [Pa]."""
+        return self.plant.pressures
+
+    def step(self, nstep: int = 1) -> None:
+        """Advance `nstep` physics steps: plant once, then `mj_step`, per step.
+
+        The same sequence as `wpam_mj.simulate.run_python`. Ends with `mj_step1` so that
+        positions, sensors and rendering match the new state (as dm_control's own step).
+        """
+        m, d = self.model.ptr, self.data.ptr
+        qpos, qvel, ctrl = d.qpos, d.qvel, d.ctrl
+        frictionloss = m.tendon_frictionloss
+        qa, va, act, ten = self._qadr, self._vadr, self._act, self._tendon
+        advance, pi_cmd, po_cmd = self.plant.advance, self.pi_cmd, self.po_cmd
+        with self.check_invalid_state():
+            for _ in range(nstep):
+                try:
+                    tension, friction = advance(float(qpos[qa]), float(qvel[va]), pi_cmd,
+                                                po_cmd)
+                except SimulationDiverged as err:
+                    raise control.PhysicsError(f"at t = {d.time:.4f} s: {err}") from err
+                ctrl[act] = -tension
+                frictionloss[ten] = friction
+                mujoco.mj_step(m, d)
+            mujoco.mj_step1(m, d)
+
+
+class TrackingTask(control.Task):
+    """Hold the load at a target contraction; see the module docstring for the specs."""
+
+    def __init__(self, params: Params, *, action: str = "po", target: float | None = None,
+                 load: float | None = None, target_range: tuple[float, float] = TARGET_RANGE,
+                 load_range: tuple[float, float] = LOAD_RANGE,
+                 random: int | np.random.RandomState | None = None,
+                 flat_observation: bool = False) -> None:
+        if action not in ACTIONS:
+            raise ParameterError(f"action = {action!r}; valid actions: {', '.join(ACTIONS)}")
+        x_max = BraidGeometry.from_params(params.braid).max_contraction
+        self._target_range = _check_interval("target_range", target_range, 0.0, x_max, "m")
+        self._load_range = tuple(check_load(v) for v in _check_interval(
+            "load_range", load_range, -np.inf, np.inf, "N"))
+        self._fixed_target = None if target is None else check_range("target", target, 0.0,
+                                                                      x_max, "m")
+        self._fixed_load = None if load is None else check_load(load)
+        self._params, self._action = params, action
+        self._flat = flat_observation
+        self._muscle = MuscleModel.from_params(params)
+        if not isinstance(random, np.random.RandomState):
+            random = np.random.RandomState(random)
+        self._random = random
+        self.target = self._fixed_target if target is not None else 0.0
+        self._pi_ff = 0.0
+        pn, c = params.pneumatics, params.controller
+        if action == "po":
+            self._lo, self._hi = np.array([pn.p_min]), np.array([c.po_cap])
+            self._name = "po_cmd_pa"
+        else:
+            self._lo, self._hi = np.array([pn.p_min, pn.p_min]), np.array([pn.p_max, c.po_cap])
+            self._name = "pi_cmd_pa,po_cmd_pa"
+
+    @property
+    def random(self) -> np.random.RandomState:
+        """The task's random state (targets and loads)."""
+        return self._random
+
+    def initialize_episode(self, physics: MusclePhysics) -> None:
+        # draw both every episode so fixing one does not shift the other's sequence
+        target = self._random.uniform(*self._target_range)
+        load = self._random.uniform(*self._load_range)
+        self.target = target if self._fixed_target is None else self._fixed_target
+        physics.set_load(load if self._fixed_load is None else self._fixed_load)
+        self._pi_ff = float(pi_feedforward(self._muscle, self._params, [self.target],
+                                           physics.load(),
+                                           self._params.controller.po_feedforward)[0])
+
+    def action_spec(self, physics: MusclePhysics) -> specs.BoundedArray:
+        return specs.BoundedArray(shape=self._lo.shape, dtype=np.float64, minimum=self._lo,
+                                  maximum=self._hi, name=self._name)
+
+    def before_step(self, action, physics: MusclePhysics) -> None:
+        a = np.asarray(action, dtype=np.float64).reshape(-1)
+        if a.shape != self._lo.shape or not np.all(np.isfinite(a)):
+            raise ParameterError(f"action = {action!r} must be {self._lo.size} finite "
+                                 f"number(s) [Pa] ({self._name})")
+        a = np.clip(a, self._lo, self._hi)
+        if self._action == "po":
+            physics.set_commands(self._pi_ff, a[0])
+        else:
+            physics.set_commands(a[0], a[1])
+
+    def observation_spec(self, physics: MusclePhysics) -> collections.OrderedDict:
+        if self._flat:  # as control.flatten_observation: the values in OBSERVATIONS order
+            key = control.FLAT_OBSERVATION_KEY
+            return collections.OrderedDict(
+                [(key, specs.Array(shape=(len(OBSERVATIONS),), dtype=np.float64, name=key))])
+        return collections.OrderedDict(
+            (name, specs.Array(shape=(1,), dtype=np.float64, name=name))
+            for name in OBSERVATIONS)
+
+    def get_observation(self, physics: MusclePhysics) -> collections.OrderedDict:
+        pi, po = physics.pressures()
+        values = (physics.contraction(), physics.velocity(), pi, po, self.target,
+                  physics.load())
+        return collections.OrderedDict(
+            (name, np.array([v], dtype=np.float64)) for name, v in zip(OBSERVATIONS, values))
+
+    def get_reward(self, physics: MusclePhysics) -> float:
+        return float(rewards.tolerance(physics.contraction() - self.target,
+                                       bounds=(-REWARD_BOUND, REWARD_BOUND),
+                                       margin=REWARD_MARGIN, sigmoid="gaussian",
+                                       value_at_margin=0.1))
+
+    def get_termination(self, physics: MusclePhysics) -> None:
+        return None  # episodes end at the time limit only
+
+
+def make_env(params: Params | None = None, *, action: str = "po", time_limit: float = 10.0,
+             control_timestep: float = 0.01, dt: float = 1e-3, seed: int | None = None,
+             target: float | None = None, load: float | None = None,
+             target_range: tuple[float, float] = TARGET_RANGE,
+             load_range: tuple[float, float] = LOAD_RANGE,
+             flat_observation: bool = False) -> control.Environment:
+    """The hung W-PAM as a `dm_control.rl.control.Environment`.
+
+    Args:
+      params: muscle parameters (default: the calibrated ``wpam`` preset).
+      action: "po" (Po command) or "both" (Pi and Po commands), see the module docstring.
+      time_limit: episode length [s].
+      control_timestep: time between actions [s], a whole multiple of `dt`.
+      dt: physics step [s].
+      seed: seed of the task's RandomState (targets, loads).
+      target: fix the target contraction [m] instead of drawing it.
+      load: fix the load [N] instead of drawing it.
+      target_range: (low, high) [m] for random targets.
+      load_range: (low, high) [N] for random loads.
+      flat_observation: concatenate the observations, in `OBSERVATIONS` order, into one
+        array of shape (6,) under the key "observations".
+    """
+    params = preset() if params is None else params
+    time_limit = check_range("time_limit", time_limit, *TIME_LIMIT_RANGE, "s")
+    control_timestep = check_range("control_timestep", control_timestep,
+                                   *CONTROL_TIMESTEP_RANGE, "s")
+    dt = check_dt(dt)
+    n_sub = round(control_timestep / dt)
+    if n_sub < 1 or abs(n_sub * dt - control_timestep) > 1e-9 * control_timestep:
+        raise ParameterError(f"control_timestep = {control_timestep} s must be a whole "
+                             f"multiple of dt = {dt} s")
+    physics = MusclePhysics.create(params, dt)
+    task = TrackingTask(params, action=action, target=target, load=load,
+                        target_range=target_range, load_range=load_range, random=seed,
+                        flat_observation=flat_observation)
+    return control.Environment(physics, task, time_limit=time_limit, n_sub_steps=n_sub,
+                               flat_observation=flat_observation)
+
+
+def _check_interval(name: str, interval, lo: float, hi: float,
+                    unit: str) -> tuple[float, float]:
+    try:
+        a, b = (float(v) for v in interval)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{name} = {interval!r} must be a pair (low, high) {unit}") \
+            from None
+    if not (lo <= a <= b <= hi):
+        raise ParameterError(f"{name} = ({a:g}, {b:g}) {unit} must satisfy "
+                             f"{lo:g} <= low <= high <= {hi:g} {unit}")
+    return a, b
