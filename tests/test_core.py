@@ -19,6 +19,7 @@ from scipy.optimize import brentq
 
 from wpam_mj.analysis import loop_area
 from wpam_mj.control import PoFeedback, pi_feedforward
+from wpam_mj.experiments import static_top_pressure
 from wpam_mj.model import build_model, check_dt, check_load
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import (MM, MPA, Controller, Params, ParameterError, check_range,
@@ -168,18 +169,20 @@ RAMP_TIME = 20.0  # s each way
 
 
 @cache
-def ramp_run(load: float, top: float = RAMP_TOP, dt: float = DT):
+def ramp_run(load: float, top: float | None = None, dt: float = DT):
+    """Ramp to `top` [Pa]; None: the Pi whose contracting branch reaches 50 mm."""
+    top = static_top_pressure(WPAM, load) if top is None else top
     return open_loop(WPAM, load, ramp_up_down(top, RAMP_TIME, dt), dt=dt)
 
 
-@pytest.mark.parametrize("load, top", [(50.0, RAMP_TOP), (100.0, RAMP_TOP), (150.0, RAMP_TOP),
-                                       (100.0, 0.15 * MPA)])
+@pytest.mark.parametrize("load, top", [(50.0, RAMP_TOP), (50.0, None), (100.0, None),
+                                       (150.0, None)])
 def test_open_loop_release_waits_for_friction(load, top):
     """On release x stays put until Pi falls to the extending-branch pressure Pi_E
     (paper eq. 6), well below the frictionless pressure, then extends to x = 0.
 
-    At 0.3 MPa the muscle reaches its stop; at 100 N and 0.15 MPa it does not (55.9 mm),
-    so there only friction holds it."""
+    At 50 N and 0.3 MPa the muscle reaches its stop; with the 50 mm ramp top it does
+    not, so there only friction holds it."""
     res = ramp_run(load, top)
     muscle = MuscleModel.from_params(WPAM)
     slow = 1e-5  # m/s: "at rest" / "moving" threshold (0.01 mm/s)
@@ -195,7 +198,7 @@ def test_open_loop_release_waits_for_friction(load, top):
     holding &= res.pi > 1.01 * pi_e
     creep_mm = np.abs(res.x[holding] - x_hold).max() / MM
     held_s = res.time[release] - res.time[turn]
-    print(f"load {load:.0f} N, top {top / MPA:.2f} MPa: x {x_hold / MM:.2f} mm held "
+    print(f"load {load:.0f} N, top {res.pi_cmd.max() / MPA:.2f} MPa: x {x_hold / MM:.2f} mm held "
           f"{held_s:.2f} s (moved {creep_mm:.3f} mm); release at Pi {pi_release / MPA:.4f} MPa,"
           f" Pi_E {pi_e / MPA:.4f}, frictionless {pi_0 / MPA:.4f} MPa")
     assert res.time[stop] - res.time[turn] < 1.0, "contraction ends soon after the turn [s]"
@@ -210,9 +213,10 @@ def test_open_loop_loop_area_grows_with_load():
     areas = [loop_area(ramp_run(load).pi, ramp_run(load).x) for load in LOADS]
     print("open-loop loop areas [MPa mm] at 50/100/150 N:",
           ", ".join(f"{a / (MPA * MM):.3f}" for a in areas))
-    # the ramp covers the whole stroke at every load, so the loops are comparable
+    # each ramp tops out where the contracting branch reaches 50 mm, so the loops span
+    # the same stroke and are comparable
     for load in LOADS:
-        assert ramp_run(load).x.max() > GEOM.max_contraction - 0.1 * MM
+        assert ramp_run(load).x.max() == pytest.approx(50 * MM, abs=4 * MM)
     assert 0.0 < areas[0] < areas[1] < areas[2]
 
 
