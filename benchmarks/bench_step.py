@@ -28,7 +28,7 @@ from wpam_mj import Drive, fastloop, preset, simulate
 from wpam_mj.control import pi_feedforward
 from wpam_mj.model import build_model
 from wpam_mj.muscle import MuscleModel
-from wpam_mj.simulate import RunConstants
+from wpam_mj.simulate import REC_ROWS, RunConstants
 
 LOAD = 100.0  # N, the paper's nominal load (§4.1)
 DT = 1e-3  # s
@@ -71,7 +71,7 @@ def time_loop_alone(params, drive: Drive) -> float:
     model = build_model(params, LOAD, DT)
     data = mujoco.MjData(model)
     k = RunConstants.make(params, DT, "pi", 0.01)
-    rec = np.zeros((9, (len(drive.pi_cmd) - 1) // k.record_every + 1))
+    rec = np.zeros((REC_ROWS, (len(drive.pi_cmd) - 1) // k.record_every + 1))
     muscle = MuscleModel.from_params(params)
     start = time.perf_counter()
     status = fastloop.run_compiled(model, data, muscle, params, k, drive, rec)

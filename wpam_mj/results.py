@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import io
 import os
 import tempfile
@@ -88,13 +87,11 @@ class SimResult:
 
     def to_csv_text(self) -> str:
         buf = io.StringIO()
-        w = csv.writer(buf, lineterminator="\n")
-        w.writerow([f"# load_n={self.load:g} dt_s={self.dt:g} control={self.control} "
-                    f"preset={self.preset}"])
-        w.writerow([c for _, c, _ in _COLUMNS])
-        cols = [getattr(self, f) * s for f, _, s in _COLUMNS]
-        for row in zip(*cols):
-            w.writerow([f"{v:.6g}" for v in row])
+        buf.write(f"# load_n={self.load:g} dt_s={self.dt:g} control={self.control} "
+                  f"preset={self.preset}\n")
+        table = np.column_stack([getattr(self, f) * s for f, _, s in _COLUMNS])
+        np.savetxt(buf, table, fmt="%.6g", delimiter=",",
+                   header=",".join(c for _, c, _ in _COLUMNS), comments="")
         return buf.getvalue()
 
     def to_csv(self, path: str | Path) -> Path:
