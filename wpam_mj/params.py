@@ -109,8 +109,10 @@ class Pneumatics(_Validated):
 
     p_min: float = _p(0.005 * MPA, "Pa", 0.0, 1.0 * MPA, "ITV2031 range, paper §2.3")
     p_max: float = _p(0.5 * MPA, "Pa", 0.0, 1.0 * MPA, "ITV2031 range, paper §2.3")
-    time_constant: float = _p(0.003, "s", 0.0, 5.0, "calibrated (see models/README.md)")
-    dead_time: float = _p(0.001, "s", 0.0, 1.0, "calibrated (see models/README.md)")
+    time_constant: float = _p(0.003, "s", 0.0, 5.0,
+                              "chosen: small enough for the paper gains (models/README.md)")
+    dead_time: float = _p(0.001, "s", 0.0, 1.0,
+                          "chosen: small enough for the paper gains (models/README.md)")
     inner_conductance: float = _p(6e-9, "m^3/(s Pa)", 0.0, 1e-6,
                                   "calibrated (ISO 6358 C, Pi valve + tubing)", lo_open=True)
     outer_conductance: float = _p(6e-9, "m^3/(s Pa)", 0.0, 1e-6,
