@@ -24,7 +24,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import brentq
 
 from wpam_mj.geometry import BraidGeometry
 from wpam_mj.params import Muscle, Params
@@ -83,6 +82,8 @@ class MuscleModel:
     def equilibrium_contraction(self, pi: float, po: float, load: float,
                                 direction: int = 0) -> float:
         """Contraction x [m] at rest for pressures and load; clipped to the hard stops."""
+        from scipy.optimize import brentq  # noqa: PLC0415 (scipy costs 0.7 s to import)
+
         x_max = self.geometry.max_contraction
         s = float(direction)
 
