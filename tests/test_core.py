@@ -371,17 +371,6 @@ def test_non_finite_commands_are_rejected():
                  control="pi", engine=ENGINE)
 
 
-def test_out_of_range_commands_saturate_at_the_regulator_limits():
-    """Finite commands outside 0..p_max are not rejected: the regulator clamps them."""
-    res = open_loop(WPAM, 100.0, hold(2.0 * MPA, 3.0))
-    assert res.pi.max() <= WPAM.pneumatics.p_max * (1 + 1e-9), "Pi above the regulator max"
-    assert res.pi[-1] == pytest.approx(WPAM.pneumatics.p_max, rel=1e-3)
-    # a negative command vents; the only pressure left is from the load settling onto
-    # the lower stop (tens of Pa of compression), which then vents too
-    res = open_loop(WPAM, 100.0, hold(-1.0 * MPA, 1.0))
-    assert np.abs(res.pi).max() < 1e3 and abs(res.pi[-1]) < 1.0, "Pi with Pi_cmd < 0 [Pa]"
-
-
 def test_bad_parameters_are_rejected():
     with pytest.raises(ParameterError, match=r"controller.po_cap = 0.6 MPa .*\[0.005, 0.5\]"):
         Params(controller=Controller(po_cap=0.6 * MPA))
@@ -432,3 +421,15 @@ def test_built_models_step_without_warnings(name):
         mujoco.mj_step(model, data, nstep=1000)
         assert all(w.number == 0 for w in data.warning), f"{name} at {load} N"
         assert model.body("load").mass[0] * 9.80665 == pytest.approx(load, rel=1e-12)
+
+
+@pytest.mark.parametrize("name, value", [("pi_cmd", 0.6 * MPA), ("pi_cmd", -0.001 * MPA),
+                                         ("po_cmd", -0.01 * MPA), ("po_cmd", 0.7 * MPA)])
+def test_pressure_command_outside_regulator_range(name, value):
+    n = 200
+    cmds = {"pi_cmd": np.full(n, 0.1 * MPA), "po_cmd": np.zeros(n)}
+    cmds[name][50] = value
+    drive = Drive(**cmds, x_ref=np.full(n, np.nan))
+    with pytest.raises(ParameterError, match=rf"drive\.{name} = .* MPa at t = 0\.05 s is "
+                                             r"outside the regulator range \[0, 0\.5\] MPa"):
+        simulate(WPAM, 100.0, drive, dt=DT)

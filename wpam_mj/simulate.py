@@ -120,6 +120,7 @@ def simulate(params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
     """
     load, dt = check_load(load), check_dt(dt)
     k = RunConstants.make(params, dt, control, record_dt)
+    _check_commands(drive, params, dt, feedback=k.feedback)
     if k.feedback and not np.all(np.isfinite(drive.x_ref)):
         raise ParameterError("feedback control needs a finite target x_ref at every step")
     model = build_model(params, load, dt)
@@ -135,6 +136,20 @@ def simulate(params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
                                  "reduce dt or check the gains and pneumatic parameters")
     return SimResult(**dict(zip(REC_FIELDS, rec)), load=load, dt=dt, control=control,
                      preset=params.preset)
+
+
+def _check_commands(drive: Drive, params: Params, dt: float, *, feedback: bool) -> None:
+    """Every pressure command lies in [0, p_max]: a command time series may pass below the
+    regulator's p_min on its way to 0 (vented); settings such as --po-down are checked
+    against [p_min, p_max] where they are given (`wpam_mj.experiments.check_po`)."""
+    hi = params.pneumatics.p_max
+    for name in ("pi_cmd",) if feedback else ("pi_cmd", "po_cmd"):
+        cmd = getattr(drive, name)
+        bad = np.flatnonzero((cmd < 0.0) | (cmd > hi))
+        if bad.size:
+            i = bad[0]
+            raise ParameterError(f"drive.{name} = {cmd[i] / MPA:g} MPa at t = {i * dt:g} s is "
+                                 f"outside the regulator range [0, {hi / MPA:g}] MPa")
 
 
 def _select_engine(engine: str):
