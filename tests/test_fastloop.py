@@ -90,7 +90,8 @@ def test_pid_sine_identical(variant):
 
 def test_divergence_reported_by_both_engines():
     """A huge conductance at a coarse step overshoots the chambers: same error, same text."""
-    params = preset("wpam").replace(pneumatics={"inner_conductance": 1e-6, "outer_conductance": 1e-6})
+    params = preset("wpam").replace(pneumatics={"inner_conductance": 1e-6,
+                                                "outer_conductance": 1e-6})
     dt = 0.005
     n = int(1.0 / dt)
     drive = Drive(pi_cmd=np.full(n, 0.3 * MPA), po_cmd=np.zeros(n), x_ref=np.full(n, np.nan))

@@ -22,7 +22,7 @@ from wpam_mj import pneumatics as pn
 from wpam_mj.control import CONTROLS, PoFeedback
 from wpam_mj.model import build_model, check_dt, check_load
 from wpam_mj.muscle import MuscleModel
-from wpam_mj.params import MM, MPA, Params, ParameterError
+from wpam_mj.params import MPA, Params, ParameterError
 from wpam_mj.results import SimResult
 
 
