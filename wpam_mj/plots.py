@@ -20,7 +20,7 @@ from wpam_mj.params import MM, MPA, Params
 from wpam_mj.results import SimResult, write_atomic
 from wpam_mj.studies import PAPER_TABLE2, StaticLoop, StepRun, SweepResult, Table2Result
 
-DPI = 120
+DPI = 100
 _LOAD_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple",
                  "tab:brown")
 _CONTROL_STYLE = {"open": ":", "pi": "-", "pid": "--"}
@@ -97,7 +97,7 @@ def static_figure(loops: Sequence[StaticLoop], *, title: str | None = None) -> F
         ax.set_xlabel("internal pressure Pi [MPa]")
         ax.set_ylabel("contraction x [mm]")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="best")
+        ax.legend(fontsize=8, loc="lower right")  # "best" would scan every data point
         if by_preset:
             ax.set_title(f"load {panel_load:g} N")
     po = {lp.po_down for lp in loops}
