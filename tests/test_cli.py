@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from wpam_mj.cli import main
-from wpam_mj.params import CALIBRATION_FILE
+from wpam_mj.params import CALIBRATION_FILE, preset
 
 
 def _run(capsys, *argv):
@@ -170,8 +170,9 @@ def test_calibrate_calls_the_library(files, capsys, monkeypatch):
 
     seen = {}
 
-    def calibrate(*, out, jobs, dt, progress):
+    def calibrate(*, out, jobs, dt, progress, start):
         seen.update(out=out, jobs=jobs, dt=dt, progress=progress)
+        seen["start"] = start
         return _FakeCalibration()
 
     monkeypatch.setitem(sys.modules, "wpam_mj.calibrate",
@@ -180,17 +181,17 @@ def test_calibrate_calls_the_library(files, capsys, monkeypatch):
                           "--dt", "0.0005", "--no-progress")
     assert code == 0, err
     assert out.strip() == "fitted values"
+    start = seen.pop("start")
     assert seen == {"out": Path("fit.toml"), "jobs": 3, "dt": 0.0005, "progress": False}
+    assert start == preset("wpam")  # the search starts from the preset (plus --config)
     _run(capsys, "calibrate", "--no-progress")
     assert seen["out"] == CALIBRATION_FILE  # the file `preset` reads
 
 
-def test_calibrate_without_the_module_fails_cleanly(files, capsys, monkeypatch):
-    monkeypatch.setitem(sys.modules, "wpam_mj.calibrate", None)  # import raises
-    code, _, err = _run(capsys, "calibrate")
-    assert code == 1
-    assert err.startswith("wpam: error: calibration is not available") and \
-        len(err.strip().splitlines()) == 1
+def test_calibrate_refuses_other_presets(files, capsys):
+    code, _, err = _run(capsys, "calibrate", "--preset", "mckibben")
+    assert code == 2
+    assert err.startswith("wpam: error: --preset mckibben") and len(err.strip().splitlines()) == 1
 
 
 def test_render_simulates_only_what_it_shows(files, capsys, monkeypatch):

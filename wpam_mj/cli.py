@@ -373,18 +373,14 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    if args.preset != "wpam" or args.config is not None:
-        raise ParameterError("calibrate fits the wpam preset from its defaults; "
-                             "--preset and --config do not apply")
-    dt = check_dt(args.dt)
-    jobs = studies.check_jobs(args.jobs)
-    progress = sys.stderr.isatty() if args.progress is None else args.progress
+    if args.preset != "wpam":
+        raise ParameterError(f"--preset {args.preset}: calibrate fits the wpam preset "
+                             "(start from other values with --config)")
+    run = _run_options(args)  # the search starts from the preset plus --config
     out = _out_file(CALIBRATION_FILE if args.out is None else args.out)
-    try:
-        from wpam_mj.calibrate import calibrate  # noqa: PLC0415 (written separately)
-    except ImportError as err:
-        raise RunFailed(f"calibration is not available: {err}") from None
-    result = calibrate(out=out, jobs=jobs, dt=dt, progress=progress)
+    from wpam_mj.calibrate import calibrate  # noqa: PLC0415 (scipy.optimize: slow import)
+    result = calibrate(out=out, jobs=run.jobs, dt=run.dt, progress=run.progress,
+                       start=run.params)
     print(result.table())
     return 0
 
