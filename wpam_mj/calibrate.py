@@ -1,6 +1,6 @@
 """Calibrate the parameters the paper does not give, against the paper's own results.
 
-Two stages, each a bounded Nelder-Mead search (scipy.optimize.minimize) over a few
+Two stages, alternated (`calibrate`), each a bounded Nelder-Mead search (scipy.optimize.minimize) over a few
 parameters with physical bounds, on the simulator itself (no surrogate):
 
   1. static:  braid angle, Kf, mu, F_f0, A_ax  ->  Table 2, "Po = 0.04 MPa" row
@@ -190,16 +190,19 @@ def _search(params: Params, fit: Sequence[FitParameter],
 
 
 def calibrate(*, out: Path | None = CALIBRATION_FILE, jobs: int = 2, dt: float = 1e-3,
-              progress: bool = True, stages: Sequence[str] = ("static", "dynamic"),
-              maxiter: int = 150, start: Params | None = None) -> CalibrationResult:
-    """Fit STATIC_FIT then DYNAMIC_FIT; write the TOML to `out` (None: do not write)."""
+              progress: bool = True, rounds: int = 2, maxiter: int = 60,
+              start: Params | None = None) -> CalibrationResult:
+    """Alternate the static and dynamic stages `rounds` times, then refit the static stage
+    (the dynamic parameters shift the static loops a little); write the TOML to `out`
+    (None: do not write). The shipped `calibrated.toml` came from this sequence."""
     params = start if start is not None else preset("wpam")
-    if "static" in stages:
-        params, _ = _search(params, STATIC_FIT, lambda p: static_residuals(p, jobs, dt),
-                            maxiter, progress, "static")
-    if "dynamic" in stages:
-        params, _ = _search(params, DYNAMIC_FIT, lambda p: dynamic_residuals(p, jobs, dt),
-                            maxiter, progress, "dynamic")
+    stages = [STATIC_FIT, DYNAMIC_FIT] * rounds + [STATIC_FIT]
+    for fit in stages:
+        static = fit is STATIC_FIT
+        res = (lambda p: static_residuals(p, jobs, dt)) if static else \
+            (lambda p: dynamic_residuals(p, jobs, dt))
+        params, _ = _search(params, fit, res, maxiter, progress,
+                            "static" if static else "dynamic")
     s_res = static_residuals(params, jobs, dt)
     d_res = dynamic_residuals(params, jobs, dt)
     fitted = {f"{p.section}.{p.name}": getattr(getattr(params, p.section), p.name)
