@@ -1,7 +1,8 @@
 """Calibrate the parameters the paper does not give, against the paper's own results.
 
-Two stages, alternated (`calibrate`), each a bounded Nelder-Mead search (scipy.optimize.minimize) over a few
-parameters with physical bounds, on the simulator itself (no surrogate):
+Two stages, alternated (`calibrate`), each a bounded Nelder-Mead search
+(scipy.optimize.minimize) over a few parameters with physical bounds, on the simulator
+itself (no surrogate):
 
   1. static:  braid angle, Kf, mu, F_f0, A_ax  ->  Table 2, "Po = 0.04 MPa" row
      (open-loop loop areas normalized by the Po = 0 loops, paper Figs. 8-9);
@@ -24,14 +25,14 @@ from typing import Callable, Sequence
 import numpy as np
 from scipy.optimize import minimize
 
-from wpam_mj.experiments import PO_DOWN_STATIC_MPA, static_top_pressure
+from wpam_mj.experiments import PO_DOWN_STATIC_MPA, STATIC_TOP_MM, static_top_pressure
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import (CALIBRATION_FILE, MM, MPA, Params, ParameterError, preset)
 from wpam_mj.results import write_text_atomic
-from wpam_mj.studies import (PAPER_FREQS_HZ, PAPER_LOADS_N, PAPER_TABLE2, StaticTask,
-                             run_tasks, step_study, sweep)
+from wpam_mj.studies import (PAPER_CONTROLLERS, PAPER_FREQS_HZ, PAPER_LOADS_N, PAPER_TABLE2,
+                             StaticTask, run_tasks, step_study, sweep)
 
-CONTROLLERS = ("pi", "pid")  # index 0 and 1 of the sweep metrics
+CONTROLLERS = PAPER_CONTROLLERS  # ("pi", "pid"): index 0 and 1 of the sweep metrics
 PO_DOWN = PO_DOWN_STATIC_MPA * MPA  # paper Fig. 9
 
 
@@ -93,7 +94,8 @@ def static_residuals(params: Params, jobs: int, dt: float) -> np.ndarray:
     muscle = MuscleModel.from_params(params)
     worst = PAPER_LOADS_N[-1]
     need_ramp = static_top_pressure(params, worst) / p_max
-    need_ff = muscle.equilibrium_pressure(50 * MM, worst, params.controller.po_feedforward) / p_max
+    need_ff = muscle.equilibrium_pressure(STATIC_TOP_MM * MM, worst,
+                                          params.controller.po_feedforward) / p_max
     res += [max(0.0, need_ramp - 0.95) * 10.0, max(0.0, need_ff - 0.95) * 10.0]
     return np.array(res)
 

@@ -28,13 +28,13 @@ from pathlib import Path
 from typing import Sequence
 
 from wpam_mj import __version__, studies
-from wpam_mj.control import CONTROLS
-from wpam_mj.experiments import (STEP_HOLD_S, STEP_LEVELS_MM, SineSpec, check_control,
-                                 check_po, sine_run, static_loop, step_run)
+from wpam_mj.control import CONTROLS, check_control
+from wpam_mj.experiments import (STEP_HOLD_S, STEP_LEVELS_MM, SineSpec, check_po, sine_run,
+                                 static_loop, step_run)
 from wpam_mj.model import check_dt, check_load
 from wpam_mj.params import (CALIBRATION_FILE, MPA, PRESETS, ParameterError, Params, apply_overrides,
                             check_range, load_toml, preset)
-from wpam_mj.results import SimResult, write_text_atomic
+from wpam_mj.results import SimResult
 from wpam_mj.simulate import SimulationDiverged
 
 EXPERIMENTS = ("step", "sweep", "static")  # for `wpam render`
@@ -315,8 +315,7 @@ def _cmd_table2(args: argparse.Namespace) -> int:
     run = _run_options(args)
     out = _out_dir(args)
     t2 = studies.table2(run.params, dt=run.dt, jobs=run.jobs, progress=run.progress)
-    written = [write_text_atomic(out / "table2.json", json.dumps(t2.as_json(), indent=2) + "\n"),
-               write_text_atomic(out / "table2.csv", report.table2_csv_text(t2)),
+    written = [*report.write_table2(out, t2),
                plots.save_figure(plots.table2_figure(t2), out / "table2.png")]
     if args.json:
         _print_json(t2.as_json())
@@ -341,8 +340,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
                        jobs=run.jobs, progress=run.progress)
     load, freq, ctrl = key
     written = [
-        write_text_atomic(out / "sweep.csv", report.sweep_csv_text(sw)),
-        write_text_atomic(out / "sweep.json", json.dumps(sw.as_json(), indent=2) + "\n"),
+        *report.write_sweep(out, sw),
         plots.save_figure(plots.sweep_figure(sw), out / "sweep_gain_phase.png"),
         sw.series[key].to_csv(out / report.sine_csv_name(key)),
         plots.save_figure(plots.sine_figure(sw.series[key], freq, run.params.controller.po_cap),

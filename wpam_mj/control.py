@@ -20,9 +20,16 @@ from __future__ import annotations
 import numpy as np
 
 from wpam_mj.muscle import MuscleModel
-from wpam_mj.params import MM, MPA, Params
+from wpam_mj.params import MM, MPA, Params, ParameterError
 
 CONTROLS = ("open", "pi", "pid")
+
+
+def check_control(control: str) -> str:
+    """A control mode: one of CONTROLS."""
+    if control not in CONTROLS:
+        raise ParameterError(f"unknown control {control!r}; valid: {', '.join(CONTROLS)}")
+    return control
 
 
 def pi_feedforward(muscle: MuscleModel, params: Params, x_ref: np.ndarray, load: float,

@@ -16,10 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wpam_mj.control import CONTROLS, pi_feedforward
+from wpam_mj.control import check_control, pi_feedforward
 from wpam_mj.model import check_dt, check_load
 from wpam_mj.muscle import MuscleModel
-from wpam_mj.params import MM, MPA, Params, ParameterError, check_range
+from wpam_mj.params import MM, MPA, Params, check_range
 from wpam_mj.results import SimResult
 from wpam_mj.simulate import Drive, simulate
 
@@ -38,12 +38,6 @@ def check_po(name: str, po: float, params: Params) -> float:
         return 0.0
     pn = params.pneumatics
     return check_range(name, po / MPA, pn.p_min / MPA, pn.p_max / MPA, "MPa") * MPA
-
-
-def check_control(control: str) -> str:
-    if control not in CONTROLS:
-        raise ParameterError(f"unknown control {control!r}; valid: {', '.join(CONTROLS)}")
-    return control
 
 
 def _steps(duration: float, dt: float) -> tuple[int, np.ndarray]:

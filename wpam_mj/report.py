@@ -70,6 +70,12 @@ def table2_csv_text(t2: Table2Result) -> str:
     return _csv([list(rows[0])] + [list(r.values()) for r in rows])
 
 
+def write_table2(out: Path, t2: Table2Result) -> list[Path]:
+    """table2.json and table2.csv in `out`."""
+    return [write_text_atomic(out / "table2.json", json.dumps(t2.as_json(), indent=2) + "\n"),
+            write_text_atomic(out / "table2.csv", table2_csv_text(t2))]
+
+
 def table2_text(t2: Table2Result) -> str:
     """Our Table 2 beside the paper's, as plain text."""
     paper = t2.paper()
@@ -99,6 +105,12 @@ SWEEP_COLUMNS = ("load_n", "freq_hz", "controller", "gain", "phase_lag_deg", "po
 def sweep_csv_text(sw: SweepResult) -> str:
     return _csv([SWEEP_COLUMNS] + [[p.as_json()[k] for k in SWEEP_COLUMNS]
                                    for p in sw.points])
+
+
+def write_sweep(out: Path, sw: SweepResult) -> list[Path]:
+    """sweep.json and sweep.csv in `out`."""
+    return [write_text_atomic(out / "sweep.json", json.dumps(sw.as_json(), indent=2) + "\n"),
+            write_text_atomic(out / "sweep.csv", sweep_csv_text(sw))]
 
 
 def sweep_text(sw: SweepResult) -> str:
@@ -322,10 +334,8 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
                 for run in (*t2.feedback_runs, open_step)]
     outputs.append(_CsvTask(data / sine_csv_name(fig_key), sw.series[fig_key]))
     # summaries
-    write_text_atomic(out / "table2.json", json.dumps(t2.as_json(), indent=2) + "\n")
-    write_text_atomic(out / "table2.csv", table2_csv_text(t2))
-    write_text_atomic(out / "sweep.json", json.dumps(sw.as_json(), indent=2) + "\n")
-    write_text_atomic(out / "sweep.csv", sweep_csv_text(sw))
+    write_table2(out, t2)
+    write_sweep(out, sw)
     checks = (*table2_checks(t2), *sweep_checks(sw, params.controller.po_cap))
     write_text_atomic(out / "checks.json", json.dumps(
         [{"finding": c.finding, "passed": c.passed, "detail": c.detail} for c in checks],

@@ -19,7 +19,7 @@ import mujoco
 import numpy as np
 
 from wpam_mj import pneumatics as pn
-from wpam_mj.control import CONTROLS, PoFeedback
+from wpam_mj.control import PoFeedback, check_control
 from wpam_mj.model import build_model, check_dt, check_load
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MPA, Params, ParameterError
@@ -83,8 +83,7 @@ class RunConstants:
 
     @classmethod
     def make(cls, params: Params, dt: float, control: str, record_dt: float) -> "RunConstants":
-        if control not in CONTROLS:
-            raise ParameterError(f"unknown control {control!r}; valid: {', '.join(CONTROLS)}")
+        check_control(control)
         record_every = round(record_dt / dt)
         if record_every < 1 or abs(record_every * dt - record_dt) > 1e-9 * record_dt:
             raise ParameterError(f"record_dt = {record_dt} s must be a whole multiple of "

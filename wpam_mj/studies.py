@@ -30,8 +30,9 @@ from tqdm import tqdm
 
 from wpam_mj.analysis import frequency_response, loop_area, steady_state_means
 from wpam_mj.experiments import (PO_DOWN_STATIC_MPA, STATIC_RAMP_S, STEP_HOLD_S,
-                                 STEP_LEVELS_MM, SineSpec, check_control, check_po,
+                                 STEP_LEVELS_MM, SineSpec, check_po,
                                  sine_run, static_loop, step_run)
+from wpam_mj.control import check_control
 from wpam_mj.model import check_dt, check_load
 from wpam_mj.params import MM, MPA, Params, ParameterError
 from wpam_mj.results import SimResult
