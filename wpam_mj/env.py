@@ -59,7 +59,7 @@ from dm_env import specs
 
 from wpam_mj.control import pi_feedforward
 from wpam_mj.geometry import BraidGeometry
-from wpam_mj.model import build_model, check_dt, check_load
+from wpam_mj.model import MuscleIndex, build_model, check_dt, check_load
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM, STANDARD_GRAVITY, ParameterError, Params, check_range, preset
 from wpam_mj.simulate import Plant, RunConstants, SimulationDiverged
@@ -95,10 +95,7 @@ class MusclePhysics(engine.Physics):
         self.params = params
         self.muscle = MuscleModel.from_params(params)
         self.constants = RunConstants.make(params, dt, "open", record_dt=dt)
-        joint = m.joint("contraction")
-        self._qadr, self._vadr = int(joint.qposadr[0]), int(joint.dofadr[0])
-        self._act = m.actuator("muscle").id
-        self._tendon = m.tendon("muscle").id
+        self._idx = MuscleIndex.of(m)
         self._load_body = m.body("load").id
         self.pi_cmd = self.po_cmd = 0.0
         self.plant = Plant(self.muscle, self.constants)
@@ -109,7 +106,7 @@ class MusclePhysics(engine.Physics):
         self.plant = Plant(self.muscle, self.constants)
         self.pi_cmd = self.po_cmd = 0.0
 
-    _STATE = ("params", "muscle", "constants", "_qadr", "_vadr", "_act", "_tendon",
+    _STATE = ("params", "muscle", "constants", "_idx",
               "_load_body", "pi_cmd", "po_cmd")
 
     def copy(self, share_model: bool = False) -> MusclePhysics:
@@ -134,11 +131,11 @@ class MusclePhysics(engine.Physics):
 
     def contraction(self) -> float:
         """x [m]."""
-        return float(self.data.ptr.qpos[self._qadr])
+        return float(self.data.ptr.qpos[self._idx.qpos])
 
     def velocity(self) -> float:
         """dx/dt [m/s]."""
-        return float(self.data.ptr.qvel[self._vadr])
+        return float(self.data.ptr.qvel[self._idx.dof])
 
     def pressures(self) -> tuple[float, float]:
         """Chamber gauge pressures (Pi, Po) [Pa]."""
@@ -147,24 +144,18 @@ class MusclePhysics(engine.Physics):
     def step(self, nstep: int = 1) -> None:
         """Advance `nstep` physics steps: plant once, then `mj_step`, per step.
 
-        The same sequence as `wpam_mj.simulate.run_python`. Ends with `mj_step1` so that
-        positions, sensors and rendering match the new state (as dm_control's own step).
+        The same `Plant.actuate` step as `wpam_mj.simulate.run_python`. Ends with
+        `mj_step1` so that positions, sensors and rendering match the new state (as
+        dm_control's own step).
         """
-        m, d = self.model.ptr, self.data.ptr
-        qpos, qvel, ctrl = d.qpos, d.qvel, d.ctrl
-        frictionloss = m.tendon_frictionloss
-        qa, va, act, ten = self._qadr, self._vadr, self._act, self._tendon
-        advance, pi_cmd, po_cmd = self.plant.advance, self.pi_cmd, self.po_cmd
+        m, d, idx = self.model.ptr, self.data.ptr, self._idx
         with self.check_invalid_state():
             for _ in range(nstep):
                 try:
-                    tension, friction = advance(float(qpos[qa]), float(qvel[va]), pi_cmd,
-                                                po_cmd)
+                    self.plant.actuate(m, d, idx, float(d.qpos[idx.qpos]),
+                                       float(d.qvel[idx.dof]), self.pi_cmd, self.po_cmd)
                 except SimulationDiverged as err:
                     raise control.PhysicsError(f"at t = {d.time:.4f} s: {err}") from err
-                ctrl[act] = -tension
-                frictionloss[ten] = friction
-                mujoco.mj_step(m, d)
             mujoco.mj_step1(m, d)
 
 

@@ -31,6 +31,7 @@ import mujoco
 import numpy as np
 
 from wpam_mj import pneumatics as pn
+from wpam_mj.model import MuscleIndex
 from wpam_mj.params import MM, MPA
 from wpam_mj.simulate import REC_ROWS
 
@@ -85,7 +86,7 @@ def pack_constants(model, muscle, params, k) -> np.ndarray:
     """
     g = muscle.geometry
     c = params.controller
-    joint = model.joint("contraction")
+    idx = MuscleIndex.of(model)
     values = dict(
         dt=k.dt, record_every=k.record_every, feedback=float(k.feedback),
         lag_alpha=k.lag_alpha, delay_steps=k.delay_steps, atmosphere=k.atmosphere,
@@ -104,8 +105,7 @@ def pack_constants(model, muscle, params, k) -> np.ndarray:
         # PoFeedback.__init__: kd only with the derivative term
         kp=c.kp, ki=c.ki, kd=c.kd if k.derivative else 0.0, tf=c.derivative_filter,
         po_lo=params.pneumatics.p_min, po_hi=c.po_cap, mm=MM, mpa=MPA,
-        qpos_adr=joint.qposadr[0], dof_adr=joint.dofadr[0],
-        actuator_id=model.actuator("muscle").id, tendon_id=model.tendon("muscle").id,
+        qpos_adr=idx.qpos, dof_adr=idx.dof, actuator_id=idx.actuator, tendon_id=idx.tendon,
     )
     return np.array([values[name] for name in _CONSTS], dtype=np.float64)
 

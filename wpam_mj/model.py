@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import mujoco
@@ -24,6 +25,22 @@ def check_dt(dt: float) -> float:
     return check_range("dt", dt, *DT_RANGE_S, "s")
 
 
+@dataclass(frozen=True)
+class MuscleIndex:
+    """Where the muscle lives in a compiled model, looked up by name (never raw indices)."""
+
+    qpos: int  # the contraction joint's qpos address
+    dof: int  # its dof address (qvel, damping)
+    actuator: int  # the tendon motor carrying -tension
+    tendon: int  # the tendon carrying the friction level
+
+    @classmethod
+    def of(cls, model: mujoco.MjModel) -> "MuscleIndex":
+        joint = model.joint("contraction")
+        return cls(int(joint.qposadr[0]), int(joint.dofadr[0]), model.actuator("muscle").id,
+                   model.tendon("muscle").id)
+
+
 def build_model(params: Params, load: float, dt: float = 1e-3, *,
                 xml: str | Path = MODEL_XML) -> mujoco.MjModel:
     """Compile the hung-muscle MJCF and set load mass, stops, damping and time step.
@@ -40,7 +57,7 @@ def build_model(params: Params, load: float, dt: float = 1e-3, *,
     model.opt.timestep = dt
     model.opt.gravity[:] = (0.0, 0.0, -STANDARD_GRAVITY)
     model.body("load").mass[0] = load / STANDARD_GRAVITY
-    joint = model.joint("contraction")
-    joint.range[:] = (0.0, BraidGeometry.from_params(params.braid).max_contraction)
-    model.dof_damping[joint.dofadr[0]] = params.muscle.damping
+    model.joint("contraction").range[:] = (
+        0.0, BraidGeometry.from_params(params.braid).max_contraction)
+    model.dof_damping[MuscleIndex.of(model).dof] = params.muscle.damping
     return model

@@ -20,7 +20,7 @@ import numpy as np
 
 from wpam_mj import pneumatics as pn
 from wpam_mj.control import PoFeedback, check_control
-from wpam_mj.model import build_model, check_dt, check_load
+from wpam_mj.model import MuscleIndex, build_model, check_dt, check_load
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MPA, Params, ParameterError
 from wpam_mj.results import SimResult
@@ -218,18 +218,28 @@ class Plant:
                                      f"Po = {self.p_o!r} Pa (absolute)")
         return tension, friction
 
+    def actuate(self, model: mujoco.MjModel, data: mujoco.MjData, idx: MuscleIndex,
+                x: float, v: float, pi_cmd: float, po_cmd: float) -> tuple[float, float]:
+        """`advance`, write the tension (actuator ctrl) and friction level (tendon
+        frictionloss) into the model, then `mj_step`; returns (tension, friction) [N]."""
+        tension, friction = self.advance(x, v, pi_cmd, po_cmd)
+        data.ctrl[idx.actuator] = -tension
+        model.tendon_frictionloss[idx.tendon] = friction
+        mujoco.mj_step(model, data)
+        return tension, friction
+
 
 def run_python(model, data, muscle: MuscleModel, params: Params, k: RunConstants,
                drive: Drive, rec: np.ndarray):
     """Reference loop in plain Python floats; returns None or (step, reason)."""
     plant = Plant(muscle, k)
     pid = PoFeedback(params, k.dt, derivative=k.derivative)
-    qpos, qvel, ctrl = data.qpos, data.qvel, data.ctrl
-    frictionloss = model.tendon_frictionloss
+    idx = MuscleIndex.of(model)
+    qpos, qvel = data.qpos, data.qvel
     j = 0
     for step in range(len(drive.pi_cmd)):
-        x = float(qpos[0])
-        v = float(qvel[0])
+        x = float(qpos[idx.qpos])
+        v = float(qvel[idx.dof])
         if not -1.0 < x < 1.0:
             return step, f"contraction x = {x!r} m"
         pi_gauge, po_gauge = plant.pressures
@@ -237,14 +247,11 @@ def run_python(model, data, muscle: MuscleModel, params: Params, k: RunConstants
         xr = float(drive.x_ref[step])
         po_c = pid.update(x, xr) if k.feedback else float(drive.po_cmd[step])
         try:
-            tension, friction = plant.advance(x, v, pi_c, po_c)
+            tension, friction = plant.actuate(model, data, idx, x, v, pi_c, po_c)
         except SimulationDiverged as err:
             return step, str(err)
-        ctrl[0] = -tension
-        frictionloss[0] = friction
-        if step % k.record_every == 0:
+        if step % k.record_every == 0:  # the state at the start of this step
             rec[:, j] = (step * k.dt, x, v, xr, pi_gauge, po_gauge, pi_c, po_c, tension,
                          friction, plant.set_i, plant.set_o)
             j += 1
-        mujoco.mj_step(model, data)
     return None
