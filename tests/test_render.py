@@ -6,6 +6,7 @@ import dataclasses
 import itertools
 import math
 import os
+import threading
 
 import imageio.v2 as imageio
 import mujoco
@@ -114,11 +115,20 @@ def test_load_moves_up_by_the_projected_contraction(gl) -> None:
         f"load image shift {shift:.1f} px, expected {expected:.1f} px")
 
 
-def test_same_run_renders_identical_frames(gl) -> None:
-    a = list(render.render_frames(ramp(), PARAMS, fps=30, size=SIZE))
-    b = list(render.render_frames(ramp(), PARAMS, fps=30, size=SIZE))
-    assert len(a) == len(b)
+@pytest.mark.parametrize("threads", [1, 2, 3])
+def test_same_run_renders_identical_frames(gl, threads) -> None:
+    """Identical on a second render, and whatever the number of render threads."""
+    a = list(render.render_frames(ramp(), PARAMS, fps=30, size=SIZE, threads=1))
+    b = list(render.render_frames(ramp(), PARAMS, fps=30, size=SIZE, threads=threads))
+    assert len(a) == len(b) == 30
     assert all(np.array_equal(u, v) for u, v in zip(a, b))
+
+
+def test_closing_threaded_frames_early_stops_the_threads(gl) -> None:
+    frames = render.render_frames(ramp(), PARAMS, fps=30, size=SIZE, threads=2)
+    next(frames)
+    frames.close()
+    assert not [t for t in threading.enumerate() if t.name.startswith("wpam-render")]
 
 
 @pytest.mark.parametrize("kwargs, message", [
@@ -128,6 +138,7 @@ def test_same_run_renders_identical_frames(gl) -> None:
     ({"size": (640, 8)}, "[32, 4096]"),
     ({"size": (640.0, 480)}, "pair of integers"),
     ({"camera": "top"}, "valid cameras: front, side"),
+    ({"threads": 0}, "threads = 0 must be an integer in [1, 16]"),
 ])
 def test_bad_options_raise_parameter_error(tmp_path, kwargs, message) -> None:
     with pytest.raises(ParameterError) as err:

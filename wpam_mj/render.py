@@ -448,32 +448,101 @@ def _check_result(result: SimResult) -> None:
 
 def render_frames(result: SimResult, params: Params, *, fps: float = 30,
                   size: tuple[int, int] = (640, 480), camera: str = "front",
-                  shadows: bool = False) -> Iterator[np.ndarray]:
+                  shadows: bool = False, threads: int | None = None) -> Iterator[np.ndarray]:
     """Yield the frames of a video of `result`: RGB uint8 arrays (height, width, 3).
 
     Frames are at `frame_times(result.time, fps)`; states between records are linearly
-    interpolated. The generator owns a GL context; close it (or exhaust it) to free it.
+    interpolated. `threads` render threads (default: one per core, at most 2) each own a
+    scene and GL context and draw every `threads`-th frame; the frames do not depend on
+    it. Close the generator (or exhaust it) to free the contexts.
     """
     fps = check_range("fps", fps, *FPS_RANGE[".mp4"], "frames/s")
     size = _check_size(size, "")
     _check_result(result)
     _check_camera(camera)
-    return _frames(result, params, fps, size, camera, shadows)
+    threads = _check_threads(threads)
+    samples = list(_samples(result, frame_times(result.time, fps)))
+
+    def scene() -> _Scene:
+        return _Scene(result, params, size, camera, shadows, fast=True)
+
+    if threads == 1 or len(samples) == 1:
+        return _frames(scene, samples)
+    return _threaded_frames(scene, samples, threads)
 
 
-def _frames(result: SimResult, params: Params, fps: float, size: tuple[int, int],
-            camera: str, shadows: bool) -> Iterator[np.ndarray]:
-    scene = _Scene(result, params, size, camera, shadows, fast=True)
+def _check_threads(threads: int | None) -> int:
+    if threads is None:
+        return min(2, os.cpu_count() or 1)
+    if isinstance(threads, bool) or not isinstance(threads, int) or not 1 <= threads <= 16:
+        raise ParameterError(f"threads = {threads!r} must be an integer in [1, 16]")
+    return threads
+
+
+def _frames(new_scene, samples: list[_Sample]) -> Iterator[np.ndarray]:
+    scene = new_scene()
     try:
-        for s in _samples(result, frame_times(result.time, fps)):
+        for s in samples:
             yield scene.frame(s)
     finally:
         scene.close()
 
 
+def _threaded_frames(new_scene, samples: list[_Sample], threads: int,
+                     depth: int = 2) -> Iterator[np.ndarray]:
+    """Frames in order, drawn by `threads` threads; thread k draws frames k, k + threads, ...
+
+    The GL calls release the GIL, so software GL runs in parallel. Each thread creates,
+    uses and frees its own scene (an EGL context is current in one thread only). A
+    failure in a thread is re-raised here; closing the generator stops the threads.
+    """
+    stop = threading.Event()
+    outboxes = [queue.Queue(maxsize=depth) for _ in range(threads)]
+
+    def put(box: queue.Queue, item) -> bool:
+        while not stop.is_set():
+            try:
+                box.put(item, timeout=0.05)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def work(k: int) -> None:
+        box = outboxes[k]
+        try:
+            scene = new_scene()
+        except BaseException as err:  # noqa: BLE001 (re-raised by the consumer)
+            put(box, err)
+            return
+        try:
+            for s in samples[k::threads]:
+                if not put(box, scene.frame(s)):
+                    return
+        except BaseException as err:  # noqa: BLE001 (re-raised by the consumer)
+            put(box, err)
+        finally:
+            scene.close()
+
+    workers = [threading.Thread(target=work, args=(k,), name=f"wpam-render-{k}", daemon=True)
+               for k in range(threads)]
+    for w in workers:
+        w.start()
+    try:
+        for i in range(len(samples)):
+            item = outboxes[i % threads].get()
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        for w in workers:
+            w.join()
+
+
 def render_video(result: SimResult, params: Params, out: str | Path, *, fps: float = 30,
                  size: tuple[int, int] = (640, 480), camera: str = "front",
-                 shadows: bool = False) -> Path:
+                 shadows: bool = False, threads: int | None = None) -> Path:
     """Write a video of a simulated run; returns the path written.
 
     Args:
@@ -484,13 +553,14 @@ def render_video(result: SimResult, params: Params, out: str | Path, *, fps: flo
       size: (width, height) [px], each in [32, 4096]; even for MP4.
       camera: a camera of models/wpam/scene.xml ("front", "side").
       shadows: draw shadows (about 4x slower in software rendering).
+      threads: render threads, see `render_frames`.
     """
     suffix = _check_suffix(out)
     fps = check_range("fps", fps, *FPS_RANGE[suffix], "frames/s")
     size = _check_size(size, suffix)
     _check_result(result)
     frames = render_frames(result, params, fps=fps, size=size, camera=camera,
-                           shadows=shadows)
+                           shadows=shadows, threads=threads)
     try:
         if suffix == ".mp4":
             return write_atomic(out, lambda p: _write_mp4(p, frames, fps))
