@@ -9,6 +9,7 @@ in well under a minute.
 
 from __future__ import annotations
 
+import io
 import math
 from functools import cache
 
@@ -25,6 +26,8 @@ from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import (MM, MPA, Controller, Params, ParameterError, check_range,
                             preset)
 from wpam_mj.paths import MODEL_XML, SCENE_XML
+from wpam_mj import results
+from wpam_mj.results import SimResult
 from wpam_mj.simulate import Drive, SimulationDiverged, simulate
 
 ENGINE = "python"
@@ -324,6 +327,29 @@ def test_same_run_twice_is_bit_identical():
     a, b = (simulate(WPAM, 100.0, drive, control="pid", engine=ENGINE) for _ in range(2))
     for name, arr in a.arrays().items():
         assert np.array_equal(arr, b.arrays()[name], equal_nan=True), name
+
+
+def test_csv_holds_every_sample_in_display_units(tmp_path):
+    """Block-formatted CSV: same text as np.savetxt, values back in mm/MPa within %.6g."""
+    n = 2 * 4096 + 7  # more than one formatting block
+    t = np.arange(n) * 1e-3
+    x_ref = np.where(t < 1.0, np.nan, 0.02)  # NaN target in open loop
+    r = SimResult(time=t, x=0.03 * np.sin(t), velocity=np.cos(t), x_ref=x_ref,
+                  pi=0.3e6 + t, po=0.04e6 - t, pi_cmd=0.3e6 + 0 * t, po_cmd=0 * t,
+                  tension=100 + t, friction=5 + 0 * t, pi_reg=0.3e6 + 2 * t,
+                  po_reg=0.04e6 + 0 * t, load=100.0, dt=1e-3, control="pi", preset="wpam")
+    path = r.to_csv(tmp_path / "run.csv")
+    lines = path.read_text().splitlines()
+    assert lines[0] == "# load_n=100 dt_s=0.001 control=pi preset=wpam"
+    table = np.genfromtxt(lines[1:], delimiter=",", names=True)
+    assert len(table) == n
+    assert np.allclose(table["x_mm"], r.x / MM, rtol=1e-5, atol=1e-9)
+    assert np.allclose(table["pi_mpa"], r.pi / MPA, rtol=1e-5)
+    assert np.array_equal(np.isnan(table["x_ref_mm"]), np.isnan(x_ref))
+    ref = io.StringIO()
+    np.savetxt(ref, np.column_stack([getattr(r, f) * k for f, _, k in results._COLUMNS]),
+               fmt="%.6g", delimiter=",")
+    assert lines[2:] == ref.getvalue().splitlines()
 
 
 # ------------------------------------------------------------------ bad input

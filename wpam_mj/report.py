@@ -22,7 +22,7 @@ from wpam_mj.results import write_text_atomic
 from wpam_mj.studies import (FIG18_FREQ_HZ, FIG18_LOAD_N, PAPER_CONTROLLERS, PAPER_FREQS_HZ,
                              PAPER_LOADS_N, PAPER_TABLE2_SOURCE, StaticLoop,
                              StaticTask, StepRun, StepTask, SweepResult, Table2Result, Batch,
-                             figure_run_key, run_batches, run_tasks, sweep_batch, table2_batch)
+                             TaskPool, figure_run_key, submit_batches, sweep_batch, table2_batch)
 
 # thresholds of the checks (from the task's fidelity targets, SPEC.md)
 TABLE2_PO_RTOL = 0.15  # Po = 0.04 MPa row: within 15 % of the paper per cell
@@ -315,49 +315,63 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
     data = out / "data"
     compare = list(compare) if compare is not None else [preset("mckibben"), preset("rlam"),
                                                           params]
-    # One pool for every run: the studies balance each other on few cores.
     extra = ([StepTask(params, 100.0, "open", dt)]
              + [StaticTask(p, PRESET_COMPARE_LOAD_N, 0.0, dt) for p in compare if p != params])
-    t2, extra_res, sw = run_batches(
-        [table2_batch(params, dt=dt), Batch(extra, list), sweep_batch(params, dt=dt)],
-        jobs=jobs, progress=progress, desc="reproduce")
-    open_step, ran = extra_res[0], iter(extra_res[1:])
-    own_loop = t2.open_loops[t2.loads.index(PRESET_COMPARE_LOAD_N)]
-    preset_loops = [own_loop if p == params else next(ran) for p in compare]
-    fig_key = figure_run_key(PAPER_LOADS_N, PAPER_FREQS_HZ, PAPER_CONTROLLERS)
-    pi_100 = t2.feedback_runs[t2.loads.index(100.0)]
 
-    # time series and figures, written in parallel
-    outputs: list = [_CsvTask(data / static_csv_name(loop), loop.result)
-                     for loop in (*t2.open_loops, *t2.po_loops, *preset_loops)]
-    outputs += [_CsvTask(data / step_csv_name(run), run.result)
-                for run in (*t2.feedback_runs, open_step)]
-    outputs.append(_CsvTask(data / sine_csv_name(fig_key), sw.series[fig_key]))
-    # summaries
-    write_table2(out, t2)
-    write_sweep(out, sw)
-    checks = (*table2_checks(t2), *sweep_checks(sw, params.controller.po_cap))
-    write_text_atomic(out / "checks.json", json.dumps(
-        [{"finding": c.finding, "passed": c.passed, "detail": c.detail} for c in checks],
-        indent=2) + "\n")
-    figs = {
-        "fig03_presets.png": ("static_figure", (preset_loops,), dict(
-            title="Muscle types, open loop, Po = 0 (cf. paper Fig. 3)")),
-        "fig08_static_po0.png": ("static_figure", (t2.open_loops,), {}),
-        "fig09_static_po.png": ("static_figure", (t2.po_loops,), {}),
-        "fig12_13_step_100N.png": ("step_figure", ([open_step.result, pi_100.result],), dict(
-            title="Step response at 100 N: open loop vs PI on Po (cf. Figs. 12-13)")),
-        "fig14_15_step_pi.png": ("step_figure", ([r.result for r in t2.feedback_runs],), dict(
-            title="PI on Po at each load (cf. Figs. 14-15)")),
-        "fig16_closed_loop_static.png": ("closed_loop_static_figure",
-                                         (t2.feedback_runs, params), {}),
-        "table2.png": ("table2_figure", (t2,), {}),
-        "fig17_frequency_response.png": ("sweep_figure", (sw,), {}),
-        "fig18_19_sine.png": ("sine_figure", (sw.series[fig_key], fig_key[1],
-                                              params.controller.po_cap), {}),
-    }
-    outputs += [_FigureTask(out / name, *spec) for name, spec in figs.items()]
-    run_tasks(outputs, jobs=jobs, progress=progress, desc="figures")
+    def csv_tasks(results, name) -> list[_CsvTask]:
+        return [_CsvTask(data / name(r), r.result) for r in results]
+
+    def figure_tasks(figs: dict) -> list[_FigureTask]:
+        return [_FigureTask(out / name, *spec) for name, spec in figs.items()]
+
+    # One pool for everything: the runs of all studies longest first, then each study's
+    # CSVs and figures as soon as its runs are in (they queue behind the remaining runs).
+    with TaskPool(jobs, progress=progress, desc="reproduce") as pool:
+        table2_response, extra_response, sweep_response = submit_batches(pool, [
+            table2_batch(params, dt=dt), Batch(extra, list), sweep_batch(params, dt=dt)])
+        t2 = table2_response()
+        outputs = pool.submit(
+            csv_tasks((*t2.open_loops, *t2.po_loops), static_csv_name)
+            + csv_tasks(t2.feedback_runs, step_csv_name)
+            + figure_tasks({
+                "fig08_static_po0.png": ("static_figure", (t2.open_loops,), {}),
+                "fig09_static_po.png": ("static_figure", (t2.po_loops,), {}),
+                "fig14_15_step_pi.png": ("step_figure", ([r.result for r in t2.feedback_runs],),
+                                         dict(title="PI on Po at each load (cf. Figs. 14-15)")),
+                "fig16_closed_loop_static.png": ("closed_loop_static_figure",
+                                                 (t2.feedback_runs, params), {}),
+                "table2.png": ("table2_figure", (t2,), {})}))
+        write_table2(out, t2)
+
+        open_step, *preset_runs = extra_response()
+        own_loop = t2.open_loops[t2.loads.index(PRESET_COMPARE_LOAD_N)]
+        ran = iter(preset_runs)
+        preset_loops = [own_loop if p == params else next(ran) for p in compare]
+        pi_100 = t2.feedback_runs[t2.loads.index(100.0)]
+        outputs += pool.submit(
+            csv_tasks([r for r in preset_loops if r is not own_loop], static_csv_name)
+            + csv_tasks([open_step], step_csv_name)
+            + figure_tasks({
+                "fig03_presets.png": ("static_figure", (preset_loops,), dict(
+                    title="Muscle types, open loop, Po = 0 (cf. paper Fig. 3)")),
+                "fig12_13_step_100N.png": ("step_figure", ([open_step.result, pi_100.result],),
+                                           dict(title="Step response at 100 N: open loop vs "
+                                                      "PI on Po (cf. Figs. 12-13)"))}))
+
+        sw = sweep_response()
+        fig_key = figure_run_key(PAPER_LOADS_N, PAPER_FREQS_HZ, PAPER_CONTROLLERS)
+        outputs += pool.submit(
+            [_CsvTask(data / sine_csv_name(fig_key), sw.series[fig_key])]
+            + figure_tasks({
+                "fig17_frequency_response.png": ("sweep_figure", (sw,), {}),
+                "fig18_19_sine.png": ("sine_figure", (sw.series[fig_key], fig_key[1],
+                                                      params.controller.po_cap), {})}))
+        write_sweep(out, sw)
+        checks = (*table2_checks(t2), *sweep_checks(sw, params.controller.po_cap))
+        write_text_atomic(out / "checks.json", json.dumps(
+            [{"finding": c.finding, "passed": c.passed, "detail": c.detail} for c in checks],
+            indent=2) + "\n")
+        pool.results(outputs)
     text = _report_markdown(params, dt, t2, sw, open_step, preset_loops, checks)
     report = write_text_atomic(out / "report.md", text)
     return Reproduction(report=report, table2=t2, sweep=sw, checks=tuple(checks))

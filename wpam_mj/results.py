@@ -36,6 +36,8 @@ def write_text_atomic(path: str | Path, text: str) -> Path:
     return write_atomic(path, lambda p: p.write_text(text))
 
 
+_CSV_BLOCK_ROWS = 4096
+
 # (field, CSV column, scale from SI to the display unit)
 _COLUMNS = (
     ("time", "time_s", 1.0),
@@ -89,9 +91,13 @@ class SimResult:
         buf = io.StringIO()
         buf.write(f"# load_n={self.load:g} dt_s={self.dt:g} control={self.control} "
                   f"preset={self.preset}\n")
+        buf.write(",".join(c for _, c, _ in _COLUMNS) + "\n")
         table = np.column_stack([getattr(self, f) * s for f, _, s in _COLUMNS])
-        np.savetxt(buf, table, fmt="%.6g", delimiter=",",
-                   header=",".join(c for _, c, _ in _COLUMNS), comments="")
+        # one %-format per block of rows: as np.savetxt(fmt="%.6g") writes, ~2x faster
+        row = ",".join(["%.6g"] * table.shape[1]) + "\n"
+        for start in range(0, len(table), _CSV_BLOCK_ROWS):
+            block = table[start:start + _CSV_BLOCK_ROWS]
+            buf.write((row * len(block)) % tuple(block.ravel().tolist()))
         return buf.getvalue()
 
     def to_csv(self, path: str | Path) -> Path:
