@@ -11,7 +11,6 @@ that run, and the load average: on a shared 2-core machine other jobs inflate th
 from __future__ import annotations
 
 import argparse
-import os
 import resource
 import tempfile
 import time
@@ -20,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 import wpam_mj
+from common import Figure, describe, print_table
 from wpam_mj.control import pi_feedforward
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM
@@ -48,31 +48,44 @@ def _children_cpu() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=3, help="timed renders (best is kept)")
-    args = parser.parse_args(argv)
+def measure(repeats: int = 3) -> dict[str, float]:
+    """Best wall time of render_video over `repeats` [s], with the CPU it used."""
     params = wpam_mj.preset()
     result = make_run(params)
     best = (float("inf"), 0.0, 0.0)
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "bench.mp4"
-        for _ in range(args.repeat):
+        for _ in range(repeats):
             w0, c0, f0 = time.perf_counter(), time.process_time(), _children_cpu()
             render_video(result, params, out, fps=FPS, size=SIZE)
             best = min(best, (time.perf_counter() - w0, time.process_time() - c0,
                               _children_cpu() - f0))
         size_kb = out.stat().st_size / 1024
     wall, cpu, ffmpeg_cpu = best
-    print(f"figure: render_video, {DURATION_S:g} s run, {SIZE[0]}x{SIZE[1]} px, {FPS} fps "
-          f"MP4 ({int(DURATION_S * FPS)} frames, {size_kb:.0f} kB)")
-    print(f"measured: {wall:.2f} s wall (best of {args.repeat}), "
-          f"{1e3 * wall / (DURATION_S * FPS):.1f} ms/frame; CPU {cpu:.2f} s in-process + "
-          f"{ffmpeg_cpu:.2f} s ffmpeg; load average {os.getloadavg()[0]:.2f} on "
-          f"{os.cpu_count()} cores")
-    print(f"target: <= {TARGET_S:.1f} s wall")
-    print(f"pass: {wall <= TARGET_S}")
-    return 0
+    return {"wall": wall, "cpu": cpu, "ffmpeg_cpu": ffmpeg_cpu, "size_kb": size_kb}
+
+
+def figures(repeats: int = 3) -> list[Figure]:
+    m = measure(repeats)
+    return [Figure(f"render {DURATION_S:g} s {SIZE[0]}x{SIZE[1]}@{FPS} MP4 [s]", m["wall"], "<=",
+                   TARGET_S)]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeat", type=int, default=3, help="timed renders (best is kept)")
+    args = parser.parse_args(argv)
+    m = measure(args.repeat)
+    n = int(DURATION_S * FPS)
+    print(f"render_video: {DURATION_S:g} s run, {SIZE[0]}x{SIZE[1]} px, {FPS} fps MP4 "
+          f"({n} frames, {m['size_kb']:.0f} kB), best of {args.repeat}")
+    print(describe())
+    ok = print_table([
+        Figure("wall time [s]", m["wall"], "<=", TARGET_S),
+        Figure("wall time per frame [ms]", 1e3 * m["wall"] / n, ""),
+        Figure("CPU in this process [s]", m["cpu"], ""),
+        Figure("CPU of ffmpeg [s]", m["ffmpeg_cpu"], "")])
+    return 0 if ok else 1
 
 
 if __name__ == "__main__":

@@ -14,6 +14,7 @@ Figures, measured side by side (interleaved repeats, best of --repeats, us per s
   simulate engine="python"  the same feedback run with the reference Python loop.
 
 Run: python benchmarks/bench_step.py [--steps N] [--python-steps N] [--repeats R]
+(benchmarks/run_all.py prints the target figure with the others)
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import time
 import mujoco
 import numpy as np
 
+from common import Figure, print_table
 from wpam_mj import Drive, fastloop, preset, simulate
 from wpam_mj.control import pi_feedforward
 from wpam_mj.model import build_model
@@ -33,6 +35,8 @@ from wpam_mj.simulate import REC_ROWS, RunConstants
 LOAD = 100.0  # N, the paper's nominal load (§4.1)
 DT = 1e-3  # s
 TARGET_RATIO = 2.0  # compiled W-PAM step / bare mj_step
+REFERENCE = "bare mj_step (reference)"
+FULL_STEP = 'simulate engine="c"'
 
 
 def feedback_drive(params, n: int) -> Drive:
@@ -80,6 +84,37 @@ def time_loop_alone(params, drive: Drive) -> float:
     return elapsed
 
 
+def measure(steps: int = 20000, python_steps: int = 4000, repeats: int = 7) -> dict[str, float]:
+    """Best us/step of each figure over `repeats` interleaved repeats."""
+    params = preset("wpam")
+    drive = feedback_drive(params, steps)
+    drive_py = feedback_drive(params, python_steps)
+    # frozen end state of the feedback run for the bare steps
+    end = simulate(params, LOAD, drive, dt=DT, control="pi", engine="c")
+    state = (float(end.x[-1]), float(end.tension[-1]), float(end.friction[-1]))
+    n, n_py = steps, python_steps
+    timed = {  # name -> (steps per call, timed call)
+        REFERENCE: (n, lambda: time_bare(params, n, state)),
+        "bare, frictionloss 0": (n, lambda: time_bare(params, n, state, frictionloss=False)),
+        "bare, noslip off": (n, lambda: time_bare(params, n, state, noslip=False)),
+        FULL_STEP: (n, lambda: time_simulate(params, drive, "c")),
+        "compiled loop alone": (n, lambda: time_loop_alone(params, drive)),
+        'simulate engine="python"': (n_py, lambda: time_simulate(params, drive_py, "python")),
+    }
+    best = dict.fromkeys(timed, np.inf)
+    for _ in range(repeats):
+        for name, (k, run) in timed.items():
+            best[name] = min(best[name], run() / k * 1e6)
+    return best
+
+
+def figures(**kwargs) -> list[Figure]:
+    """The target figure: full W-PAM step / bare mj_step."""
+    best = measure(**kwargs)
+    return [Figure("W-PAM step / bare mj_step [x]", best[FULL_STEP] / best[REFERENCE], "<=",
+                   TARGET_RATIO)]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=20000,
@@ -92,42 +127,14 @@ def main(argv: list[str] | None = None) -> int:
     if not fastloop.available():
         print(f"compiled loop unavailable: {fastloop.unavailable_reason()}")
         return 1
-
-    params = preset("wpam")
-    drive = feedback_drive(params, args.steps)
-    drive_py = feedback_drive(params, args.python_steps)
-    # frozen end state of the feedback run for the bare steps
-    end = simulate(params, LOAD, drive, dt=DT, control="pi", engine="c")
-    state = (float(end.x[-1]), float(end.tension[-1]), float(end.friction[-1]))
-
-    n, n_py = args.steps, args.python_steps
-    figures = {  # name -> (steps per call, timed call)
-        "bare mj_step (reference)": (n, lambda: time_bare(params, n, state)),
-        "bare, frictionloss 0": (n, lambda: time_bare(params, n, state, frictionloss=False)),
-        "bare, noslip off": (n, lambda: time_bare(params, n, state, noslip=False)),
-        'simulate engine="c"': (n, lambda: time_simulate(params, drive, "c")),
-        "compiled loop alone": (n, lambda: time_loop_alone(params, drive)),
-        'simulate engine="python"': (n_py, lambda: time_simulate(params, drive_py, "python")),
-    }
-    best = dict.fromkeys(figures, np.inf)
-    for _ in range(args.repeats):
-        for name, (steps, run) in figures.items():
-            best[name] = min(best[name], run() / steps * 1e6)
-
-    ref = best["bare mj_step (reference)"]
+    best = measure(args.steps, args.python_steps, args.repeats)
+    ref = best[REFERENCE]
     print(f"W-PAM step cost, load {LOAD:g} N, dt {DT * 1e3:g} ms, PI feedback, "
-          f"best of {args.repeats} (us/step)")
-    print(f"{'figure':<28} {'us/step':>8} {'x bare':>7} {'target':>7}  result")
-    ok = True
-    for name, us in best.items():
-        ratio = us / ref
-        if name == 'simulate engine="c"':
-            passed = ratio <= TARGET_RATIO
-            ok &= passed
-            target, result = f"<= {TARGET_RATIO:g}", "pass" if passed else "FAIL"
-        else:
-            target, result = "-", "info"
-        print(f"{name:<28} {us:8.2f} {ratio:7.2f} {target:>7}  {result}")
+          f"best of {args.repeats}; ratios to the bare mj_step")
+    ok = print_table([Figure(f"{name} [us/step]", us, "") for name, us in best.items()]
+                     + [Figure(f"{name} [x bare]", us / ref, "<=", TARGET_RATIO)
+                        if name == FULL_STEP else Figure(f"{name} [x bare]", us / ref, "")
+                        for name, us in best.items() if name != REFERENCE])
     return 0 if ok else 1
 
 

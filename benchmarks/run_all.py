@@ -1,0 +1,28 @@
+"""Every speed target of the project in one table (issue 5): run from the repository root,
+
+    python benchmarks/run_all.py
+
+Figures are measured side by side in one run and, where the target is a ratio, as ratios
+(this machine is shared and noisy; the machine line says how busy it was). Each figure
+comes from its own script, which prints more detail: bench_step.py (per-step cost),
+bench_reproduce.py (reproduce wall time, memory, sweep speed-up), bench_render.py (video).
+"""
+
+from __future__ import annotations
+
+import sys
+
+import bench_render
+import bench_reproduce
+import bench_step
+from common import describe, print_table
+
+
+def main() -> int:
+    rows = [*bench_step.figures(), *bench_reproduce.figures(), *bench_render.figures()]
+    print(describe())
+    return 0 if print_table(rows) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
