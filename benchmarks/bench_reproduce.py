@@ -65,7 +65,7 @@ def time_sweep(jobs: int) -> float:
     return time.perf_counter() - t0
 
 
-def figures(repeats: int = 2, out: Path | None = None) -> list[Figure]:
+def figures(repeats: int = 3, out: Path | None = None) -> list[Figure]:
     """Reproduce wall time and peak memory (best of `repeats`), and the sweep speed-up."""
     with tempfile.TemporaryDirectory() as tmp:
         wall, peak = min(time_reproduce(out or Path(tmp) / "reproduce") for _ in range(repeats))
@@ -83,7 +83,7 @@ def figures(repeats: int = 2, out: Path | None = None) -> list[Figure]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--repeats", type=int, default=2, help="timing repeats (best of)")
+    parser.add_argument("--repeats", type=int, default=3, help="timing repeats (best of)")
     parser.add_argument("--out", type=Path, default=None,
                         help="folder for the reproduction (default: a temporary folder)")
     args = parser.parse_args(argv)
