@@ -30,7 +30,8 @@ from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import (CALIBRATION_FILE, MM, MPA, Params, ParameterError, preset)
 from wpam_mj.results import write_text_atomic
 from wpam_mj.studies import (PAPER_CONTROLLERS, PAPER_FREQS_HZ, PAPER_LOADS_N, PAPER_TABLE2,
-                             StaticTask, run_tasks, step_study, sweep)
+                             Batch, StaticTask, StepTask, SweepResult, run_batches, run_tasks,
+                             sweep_batch)
 
 CONTROLLERS = PAPER_CONTROLLERS  # ("pi", "pid"): index 0 and 1 of the sweep metrics
 PO_DOWN = PO_DOWN_STATIC_MPA * MPA  # paper Fig. 9
@@ -100,9 +101,8 @@ def static_residuals(params: Params, jobs: int, dt: float) -> np.ndarray:
     return np.array(res)
 
 
-def sweep_metrics(params: Params, jobs: int, dt: float) -> dict[str, np.ndarray]:
+def sweep_metrics(sw: SweepResult) -> dict[str, np.ndarray]:
     """Gain, lag [deg] and regulator-gauge Po max [Pa], shape (controller, load, freq)."""
-    sw = sweep(params, PAPER_LOADS_N, PAPER_FREQS_HZ, CONTROLLERS, keep=(), dt=dt, jobs=jobs)
     curves = [[sw.curve(load, c) for load in PAPER_LOADS_N] for c in CONTROLLERS]
     return {name: np.array([[[getattr(p, attr) for p in curve] for curve in per_load]
                             for per_load in curves])
@@ -112,7 +112,11 @@ def sweep_metrics(params: Params, jobs: int, dt: float) -> dict[str, np.ndarray]
 
 def dynamic_residuals(params: Params, jobs: int, dt: float) -> np.ndarray:
     """Hinge residuals of the §4.2 findings and of step convergence (0 when they hold)."""
-    m = sweep_metrics(params, jobs, dt)
+    # the sweep and the PI staircases in one pool (the long staircases start first)
+    sw, steps = run_batches([
+        sweep_batch(params, PAPER_LOADS_N, PAPER_FREQS_HZ, CONTROLLERS, keep=(), dt=dt),
+        Batch([StepTask(params, load, "pi", dt) for load in PAPER_LOADS_N], list)], jobs=jobs)
+    m = sweep_metrics(sw)
     gain, lag, po_max = m["gain"], m["lag"], m["po_max"]
     hinge = lambda v, margin: np.maximum(0.0, v + margin)  # noqa: E731 (v <= -margin holds)
     res = [
@@ -127,7 +131,6 @@ def dynamic_residuals(params: Params, jobs: int, dt: float) -> np.ndarray:
         # Po reaches its cap at 150 N, 0.5 Hz (PI)
         [hinge(params.controller.po_cap - po_max[0, -1, 3], 0.0) / params.controller.po_cap * 10],
     ]
-    steps = step_study(params, [(load, "pi") for load in PAPER_LOADS_N], dt=dt, jobs=jobs)
     res.append(hinge(np.array([s.worst_error() for s in steps]) / MM - 0.4, 0.0))
     return np.concatenate([np.atleast_1d(np.asarray(r, dtype=float)) for r in res])
 
