@@ -212,3 +212,28 @@ def test_render_simulates_only_what_it_shows(files, capsys, monkeypatch):
     assert str(path) == "v.gif" and fps == 24 and size == (320, 240)
     assert result.time[-1] == pytest.approx(1.5, abs=result.time[1])
     assert np.all(np.isfinite(result.x_ref))  # the sinusoid, under feedback
+
+
+def test_reproduce_writes_every_output(files, capsys):
+    """Smoke test of the main job (coarser 2 ms step to stay quick): every figure, CSV,
+    summary and the report, from one pool of two workers."""
+    code, out, err = _run(capsys, "reproduce", "--dt", "0.002", "--jobs", "2", "--out", "rep")
+    assert code == 0, err
+    rep = files / "rep"
+    figures = {"fig03_presets.png", "fig08_static_po0.png", "fig09_static_po.png",
+               "fig12_13_step_100N.png", "fig14_15_step_pi.png",
+               "fig16_closed_loop_static.png", "fig17_frequency_response.png",
+               "fig18_19_sine.png", "table2.png"}
+    summaries = {"report.md", "checks.json", "table2.json", "table2.csv", "sweep.json",
+                 "sweep.csv"}
+    assert {p.name for p in rep.iterdir() if p.is_file()} == figures | summaries
+    data = {p.name for p in (rep / "data").iterdir()}
+    assert {"static_wpam_50N.csv", "static_wpam_150N_po0.04MPa.csv",
+            "static_mckibben_100N.csv", "static_rlam_100N.csv", "step_wpam_100N_open.csv",
+            "step_wpam_150N_pi.csv", "sine_150N_0.5Hz_pi.csv"} <= data
+    assert len(data) == 13
+    assert not list(rep.rglob(".*")), "temporary files left behind"
+    checks = json.loads((rep / "checks.json").read_text())
+    assert len(checks) == 7 and all(set(c) == {"finding", "passed", "detail"} for c in checks)
+    assert "Table 2" in (rep / "report.md").read_text() and "Table 2" in out
+    assert len(_read_csv(rep / "data" / "step_wpam_100N_pi.csv")["x_mm"]) > 1000

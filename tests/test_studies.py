@@ -1,6 +1,7 @@
 """Studies: a process pool gives the serial results bit for bit; result structures; the
 checks of the paper's findings on hand-made data."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -74,6 +75,41 @@ def test_worker_errors_reach_the_caller(params):
     good = studies.StaticTask(params, 100.0, 0.0, 1e-3)
     with pytest.raises(ParameterError, match="load"):
         studies.run_tasks([good, bad], jobs=2)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Square:
+    """A cheap pool task: value**2, or ValueError for a negative value."""
+
+    value: int
+
+    @property
+    def cost(self) -> float:
+        return float(self.value % 3)  # a cost order unlike the task order
+
+    def run(self) -> int:
+        if self.value < 0:
+            raise ValueError(f"negative value {self.value}")
+        return self.value ** 2
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_task_pool_keeps_order_and_takes_follow_up_work(jobs):
+    with studies.TaskPool(jobs) as pool:
+        first = pool.submit([_Square(v) for v in range(7)])
+        assert pool.results(first) == [v * v for v in range(7)]
+        later = pool.submit([_Square(v) for v in (9, 8)])  # same pool, after results
+        assert pool.results(later) == [81, 64]
+        assert pool.results(first + later)[-1] == 64
+
+
+def test_task_pool_failure_reaches_the_caller():
+    with pytest.raises(ValueError, match="negative value -4"):
+        with studies.TaskPool(2) as pool:
+            pool.results(pool.submit([_Square(v) for v in (1, 2, -4, 3)]))
+    with pytest.raises(ValueError, match="negative value -4"):
+        with studies.TaskPool(1) as pool:  # serial: raised at once, nothing after it runs
+            pool.submit([_Square(-4), _Square(5)])
 
 
 def test_inputs_are_checked_before_running(params):
