@@ -255,6 +255,32 @@ def test_feedback_holds_each_plateau():
     assert max(errors_mm) < 0.5, "plateau error after settling [mm]"
 
 
+def test_feedback_run_starts_at_rest_at_the_first_target():
+    """Bumpless start: the integral holds Po = po_feedforward, the Po the Pi feedforward
+    assumes, so the first plateau shows no start-up over-contraction (it showed 0.3 mm
+    with an empty integral: Po needs ~5 mm s of error to reach 0.04 MPa)."""
+    res = feedback_run()
+    assert res.po_cmd[0] == pytest.approx(WPAM.controller.po_feedforward, rel=1e-12)
+    first = res.time < STEP_TIME
+    worst = np.abs(res.x[first] - STEP_LEVELS[0]).max() / MM
+    print(f"PI at 100 N, first plateau: max |x - x_r| = {worst:.3f} mm")
+    assert worst < 0.05, "over-contraction on the first plateau [mm]"
+
+
+def test_po_feedback_initial_output_is_held_by_the_integral():
+    ff = WPAM.controller.po_feedforward
+    ctl = PoFeedback(WPAM, DT, derivative=False, initial_output=ff)
+    assert ctl.update(0.01, 0.01) == pytest.approx(ff, rel=1e-12)  # zero error
+    # and it is ordinary integral state: a steady error moves it at Ki (PI: no D kick
+    # to saturate the output and pause the integral)
+    for _ in range(1000):
+        u = ctl.update(0.0102, 0.01)  # e = 0.2 mm for 1 s
+    c = WPAM.controller
+    assert u == pytest.approx(ff + (c.kp * 0.2 + c.ki * 0.2 * 1.0) * MPA, rel=1e-6)
+    no_integral = WPAM.replace(controller={"ki": 0.0})
+    assert PoFeedback(no_integral, DT, derivative=False, initial_output=ff).integral == 0.0
+
+
 def test_feedback_keeps_po_within_regulator_and_cap():
     res = feedback_run()
     p_min, cap = WPAM.pneumatics.p_min, WPAM.controller.po_cap

@@ -65,6 +65,7 @@ enum {
   K_PO_HI,           /* po_cap [Pa] */
   K_MM,              /* m per mm */
   K_MPA,             /* Pa per MPa */
+  K_INTEGRAL0,       /* initial integral [mm s] (bumpless start) */
   /* where the loop reads and writes MuJoCo (looked up by name in Python) */
   K_QPOS_ADR,        /* qpos address of the contraction joint */
   K_DOF_ADR,         /* dof address of the contraction joint */
@@ -237,7 +238,7 @@ int wpam_run(mjModel* m, mjData* d, const double* consts, int n, const double* p
   const int actuator = (int)k[K_ACTUATOR_ID], tendon = (int)k[K_TENDON_ID];
   Plant plant = {0.0, 0.0, k[K_ATMOSPHERE], k[K_ATMOSPHERE], NULL, NULL, 0,
                  (int)k[K_DELAY_STEPS]};
-  Feedback pid = {0.0, 0.0, 0.0, 0};
+  Feedback pid = {k[K_INTEGRAL0], 0.0, 0.0, 0};
   int step, j = 0, status = 0;
 
   if (record_every < 1 || n < 0 || (n > 0 && n_rec < (n - 1) / record_every + 1))

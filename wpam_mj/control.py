@@ -13,6 +13,13 @@ so Kp = 0.1 MPa/mm, Ki = 0.008 MPa/(mm s), Kd = 0.004 MPa s/mm. The derivative a
 the error through a first-order filter s / (T_f s + 1) (backward Euler), and the integral
 stops while the output is saturated in the direction the error pushes it (conditional
 integration anti-windup; Astrom & Hagglund, Advanced PID Control, 2006, §3.5).
+
+Feedback runs start bumpless: the integral is preloaded so that Po = po_feedforward at
+zero error, the rest state the Pi feedforward assumes, as if the loop had been holding
+the first target before the record starts (an experiment starts with its controller
+already running). Starting from an empty integral instead, Po would need ~5 mm s of
+integrated error to reach po_feedforward: the muscle would over-contract and creep back
+for tens of seconds, a start-up transient rather than the muscle's hysteresis.
 """
 
 from __future__ import annotations
@@ -44,17 +51,25 @@ def pi_feedforward(muscle: MuscleModel, params: Params, x_ref: np.ndarray, load:
     return np.clip(pi, pn.p_min, pn.p_max)
 
 
+def initial_integral(output: float, ki: float) -> float:
+    """Integral [mm s] whose Ki term alone outputs `output` [Pa]; 0 when ki = 0."""
+    return output / MPA / ki if ki > 0.0 else 0.0
+
+
 class PoFeedback:
     """PI/PID on the contraction error, output Po command [Pa]; call once per step."""
 
-    def __init__(self, params: Params, dt: float, *, derivative: bool) -> None:
+    def __init__(self, params: Params, dt: float, *, derivative: bool,
+                 initial_output: float = 0.0) -> None:
+        """initial_output: Po [Pa] at zero error before the first update, held by the
+        integral (the loop at rest before the run: bumpless start); 0 without integral."""
         c = params.controller
         self.kp, self.ki = c.kp, c.ki
         self.kd = c.kd if derivative else 0.0
         self.tf = c.derivative_filter
         self.dt = dt
         self.lo, self.hi = params.pneumatics.p_min, c.po_cap
-        self.integral = 0.0  # mm s
+        self.integral = initial_integral(initial_output, self.ki)  # mm s
         self.derivative = 0.0  # mm/s
         self.e_prev = None
 

@@ -87,8 +87,9 @@ def step_targets(t: np.ndarray, levels_mm=STEP_LEVELS_MM, hold: float = STEP_HOL
 def drive_for_targets(params: Params, load: float, x_ref: np.ndarray, control: str) -> Drive:
     """Pi from the mechanical equilibrium model for x_ref; Po fed back (or 0 in open loop).
 
-    Feedback runs assume Po = po_feedforward (over-contraction until Po rises, paper
-    §4.1); the open-loop run assumes Po = 0, the only Po it has (paper Fig. 12).
+    Feedback runs assume Po = po_feedforward (with less Po the muscle over-contracts,
+    paper §4.1) and start with the feedback holding that Po (`wpam_mj.control`); the
+    open-loop run assumes Po = 0, the only Po it has (paper Fig. 12).
     """
     muscle = MuscleModel.from_params(params)
     po_ff = 0.0 if control == "open" else params.controller.po_feedforward

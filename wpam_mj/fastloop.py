@@ -31,6 +31,7 @@ import mujoco
 import numpy as np
 
 from wpam_mj import pneumatics as pn
+from wpam_mj.control import initial_integral
 from wpam_mj.model import MuscleIndex
 from wpam_mj.params import MM, MPA
 from wpam_mj.simulate import REC_ROWS
@@ -55,7 +56,7 @@ _CONSTS = (
     # BraidGeometry
     "natural_length", "thread_sq", "volume_denom", "diameter_denom",
     # PoFeedback
-    "kp", "ki", "kd", "tf", "po_lo", "po_hi", "mm", "mpa",
+    "kp", "ki", "kd", "tf", "po_lo", "po_hi", "mm", "mpa", "integral0",
     # MuJoCo addresses
     "qpos_adr", "dof_adr", "actuator_id", "tendon_id",
 )
@@ -105,6 +106,7 @@ def pack_constants(model, muscle, params, k) -> np.ndarray:
         # PoFeedback.__init__: kd only with the derivative term
         kp=c.kp, ki=c.ki, kd=c.kd if k.derivative else 0.0, tf=c.derivative_filter,
         po_lo=params.pneumatics.p_min, po_hi=c.po_cap, mm=MM, mpa=MPA,
+        integral0=initial_integral(k.po_initial, c.ki),
         qpos_adr=idx.qpos, dof_adr=idx.dof, actuator_id=idx.actuator, tendon_id=idx.tendon,
     )
     return np.array([values[name] for name in _CONSTS], dtype=np.float64)

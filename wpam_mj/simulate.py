@@ -80,6 +80,7 @@ class RunConstants:
     critical_ratio: float
     tube_volume: float
     bag_volume: float
+    po_initial: float  # Po [Pa] the feedback outputs at zero error at the start (bumpless)
 
     @classmethod
     def make(cls, params: Params, dt: float, control: str, record_dt: float) -> "RunConstants":
@@ -99,7 +100,8 @@ class RunConstants:
             critical_ratio=p.critical_ratio,
             tube_volume=p.tube_volume,
             bag_volume=pn.outer_bag_volume(params.braid.outer_bag_length,
-                                           params.braid.outer_bag_diameter))
+                                           params.braid.outer_bag_diameter),
+            po_initial=params.controller.po_feedforward if control != "open" else 0.0)
 
 
 def simulate(params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
@@ -233,7 +235,7 @@ def run_python(model, data, muscle: MuscleModel, params: Params, k: RunConstants
                drive: Drive, rec: np.ndarray):
     """Reference loop in plain Python floats; returns None or (step, reason)."""
     plant = Plant(muscle, k)
-    pid = PoFeedback(params, k.dt, derivative=k.derivative)
+    pid = PoFeedback(params, k.dt, derivative=k.derivative, initial_output=k.po_initial)
     idx = MuscleIndex.of(model)
     qpos, qvel = data.qpos, data.qvel
     j = 0
