@@ -96,7 +96,7 @@ def run_pi_episode(env, params) -> tuple[float, list[dict]]:
 
 # Gains for the 10 ms control step (MPa/mm, MPa/(mm s)). The paper's Kp = 0.1 MPa/mm,
 # sampled every 10 ms, ends 0.57-0.60 mm off here (stick-slip hunting, worsened by the
-# sample delay; at the 1 ms physics step `simulate` settles it within 0.35 mm), so this
+# sample delay; at the 1 ms physics step `simulate` settles it within 0.15 mm), so this
 # test pins the environment with a gentler PI.
 PI_GAINS = {"kp": 0.02, "ki": 0.008}
 
