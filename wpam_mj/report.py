@@ -318,8 +318,8 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
     extra = ([StepTask(params, 100.0, "open", dt)]
              + [StaticTask(p, PRESET_COMPARE_LOAD_N, 0.0, dt) for p in compare if p != params])
 
-    def csv_tasks(results, name) -> list[_CsvTask]:
-        return [_CsvTask(data / name(r), r.result) for r in results]
+    def csv_tasks(runs, file_name) -> list[_CsvTask]:
+        return [_CsvTask(data / file_name(run), run.result) for run in runs]
 
     def figure_tasks(figs: dict) -> list[_FigureTask]:
         return [_FigureTask(out / name, *spec) for name, spec in figs.items()]
