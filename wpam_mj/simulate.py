@@ -91,8 +91,9 @@ class RunConstants:
                                  f"dt = {dt} s")
         p = params.pneumatics
         tau = p.time_constant
+        feedback = control != "open"
         return cls(
-            dt=dt, record_every=record_every, feedback=control != "open",
+            dt=dt, record_every=record_every, feedback=feedback,
             derivative=control == "pid",
             lag_alpha=1.0 if tau == 0.0 else -math.expm1(-dt / tau),
             delay_steps=round(p.dead_time / dt), atmosphere=p.atmosphere, p_max=p.p_max,
@@ -101,7 +102,7 @@ class RunConstants:
             tube_volume=p.tube_volume,
             bag_volume=pn.outer_bag_volume(params.braid.outer_bag_length,
                                            params.braid.outer_bag_diameter),
-            po_initial=params.controller.po_feedforward if control != "open" else 0.0)
+            po_initial=params.controller.po_feedforward if feedback else 0.0)
 
 
 def simulate(params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
