@@ -127,7 +127,7 @@ class TaskPool:
 
     def results(self, futures: Sequence[Future]) -> list:
         """The results of `futures` (from `submit`), in order; raises the first failure."""
-        done, pending = wait(futures, return_when=FIRST_EXCEPTION)
+        done, _ = wait(futures, return_when=FIRST_EXCEPTION)
         for fut in done:
             if fut.exception() is not None:
                 for other in self._submitted:
