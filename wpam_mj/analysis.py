@@ -194,9 +194,9 @@ def _positive(name: str, value: float, unit: str) -> float:
 
 
 def _wrap_rad(angle: float) -> float:
-    """Wrap to (-pi, pi]."""
+    """Wrap to (-pi, pi]; within rounding of -pi counts as pi (atan2 of a -0.0 ordinate)."""
     wrapped = math.remainder(angle, 2.0 * math.pi)  # in [-pi, pi]
-    return math.pi if wrapped <= -math.pi else wrapped
+    return math.pi if wrapped <= -math.pi * (1.0 - 1e-12) else wrapped
 
 
 @dataclass(frozen=True)
