@@ -39,7 +39,7 @@ def make_run(params: wpam_mj.Params, load: float = 100.0) -> wpam_mj.SimResult:
     muscle = MuscleModel.from_params(params)
     pi = pi_feedforward(muscle, params, x_ref, load, params.controller.po_feedforward)
     drive = wpam_mj.Drive(pi_cmd=pi, po_cmd=np.zeros_like(t), x_ref=x_ref)
-    return wpam_mj.simulate(params, load, drive, dt=dt, control="pi", engine="python")
+    return wpam_mj.simulate.simulate(params, load, drive, dt=dt, control="pi", engine="python")
 
 
 def _children_cpu() -> float:

@@ -26,11 +26,12 @@ import mujoco
 import numpy as np
 
 from common import Figure, print_table
-from wpam_mj import Drive, fastloop, preset, simulate
+from wpam_mj import Drive, fastloop, preset
+from wpam_mj.simulate import simulate
 from wpam_mj.control import pi_feedforward
 from wpam_mj.model import build_model
 from wpam_mj.muscle import MuscleModel
-from wpam_mj.simulate import REC_ROWS, RunConstants
+from wpam_mj.loop_contract import REC_ROWS, RunConstants
 
 LOAD = 100.0  # N, the paper's nominal load (§4.1)
 DT = 1e-3  # s

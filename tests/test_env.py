@@ -70,7 +70,7 @@ def test_steps_match_simulate_exactly() -> None:
     env.reset()
     obs = [env.step([pi_cmd, po_cmd]).observation for _ in range(n_ctrl)]
     n = 10 * n_ctrl + 1
-    ref = wpam_mj.simulate(PARAMS, load, Drive(np.full(n, pi_cmd), np.full(n, po_cmd),
+    ref = wpam_mj.simulate.simulate(PARAMS, load, Drive(np.full(n, pi_cmd), np.full(n, po_cmd),
                                                np.full(n, np.nan)),
                            dt=1e-3, control="open", record_dt=0.01, engine="python")
     # the env observes after each control step; simulate records before each step

@@ -8,15 +8,20 @@ without regulator dead time, and both engines must report a divergence the same 
 
 from __future__ import annotations
 
+import ast
 import os
 import subprocess
 import sys
+from pathlib import Path
+from types import ModuleType
 
 import numpy as np
 import pytest
 
-from wpam_mj import Drive, SimulationDiverged, fastloop, preset, simulate
+from wpam_mj import Drive, SimulationDiverged, fastloop, preset
+from wpam_mj.simulate import simulate
 from wpam_mj.control import pi_feedforward
+from wpam_mj.loop_contract import REC_FIELDS
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MPA
 
@@ -112,3 +117,33 @@ def test_env_var_disables_compiled_path():
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
                          text=True, check=True).stdout.split()
     assert out == ["False", "True"]
+
+
+def test_layout_checked_by_name():
+    """The C library's constant and record names are compared with Python's when it loads:
+    a reordered or missing name is refused with both lists in the message."""
+    lib = fastloop._load()
+    assert fastloop.exported_names(lib, "wpam_const_names") == fastloop._CONSTS
+    assert fastloop.exported_names(lib, "wpam_record_fields") == REC_FIELDS
+    swapped = (fastloop._CONSTS[1], fastloop._CONSTS[0], *fastloop._CONSTS[2:])
+    with pytest.raises(RuntimeError, match="wpam_const_names .* C order"):
+        fastloop._check_layout(lib, "wpam_const_names", swapped)
+    with pytest.raises(RuntimeError, match=r"missing \['leak'\]"):
+        fastloop._check_layout(lib, "wpam_record_fields", (*REC_FIELDS, "leak"))
+
+
+def _imported_modules(module) -> set[str]:
+    tree = ast.parse(Path(module.__file__).read_text())
+    return {node.module for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)} | {
+        f"wpam_mj.{a.name}" for node in ast.walk(tree) if isinstance(node, ast.ImportFrom)
+        and node.module == "wpam_mj" for a in node.names}
+
+
+def test_loops_do_not_import_each_other():
+    """`import wpam_mj.simulate` yields the module, and the compiled loop does not import
+    the Python loop (their shared contract is wpam_mj.loop_contract)."""
+    import wpam_mj.simulate as python_loop  # noqa: PLC0415
+
+    assert isinstance(python_loop, ModuleType)
+    assert "wpam_mj.simulate" not in _imported_modules(fastloop)
+    assert "wpam_mj.loop_contract" in _imported_modules(fastloop)

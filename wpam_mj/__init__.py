@@ -8,8 +8,9 @@ if _sys.platform.startswith("linux") and not _os.environ.get("DISPLAY"):
 
 from wpam_mj.params import Params, ParameterError, preset
 from wpam_mj.results import SimResult
-from wpam_mj.simulate import Drive, SimulationDiverged, simulate
+from wpam_mj.loop_contract import SimulationDiverged
+from wpam_mj.simulate import Drive
 
-__all__ = ["Drive", "Params", "ParameterError", "SimResult", "SimulationDiverged", "preset",
-           "simulate"]
+# `wpam_mj.simulate` is the module; run a simulation with `wpam_mj.simulate.simulate`.
+__all__ = ["Drive", "Params", "ParameterError", "SimResult", "SimulationDiverged", "preset"]
 __version__ = "0.1.0"

@@ -1,9 +1,10 @@
 /* Compiled twin of the reference simulation loop `wpam_mj.simulate.run_python`.
 
-   A line-by-line port of run_python + Plant.advance (wpam_mj/simulate.py),
-   PoFeedback.update (wpam_mj/control.py), MuscleModel.tension/friction
-   (wpam_mj/muscle.py), BraidGeometry.area/volume/diameter (wpam_mj/geometry.py) and
-   mass_flow/iso6358_psi (wpam_mj/pneumatics.py). See those modules for the physics and
+   A line-by-line port of run_python (wpam_mj/simulate.py), Plant.advance
+   (wpam_mj/plant.py), Regulator, Chamber, mass_flow and iso6358_psi
+   (wpam_mj/pneumatics.py), PoFeedback.update (wpam_mj/control.py),
+   MuscleModel.tension/friction (wpam_mj/muscle.py) and BraidGeometry.area/volume/diameter
+   (wpam_mj/geometry.py), each under the same name. See those modules for the physics and
    its sources (paper eqs. 1-7; Chou & Hannaford 1996; ISO 6358).
 
    Bit-identical to the Python loop, by construction:
@@ -24,55 +25,74 @@
 
 #include <mujoco/mujoco.h>
 
-/* Layout of the `consts` array; must match `_CONSTS` in wpam_mj/fastloop.py
-   (checked at load time through wpam_n_consts). */
-enum {
-  /* RunConstants (wpam_mj/simulate.py) */
-  K_DT,              /* physics time step [s] */
-  K_RECORD_EVERY,    /* record every this many steps [1] */
-  K_FEEDBACK,        /* 1: Po from PoFeedback, 0: Po from the drive [1] */
-  K_LAG_ALPHA,       /* 1 - exp(-dt / tau) of the regulator lag [1] */
-  K_DELAY_STEPS,     /* regulator dead time [steps] */
-  K_ATMOSPHERE,      /* [Pa] */
-  K_P_MAX,           /* regulator command clamp [Pa] */
-  K_CONDUCTANCE_I,   /* ISO 6358 sonic conductance C of the Pi line [m^3/(s Pa)] */
-  K_CONDUCTANCE_O,   /* ISO 6358 sonic conductance C of the Po line [m^3/(s Pa)] */
-  K_CRITICAL_RATIO,  /* ISO 6358 b [1] */
-  K_TUBE_VOLUME,     /* [m^3] */
-  K_BAG_VOLUME,      /* outer bag volume [m^3] */
-  /* wpam_mj.pneumatics module constants */
-  K_RT0,             /* R_AIR * T_0 [J/kg] */
-  K_RHO0,            /* RHO_0 [kg/m^3] */
-  K_R_LAMINAR,       /* R_LAMINAR [1] */
-  /* MuscleModel */
-  K_OUTPUT_COEFF,    /* Kf [1] */
-  K_FRICTION_COEFF,  /* mu [1] */
-  K_FRICTION_CONST,  /* F_f0 [N] */
-  K_AXIAL_AREA,      /* A_ax [m^2] */
-  K_PI_KR,           /* math.pi * rubber_stiffness [N/m] */
-  K_NATURAL_DIAMETER,/* D0 [m] */
-  /* BraidGeometry */
-  K_NATURAL_LENGTH,  /* L0 [m] */
-  K_THREAD_SQ,       /* thread_length ** 2 [m^2] */
-  K_VOLUME_DENOM,    /* 4.0 * math.pi * turns ** 2 [1] (area and volume) */
-  K_DIAMETER_DENOM,  /* turns * math.pi [1] */
-  /* PoFeedback (wpam_mj/control.py) */
-  K_KP,              /* [MPa/mm] */
-  K_KI,              /* [MPa/(mm s)] */
-  K_KD,              /* [MPa s/mm]; 0 unless PID */
-  K_TF,              /* derivative filter time constant [s] */
-  K_PO_LO,           /* p_min [Pa] */
-  K_PO_HI,           /* po_cap [Pa] */
-  K_MM,              /* m per mm */
-  K_MPA,             /* Pa per MPa */
-  K_INTEGRAL0,       /* initial integral [mm s] (bumpless start) */
-  /* where the loop reads and writes MuJoCo (looked up by name in Python) */
-  K_QPOS_ADR,        /* qpos address of the contraction joint */
-  K_DOF_ADR,         /* dof address of the contraction joint */
-  K_ACTUATOR_ID,     /* the muscle motor */
-  K_TENDON_ID,       /* the muscle tendon */
-  K_COUNT
-};
+/* The per-run constants, in the order of the `consts` array: X(ENUM_NAME, python_name).
+   `wpam_const_names` returns the python names, which wpam_mj/fastloop.py compares with
+   its own list when it loads this library, so a reordered, renamed or missing constant
+   stops the compiled loop from loading instead of running with wrong numbers. Integers
+   (steps, flags, indices) are stored exactly as doubles. */
+#define WPAM_CONSTANTS(X)                                                          \
+  /* RunConstants (wpam_mj/loop_contract.py) */                                    \
+  X(DT, dt)                          /* physics time step [s] */                   \
+  X(RECORD_EVERY, record_every)      /* record every this many steps [1] */        \
+  X(FEEDBACK, feedback)              /* 1: Po from PoFeedback, 0: from the drive */ \
+  X(LAG_ALPHA, lag_alpha)            /* 1 - exp(-dt / tau) of the regulator lag */ \
+  X(DELAY_STEPS, delay_steps)        /* regulator dead time [steps] */             \
+  X(ATMOSPHERE, atmosphere)          /* [Pa] */                                    \
+  X(P_MAX, p_max)                    /* regulator command clamp [Pa] */            \
+  X(CONDUCTANCE_I, conductance_i)    /* ISO 6358 C of the Pi line [m^3/(s Pa)] */  \
+  X(CONDUCTANCE_O, conductance_o)    /* ISO 6358 C of the Po line [m^3/(s Pa)] */  \
+  X(CRITICAL_RATIO, critical_ratio)  /* ISO 6358 b [1] */                          \
+  X(TUBE_VOLUME, tube_volume)        /* [m^3] */                                   \
+  X(BAG_VOLUME, bag_volume)          /* outer bag volume [m^3] */                  \
+  /* wpam_mj.pneumatics module constants */                                        \
+  X(RT0, rt0)                        /* R_AIR * T_0 [J/kg] */                      \
+  X(RHO0, rho0)                      /* RHO_0 [kg/m^3] */                          \
+  X(R_LAMINAR, r_laminar)            /* R_LAMINAR [1] */                           \
+  /* MuscleModel (wpam_mj/muscle.py) */                                            \
+  X(OUTPUT_COEFF, output_coeff)      /* Kf [1] */                                  \
+  X(FRICTION_COEFF, friction_coeff)  /* mu [1] */                                  \
+  X(FRICTION_CONST, friction_const)  /* F_f0 [N] */                                \
+  X(AXIAL_AREA, axial_area)          /* A_ax [m^2] */                              \
+  X(PI_KR, pi_kr)                    /* math.pi * rubber_stiffness [N/m] */        \
+  X(NATURAL_DIAMETER, natural_diameter) /* D0 [m] */                               \
+  /* BraidGeometry (wpam_mj/geometry.py) */                                        \
+  X(NATURAL_LENGTH, natural_length)  /* L0 [m] */                                  \
+  X(THREAD_SQ, thread_sq)            /* thread_length ** 2 [m^2] */                \
+  X(VOLUME_DENOM, volume_denom)      /* 4.0 * math.pi * turns ** 2 [1] */          \
+  X(DIAMETER_DENOM, diameter_denom)  /* turns * math.pi [1] */                     \
+  /* PoFeedback (wpam_mj/control.py) */                                            \
+  X(KP, kp)                          /* [MPa/mm] */                                \
+  X(KI, ki)                          /* [MPa/(mm s)] */                            \
+  X(KD, kd)                          /* [MPa s/mm]; 0 unless PID */                \
+  X(TF, tf)                          /* derivative filter time constant [s] */     \
+  X(PO_LO, po_lo)                    /* p_min [Pa] */                              \
+  X(PO_HI, po_hi)                    /* po_cap [Pa] */                             \
+  X(MM, mm)                          /* m per mm */                                \
+  X(MPA, mpa)                        /* Pa per MPa */                              \
+  X(INTEGRAL0, integral0)            /* initial integral [mm s] (bumpless start) */ \
+  /* where the loop reads and writes MuJoCo (looked up by name in Python) */       \
+  X(QPOS_ADR, qpos_adr)              /* qpos address of the contraction joint */   \
+  X(DOF_ADR, dof_adr)                /* dof address of the contraction joint */    \
+  X(ACTUATOR_ID, actuator_id)        /* the muscle motor */                        \
+  X(TENDON_ID, tendon_id)            /* the muscle tendon */
+
+/* Rows of the recording array: REC_FIELDS of wpam_mj/loop_contract.py, checked by name
+   in the same way (`wpam_record_fields`). */
+#define WPAM_RECORD(F)                                                             \
+  F(TIME, time) F(X, x) F(VELOCITY, velocity) F(X_REF, x_ref) F(PI, pi) F(PO, po)   \
+  F(PI_CMD, pi_cmd) F(PO_CMD, po_cmd) F(TENSION, tension) F(FRICTION, friction)     \
+  F(PI_REG, pi_reg) F(PO_REG, po_reg)
+
+#define AS_CONST_ENUM(NAME, name) K_##NAME,
+#define AS_RECORD_ENUM(NAME, name) R_##NAME,
+#define AS_STRING(NAME, name) #name ","
+
+enum { WPAM_CONSTANTS(AS_CONST_ENUM) K_COUNT };
+enum { WPAM_RECORD(AS_RECORD_ENUM) R_COUNT };
+
+/* Comma-separated names, in layout order (a trailing comma ends the list). */
+const char* wpam_const_names(void) { return WPAM_CONSTANTS(AS_STRING); }
+const char* wpam_record_fields(void) { return WPAM_RECORD(AS_STRING); }
 
 /* Reasons written to fail_info[0] when wpam_run returns a step index + 1. */
 enum {
@@ -82,8 +102,6 @@ enum {
 
 /* Return codes below zero: the call itself was wrong, nothing was simulated. */
 enum { ERR_BAD_RECORD = -1, ERR_NO_MEMORY = -2 };
-
-int wpam_n_consts(void) { return K_COUNT; }
 
 /* 1 when the headers this file was compiled with match the loaded libmujoco. */
 int wpam_abi_ok(void) { return mj_version() == mjVERSION_HEADER; }
@@ -175,55 +193,77 @@ static double feedback_update(const double* k, Feedback* f, double x, double x_r
   return u;
 }
 
-/* ---- Plant (wpam_mj/simulate.py) ---- */
+/* ---- Regulator and Chamber (wpam_mj/pneumatics.py) ---- */
 
 typedef struct {
-  double set_i, set_o;        /* regulator set points, gauge [Pa] */
-  double p_i, p_o;            /* chamber pressures, absolute [Pa] */
-  double *queue_i, *queue_o;  /* commands in flight (dead time) [Pa] */
+  double set_point;  /* gauge [Pa] */
+  double* queue;     /* commands in flight (dead time) [Pa]; NULL without dead time */
   int head, delay;
+} Regulator;
+
+static double regulator_update(const double* k, Regulator* r, double command) {
+  double clamped;
+  if (r->delay) {
+    int h = r->head;
+    double held = r->queue[h];
+    r->queue[h] = command;
+    command = held;
+    r->head = (h + 1) % r->delay;
+  }
+  clamped = py_min(py_max(command, 0.0), k[K_P_MAX]);
+  r->set_point += k[K_LAG_ALPHA] * (clamped - r->set_point);
+  return r->set_point;
+}
+
+typedef struct {
+  double conductance;  /* ISO 6358 C [m^3/(s Pa)] */
+  double pressure;     /* absolute [Pa] */
+} Chamber;
+
+static double chamber_step(const double* k, Chamber* c, double p_source, double volume,
+                           double dvdx, double v) {
+  double p = c->pressure;
+  double m = mass_flow(k, p_source, p, c->conductance);
+  c->pressure = p + k[K_DT] * (k[K_RT0] * m - p * dvdx * v) / volume;
+  return c->pressure;
+}
+
+/* ---- Plant (wpam_mj/plant.py) ---- */
+
+typedef struct {
+  Regulator regulator_i, regulator_o;
+  Chamber chamber_i, chamber_o;
 } Plant;
 
 /* One step at contraction x [m], velocity v [m/s]: writes tension and friction [N].
    Returns 0, or FAIL_PRESSURE with the new state left in the plant. */
 static int plant_advance(const double* k, Plant* s, double x, double v, double pi_cmd,
                          double po_cmd, double* tension, double* friction) {
-  double pa, p_i, p_o, area, vol, m_i, m_o, v_i, v_o, held;
-  /* regulators: dead time, then first-order lag */
-  if (s->delay) {
-    int h = s->head;
-    held = s->queue_i[h]; s->queue_i[h] = pi_cmd; pi_cmd = held;
-    held = s->queue_o[h]; s->queue_o[h] = po_cmd; po_cmd = held;
-    s->head = (h + 1) % s->delay;
-  }
-  s->set_i += k[K_LAG_ALPHA] * (py_min(py_max(pi_cmd, 0.0), k[K_P_MAX]) - s->set_i);
-  s->set_o += k[K_LAG_ALPHA] * (py_min(py_max(po_cmd, 0.0), k[K_P_MAX]) - s->set_o);
-  /* muscle force from the chamber gauge pressures */
-  pa = k[K_ATMOSPHERE];
-  p_i = s->p_i;
-  p_o = s->p_o;
-  *tension = muscle_tension(k, x, p_i - pa, p_o - pa);
-  *friction = muscle_friction(k, x, p_i - pa, p_o - pa);
-  /* chambers */
+  double set_i = regulator_update(k, &s->regulator_i, pi_cmd);
+  double set_o = regulator_update(k, &s->regulator_o, po_cmd);
+  double pa = k[K_ATMOSPHERE];
+  double pi = s->chamber_i.pressure - pa, po = s->chamber_o.pressure - pa;
+  double area, vol, p_i, p_o;
+  *tension = muscle_tension(k, x, pi, po);
+  *friction = muscle_friction(k, x, pi, po);
+  /* chamber volumes and dV/dx (wpam_mj/pneumatics.py) */
   area = geom_area(k, x);
   vol = geom_volume(k, x);
-  m_i = mass_flow(k, s->set_i + pa, p_i, k[K_CONDUCTANCE_I]);
-  m_o = mass_flow(k, s->set_o + pa, p_o, k[K_CONDUCTANCE_O]);
-  v_i = vol + k[K_TUBE_VOLUME];
-  v_o = k[K_BAG_VOLUME] + k[K_TUBE_VOLUME] - vol - k[K_AXIAL_AREA] * x;
-  s->p_i = p_i + k[K_DT] * (k[K_RT0] * m_i - p_i * area * v) / v_i;
-  s->p_o = p_o + k[K_DT] * (k[K_RT0] * m_o + p_o * (area + k[K_AXIAL_AREA]) * v) / v_o;
-  if (!(s->p_i > 0.0 && s->p_o > 0.0)) return FAIL_PRESSURE;
+  p_i = chamber_step(k, &s->chamber_i, set_i + pa, vol + k[K_TUBE_VOLUME], area, v);
+  p_o = chamber_step(k, &s->chamber_o, set_o + pa,
+                     k[K_BAG_VOLUME] + k[K_TUBE_VOLUME] - vol - k[K_AXIAL_AREA] * x,
+                     -(area + k[K_AXIAL_AREA]), v);
+  if (!(p_i > 0.0 && p_o > 0.0)) return FAIL_PRESSURE;
   return 0;
 }
 
-/* ---- the loop (run_python) ---- */
+/* ---- the loop (wpam_mj/simulate.py: run_python) ---- */
 
 /* Run n physics steps of model m from state d.
 
    pi_cmd, po_cmd, x_ref: drive samples [Pa, Pa, m], length n (x_ref NaN in open loop).
-   rec: (9, n_rec) C-contiguous, rows t, x, v, x_ref, pi_gauge, po_gauge, pi_cmd,
-     po_cmd, tension, a column every K_RECORD_EVERY steps, as run_python fills it.
+   rec: (R_COUNT, n_rec) C-contiguous, one row per WPAM_RECORD field, a column every
+     K_RECORD_EVERY steps, as run_python fills it.
    fail_info: 3 doubles, written on divergence (FAIL_* code, then its values).
    Returns 0 when all steps ran, step + 1 when the state diverged at `step`, or a
    negative ERR_* code when the arguments were inconsistent.
@@ -234,20 +274,23 @@ int wpam_run(mjModel* m, mjData* d, const double* consts, int n, const double* p
   const double* k = consts;
   const int record_every = (int)k[K_RECORD_EVERY];
   const int feedback = k[K_FEEDBACK] != 0.0;
+  const int delay = (int)k[K_DELAY_STEPS];
   const int qpos_adr = (int)k[K_QPOS_ADR], dof_adr = (int)k[K_DOF_ADR];
   const int actuator = (int)k[K_ACTUATOR_ID], tendon = (int)k[K_TENDON_ID];
-  Plant plant = {0.0, 0.0, k[K_ATMOSPHERE], k[K_ATMOSPHERE], NULL, NULL, 0,
-                 (int)k[K_DELAY_STEPS]};
+  Plant plant = {{0.0, NULL, 0, delay}, {0.0, NULL, 0, delay},
+                 {k[K_CONDUCTANCE_I], k[K_ATMOSPHERE]}, {k[K_CONDUCTANCE_O], k[K_ATMOSPHERE]}};
   Feedback pid = {k[K_INTEGRAL0], 0.0, 0.0, 0};
+  double* queues = NULL;
   int step, j = 0, status = 0;
 
   if (record_every < 1 || n < 0 || (n > 0 && n_rec < (n - 1) / record_every + 1))
     return ERR_BAD_RECORD;
-  if (plant.delay) {
+  if (delay) {
     /* calloc: all-zero bits are +0.0, the Python queue's [0.0] * delay_steps */
-    plant.queue_i = calloc(2 * (size_t)plant.delay, sizeof(double));
-    if (!plant.queue_i) return ERR_NO_MEMORY;
-    plant.queue_o = plant.queue_i + plant.delay;
+    queues = calloc(2 * (size_t)delay, sizeof(double));
+    if (!queues) return ERR_NO_MEMORY;
+    plant.regulator_i.queue = queues;
+    plant.regulator_o.queue = queues + delay;
   }
 
   for (step = 0; step < n; step++) {
@@ -260,37 +303,38 @@ int wpam_run(mjModel* m, mjData* d, const double* consts, int n, const double* p
       status = step + 1;
       break;
     }
-    pi_gauge = plant.p_i - k[K_ATMOSPHERE];
-    po_gauge = plant.p_o - k[K_ATMOSPHERE];
+    pi_gauge = plant.chamber_i.pressure - k[K_ATMOSPHERE];
+    po_gauge = plant.chamber_o.pressure - k[K_ATMOSPHERE];
     pi_c = pi_cmd[step];
     xr = x_ref[step];
     po_c = feedback ? feedback_update(k, &pid, x, xr) : po_cmd[step];
     if (plant_advance(k, &plant, x, v, pi_c, po_c, &tension, &friction)) {
       fail_info[0] = FAIL_PRESSURE;
-      fail_info[1] = plant.p_i;
-      fail_info[2] = plant.p_o;
+      fail_info[1] = plant.chamber_i.pressure;
+      fail_info[2] = plant.chamber_o.pressure;
       status = step + 1;
       break;
     }
     d->ctrl[actuator] = -tension;
     m->tendon_frictionloss[tendon] = friction;
-    if (step % record_every == 0) {
-      rec[0 * n_rec + j] = step * k[K_DT];
-      rec[1 * n_rec + j] = x;
-      rec[2 * n_rec + j] = v;
-      rec[3 * n_rec + j] = xr;
-      rec[4 * n_rec + j] = pi_gauge;
-      rec[5 * n_rec + j] = po_gauge;
-      rec[6 * n_rec + j] = pi_c;
-      rec[7 * n_rec + j] = po_c;
-      rec[8 * n_rec + j] = tension;
-      rec[9 * n_rec + j] = friction;
-      rec[10 * n_rec + j] = plant.set_i;
-      rec[11 * n_rec + j] = plant.set_o;
+    mj_step(m, d);
+    if (step % record_every == 0) { /* the state at the start of this step */
+      double* col = rec + j;
+      col[R_TIME * n_rec] = step * k[K_DT];
+      col[R_X * n_rec] = x;
+      col[R_VELOCITY * n_rec] = v;
+      col[R_X_REF * n_rec] = xr;
+      col[R_PI * n_rec] = pi_gauge;
+      col[R_PO * n_rec] = po_gauge;
+      col[R_PI_CMD * n_rec] = pi_c;
+      col[R_PO_CMD * n_rec] = po_c;
+      col[R_TENSION * n_rec] = tension;
+      col[R_FRICTION * n_rec] = friction;
+      col[R_PI_REG * n_rec] = plant.regulator_i.set_point;
+      col[R_PO_REG * n_rec] = plant.regulator_o.set_point;
       j++;
     }
-    mj_step(m, d);
   }
-  free(plant.queue_i);
+  free(queues);
   return status;
 }

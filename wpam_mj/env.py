@@ -9,7 +9,7 @@ Built on dm_control's `rl.control.Environment` with a `Task` (reward, observatio
 random targets and loads) and a `dm_control.mujoco.Physics` subclass, `MusclePhysics`,
 whose `step` IS the project's physics step. Why a Physics subclass and not the Task hooks:
 the muscle is not a plain actuator: every physics step the regulators, chambers and
-muscle force (`wpam_mj.simulate.Plant`) must be advanced at the current state, and the
+muscle force (`wpam_mj.plant.Plant`) must be advanced at the current state, and the
 tendon's friction level rewritten before MuJoCo builds its constraints. dm_control's
 default (legacy) `Physics.step` runs `mj_step2` on a state whose constraints `mj_step1`
 already built, so a friction level written in `Task.before_step` would act one step late,
@@ -62,7 +62,8 @@ from wpam_mj.geometry import BraidGeometry
 from wpam_mj.model import MuscleIndex, build_model, check_dt, check_load
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM, STANDARD_GRAVITY, ParameterError, Params, check_range, preset
-from wpam_mj.simulate import Plant, RunConstants, SimulationDiverged
+from wpam_mj.loop_contract import RunConstants, SimulationDiverged
+from wpam_mj.plant import Plant
 
 ACTIONS = ("po", "both")
 TARGET_RANGE = (0.0, 50 * MM)  # m: the paper's step experiment spans 0-50 mm (§4.1)

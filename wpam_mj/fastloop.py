@@ -34,7 +34,8 @@ from wpam_mj import pneumatics as pn
 from wpam_mj.control import initial_integral
 from wpam_mj.model import MuscleIndex
 from wpam_mj.params import MM, MPA
-from wpam_mj.simulate import REC_ROWS
+from wpam_mj.loop_contract import (REC_FIELDS, REC_ROWS, RunConstants, contraction_diverged,
+                                   pressure_diverged)
 
 SOURCE = Path(__file__).with_name("_fastloop.c")
 MUJOCO_DIR = Path(mujoco.__file__).resolve().parent
@@ -42,8 +43,9 @@ MUJOCO_DIR = Path(mujoco.__file__).resolve().parent
 # Both are what makes the results bit-identical to Python floats (see _fastloop.c).
 CFLAGS = ("-O2", "-fPIC", "-shared", "-std=c11", "-ffp-contract=off", "-fno-fast-math")
 
-# Layout of the float64 constants array passed to wpam_run: the K_* enum of _fastloop.c,
-# in the same order. Integers (steps, flags, indices) are stored exactly as floats.
+# Layout of the float64 constants array passed to wpam_run: the WPAM_CONSTANTS list of
+# _fastloop.c, which exports its names; `_load` refuses a library whose names differ.
+# Integers (steps, flags, indices) are stored exactly as floats.
 _CONSTS = (
     # RunConstants
     "dt", "record_every", "feedback", "lag_alpha", "delay_steps", "atmosphere", "p_max",
@@ -78,7 +80,7 @@ def unavailable_reason() -> str | None:
     return _reason
 
 
-def pack_constants(model, muscle, params, k) -> np.ndarray:
+def pack_constants(model, muscle, params, k: RunConstants) -> np.ndarray:
     """The `_CONSTS` array for one run.
 
     Derived values use the exact expressions of the Python code they stand for (for
@@ -109,6 +111,9 @@ def pack_constants(model, muscle, params, k) -> np.ndarray:
         integral0=initial_integral(k.po_initial, c.ki),
         qpos_adr=idx.qpos, dof_adr=idx.dof, actuator_id=idx.actuator, tendon_id=idx.tendon,
     )
+    if values.keys() != set(_CONSTS):
+        raise RuntimeError(f"pack_constants fills {sorted(values.keys() ^ set(_CONSTS))} "
+                           "inconsistently with _CONSTS")
     return np.array([values[name] for name in _CONSTS], dtype=np.float64)
 
 
@@ -142,10 +147,8 @@ def run_compiled(model, data, muscle, params, k, drive, rec: np.ndarray):
         raise RuntimeError(f"wpam_run rejected its arguments (code {status})")
     step = status - 1
     if fail[0] == _FAIL_CONTRACTION:
-        return step, f"contraction x = {float(fail[1])!r} m"
-    # same text as Plant.advance's SimulationDiverged
-    return step, (f"chamber pressure Pi = {float(fail[1])!r} Pa, "
-                  f"Po = {float(fail[2])!r} Pa (absolute)")
+        return step, contraction_diverged(float(fail[1]))
+    return step, pressure_diverged(float(fail[1]), float(fail[2]))
 
 
 def cache_dir() -> Path:
@@ -188,6 +191,23 @@ def _build(target: Path, libmujoco: Path) -> None:
         Path(tmp).unlink(missing_ok=True)
 
 
+def exported_names(lib: ctypes.CDLL, function: str) -> tuple[str, ...]:
+    """The comma-separated name list that `function` of the C library returns."""
+    getter = getattr(lib, function)
+    getter.restype = ctypes.c_char_p
+    return tuple(name for name in getter().decode().split(",") if name)
+
+
+def _check_layout(lib: ctypes.CDLL, function: str, python: tuple[str, ...]) -> None:
+    """Raise unless the C list `function` names exactly `python`, in the same order."""
+    c_names = exported_names(lib, function)
+    if c_names != python:
+        missing = [n for n in python if n not in c_names]
+        extra = [n for n in c_names if n not in python]
+        raise RuntimeError(f"{function} of {SOURCE.name} differs from Python: "
+                           f"missing {missing}, extra {extra}, C order {list(c_names)}")
+
+
 def _load() -> ctypes.CDLL | None:
     """Build (once per source and MuJoCo version) and load the library; cache the answer."""
     global _lib, _reason, _checked
@@ -204,9 +224,9 @@ def _load() -> ctypes.CDLL | None:
         lib = ctypes.CDLL(str(target))
         if not lib.wpam_abi_ok():
             raise RuntimeError("MuJoCo headers and library versions differ")
-        if lib.wpam_n_consts() != len(_CONSTS):
-            raise RuntimeError(f"constant layout mismatch: C has {lib.wpam_n_consts()}, "
-                               f"Python {len(_CONSTS)}")
+        for layout, python in (("wpam_const_names", _CONSTS),
+                               ("wpam_record_fields", REC_FIELDS)):
+            _check_layout(lib, layout, python)
     except Exception as err:  # noqa: BLE001 (any failure means: use the Python loop)
         _reason = f"{type(err).__name__}: {err}"
         return None

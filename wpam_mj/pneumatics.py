@@ -1,5 +1,10 @@
 """Regulators and chambers: ITV2031-like pressure sources behind a flow restriction.
 
+The two state-holding pieces the simulation loop calls once per physics step are
+`Regulator` (command -> set pressure) and `Chamber` (set pressure -> chamber pressure).
+`wpam_mj/_fastloop.c` mirrors each of them one to one (same names, same order of
+operations); a change here is a change there.
+
 Each regulator (SMC ITV2031: 0.005-0.5 MPa) is modelled as
   1. its command clamped to [0, p_max] (0 = vented; the controllers never command
      below p_min while they drive a chamber),
@@ -16,8 +21,9 @@ Each regulator (SMC ITV2031: 0.005-0.5 MPa) is modelled as
 
 The chamber air is isothermal at T_0 (slow, thin-walled bags):
         d(p V)/dt = R T_0 m_dot   =>   dp/dt = (R T_0 m_dot - p dV/dt) / V.
-Inner chamber: V_i = V(x) + V_tube, dV_i/dt = S(x) v.
-Outer chamber: V_o = V_bag - V(x) - A_ax x + V_tube, dV_o/dt = -(S(x) + A_ax) v.
+with dV/dt = (dV/dx) v:
+Inner chamber: V_i = V(x) + V_tube, dV_i/dx = S(x).
+Outer chamber: V_o = V_bag - V(x) - A_ax x + V_tube, dV_o/dx = -(S(x) + A_ax).
 Moving the muscle moves air, so the restriction limits its velocity: this is the paper's
 "limit velocity" (§4.2), which makes the gain fall above about 0.5 Hz.
 """
@@ -58,3 +64,48 @@ def mass_flow(p_source: float, p_chamber: float, conductance: float, b: float) -
 def outer_bag_volume(length: float, diameter: float) -> float:
     """Volume enclosed by the outer bag [m^3] (a cylinder of the paper's §2.3 size)."""
     return math.pi * diameter * diameter * length / 4.0
+
+
+class Regulator:
+    """One ITV2031-like regulator: command [Pa gauge] -> set pressure `set_point` [Pa gauge].
+
+    Per step: the command enters a dead time of `delay_steps` steps (a ring buffer of the
+    commands in flight, all 0 at the start), is clamped to [0, p_max], and the set point
+    follows it through a first-order lag discretised exactly for a held input,
+    p_set += alpha (p_cmd - p_set) with alpha = 1 - exp(-dt / tau) (`lag_alpha`).
+    """
+
+    def __init__(self, lag_alpha: float, delay_steps: int, p_max: float) -> None:
+        self.lag_alpha, self.p_max = lag_alpha, p_max
+        self.set_point = 0.0
+        self._queue = [0.0] * delay_steps
+        self._head = 0
+
+    def update(self, command: float) -> float:
+        """Take this step's command [Pa]; return the new set point [Pa]."""
+        if self._queue:
+            h = self._head
+            command, self._queue[h] = self._queue[h], command
+            self._head = (h + 1) % len(self._queue)
+        clamped = min(max(command, 0.0), self.p_max)
+        self.set_point += self.lag_alpha * (clamped - self.set_point)
+        return self.set_point
+
+
+class Chamber:
+    """Isothermal air volume fed through one restriction; `pressure` absolute [Pa].
+
+    `step` advances dp/dt = (R T_0 m_dot - p dV/dt) / V by one explicit Euler step.
+    """
+
+    def __init__(self, conductance: float, critical_ratio: float, pressure: float) -> None:
+        self.conductance, self.critical_ratio = conductance, critical_ratio
+        self.pressure = pressure
+
+    def step(self, p_source: float, volume: float, dvdx: float, v: float, dt: float) -> float:
+        """One step of `dt` [s] fed from `p_source` [Pa abs] at volume [m^3], dV/dx
+        [m^2] and contraction velocity v [m/s]; returns the new pressure [Pa abs]."""
+        p = self.pressure
+        m = mass_flow(p_source, p, self.conductance, self.critical_ratio)
+        self.pressure = p + dt * (RT0 * m - p * dvdx * v) / volume
+        return self.pressure

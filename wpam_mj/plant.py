@@ -1,0 +1,74 @@
+"""The plant: regulators, chambers and muscle force, everything but the load's motion.
+
+`Plant.advance` is called once per physics step with the current contraction and
+velocity. It composes the pieces of `wpam_mj.pneumatics` (two `Regulator`s, two
+`Chamber`s) with `wpam_mj.muscle.MuscleModel`; `wpam_mj/_fastloop.c` has the same
+`plant_advance`, piece for piece. Pressures: regulator set points gauge [Pa], chamber
+pressures absolute [Pa].
+"""
+
+from __future__ import annotations
+
+import mujoco
+
+from wpam_mj.loop_contract import RunConstants, SimulationDiverged, pressure_diverged
+from wpam_mj.model import MuscleIndex
+from wpam_mj.muscle import MuscleModel
+from wpam_mj.pneumatics import Chamber, Regulator
+
+
+class Plant:
+    """Pneumatic state and muscle force of one run (see the module docstring)."""
+
+    def __init__(self, muscle: MuscleModel, k: RunConstants) -> None:
+        self.muscle = muscle
+        self.k = k
+        self.regulator_i = Regulator(k.lag_alpha, k.delay_steps, k.p_max)
+        self.regulator_o = Regulator(k.lag_alpha, k.delay_steps, k.p_max)
+        self.chamber_i = Chamber(k.conductance_i, k.critical_ratio, k.atmosphere)
+        self.chamber_o = Chamber(k.conductance_o, k.critical_ratio, k.atmosphere)
+
+    @property
+    def pressures(self) -> tuple[float, float]:
+        """Chamber gauge pressures (Pi, Po) [Pa]."""
+        pa = self.k.atmosphere
+        return self.chamber_i.pressure - pa, self.chamber_o.pressure - pa
+
+    @property
+    def set_points(self) -> tuple[float, float]:
+        """Regulator set pressures (Pi, Po) [Pa gauge]: what the regulators' gauges read."""
+        return self.regulator_i.set_point, self.regulator_o.set_point
+
+    def advance(self, x: float, v: float, pi_cmd: float, po_cmd: float) -> tuple[float, float]:
+        """One step at contraction x [m], velocity v [m/s]; returns (tension, friction) [N].
+
+        The force uses the chamber pressures at the start of the step; the regulators and
+        chambers are then advanced to the end of it. Raises SimulationDiverged.
+        """
+        k, muscle, geom = self.k, self.muscle, self.muscle.geometry
+        set_i = self.regulator_i.update(pi_cmd)
+        set_o = self.regulator_o.update(po_cmd)
+        pa = k.atmosphere
+        pi, po = self.pressures
+        tension = muscle.tension(x, pi, po)
+        friction = muscle.friction(x, pi, po)
+        # chamber volumes and dV/dx (wpam_mj.pneumatics)
+        area = geom.area(x)
+        vol = geom.volume(x)
+        p_i = self.chamber_i.step(set_i + pa, vol + k.tube_volume, area, v, k.dt)
+        p_o = self.chamber_o.step(set_o + pa,
+                                  k.bag_volume + k.tube_volume - vol - muscle.axial_area * x,
+                                  -(area + muscle.axial_area), v, k.dt)
+        if not (p_i > 0.0 and p_o > 0.0):
+            raise SimulationDiverged(pressure_diverged(p_i, p_o))
+        return tension, friction
+
+    def actuate(self, model: mujoco.MjModel, data: mujoco.MjData, idx: MuscleIndex,
+                x: float, v: float, pi_cmd: float, po_cmd: float) -> tuple[float, float]:
+        """`advance`, write the tension (actuator ctrl) and friction level (tendon
+        frictionloss) into the model, then `mj_step`; returns (tension, friction) [N]."""
+        tension, friction = self.advance(x, v, pi_cmd, po_cmd)
+        data.ctrl[idx.actuator] = -tension
+        model.tendon_frictionloss[idx.tendon] = friction
+        mujoco.mj_step(model, data)
+        return tension, friction
