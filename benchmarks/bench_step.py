@@ -27,11 +27,11 @@ import numpy as np
 
 from common import Figure, print_table
 from wpam_mj import Drive, fastloop, preset
-from wpam_mj.simulate import simulate
-from wpam_mj.control import pi_feedforward
+from wpam_mj.control import make_controller, pi_feedforward
+from wpam_mj.loop_contract import REC_ROWS, RunConstants
 from wpam_mj.model import build_model
 from wpam_mj.muscle import MuscleModel
-from wpam_mj.loop_contract import REC_ROWS, RunConstants
+from wpam_mj.simulate import simulate
 
 LOAD = 100.0  # N, the paper's nominal load (§4.1)
 DT = 1e-3  # s
@@ -75,11 +75,12 @@ def time_loop_alone(params, drive: Drive) -> float:
     """Seconds for fastloop.run_compiled alone (model built and result arrays outside)."""
     model = build_model(params, LOAD, DT)
     data = mujoco.MjData(model)
-    k = RunConstants.make(params, DT, "pi", 0.01)
+    k = RunConstants.make(params, DT, 0.01)
     rec = np.zeros((REC_ROWS, (len(drive.pi_cmd) - 1) // k.record_every + 1))
     muscle = MuscleModel.from_params(params)
     start = time.perf_counter()
-    status = fastloop.run_compiled(model, data, muscle, params, k, drive, rec)
+    status = fastloop.run_compiled(model, data, muscle, make_controller("pi", params, DT), k,
+                                   drive, rec)
     elapsed = time.perf_counter() - start
     assert status is None, status
     return elapsed

@@ -19,7 +19,7 @@ import pytest
 from scipy.optimize import brentq
 
 from wpam_mj.analysis import frequency_response, loop_area
-from wpam_mj.control import PoFeedback, pi_feedforward
+from wpam_mj.control import CONTROLS, PIControl, PIDControl, make_controller, pi_feedforward
 from wpam_mj.experiments import SineSpec, sine_run, static_top_pressure
 from wpam_mj.model import build_model, check_dt, check_load
 from wpam_mj.muscle import MuscleModel
@@ -269,7 +269,7 @@ def test_feedback_run_starts_at_rest_at_the_first_target():
 
 def test_po_feedback_initial_output_is_held_by_the_integral():
     ff = WPAM.controller.po_feedforward
-    ctl = PoFeedback(WPAM, DT, derivative=False, initial_output=ff)
+    ctl = PIControl(WPAM, DT, initial_output=ff)
     assert ctl.update(0.01, 0.01) == pytest.approx(ff, rel=1e-12)  # zero error
     # and it is ordinary integral state: a steady error moves it at Ki (PI: no D kick
     # to saturate the output and pause the integral)
@@ -278,7 +278,7 @@ def test_po_feedback_initial_output_is_held_by_the_integral():
     c = WPAM.controller
     assert u == pytest.approx(ff + (c.kp * 0.2 + c.ki * 0.2 * 1.0) * MPA, rel=1e-6)
     no_integral = WPAM.replace(controller={"ki": 0.0})
-    assert PoFeedback(no_integral, DT, derivative=False, initial_output=ff).integral == 0.0
+    assert PIControl(no_integral, DT, initial_output=ff).integral == 0.0
 
 
 def test_feedback_keeps_po_within_regulator_and_cap():
@@ -294,9 +294,9 @@ def test_feedback_keeps_po_within_regulator_and_cap():
     assert po.min() >= p_min - 1e3 and po.max() <= cap + 1e3, "chamber Po [Pa]"
 
 
-@pytest.mark.parametrize("derivative", [False, True], ids=["pi", "pid"])
-def test_po_feedback_does_not_wind_up(derivative):
-    ctl = PoFeedback(WPAM, DT, derivative=derivative)
+@pytest.mark.parametrize("control", [PIControl, PIDControl], ids=["pi", "pid"])
+def test_po_feedback_does_not_wind_up(control):
+    ctl = control(WPAM, DT)
     cap, p_min = WPAM.controller.po_cap, WPAM.pneumatics.p_min
     for _ in range(20_000):  # 20 s over-contracted by 5 mm: Po pinned at the cap
         u = ctl.update(5.0 * MM, 0.0)
@@ -314,7 +314,7 @@ def test_po_feedback_does_not_wind_up(derivative):
 
 def test_po_feedback_follows_the_pi_law_in_its_linear_range():
     """Po = Kp e + Ki int(e) dt with e in mm and Po in MPa (paper §4.1 gains)."""
-    ctl = PoFeedback(WPAM, DT, derivative=False)
+    ctl = PIControl(WPAM, DT)
     c = WPAM.controller
     e_mm = 0.2
     for _ in range(10_000):
@@ -502,3 +502,15 @@ def test_pressure_command_outside_regulator_range(name, value):
     with pytest.raises(ParameterError, match=rf"drive\.{name} = .* MPa at t = 0\.05 s is "
                                              r"outside the regulator range \[0, 0\.5\] MPa"):
         simulate(WPAM, 100.0, drive, dt=DT)
+
+
+@pytest.mark.parametrize("control", CONTROLS)
+def test_controller_reset_restarts_the_run(control):
+    """Every registered controller: after reset() the same inputs give the same outputs."""
+    ctl = make_controller(control, WPAM, DT)
+    assert ctl.name == control
+    inputs = [(0.01 + 1e-4 * i, 0.012, 0.03 * MPA) for i in range(50)]
+    first = [ctl.update(*u) for u in inputs]
+    ctl.reset()
+    assert [ctl.update(*u) for u in inputs] == first
+    assert (first[0] == 0.03 * MPA) == (not ctl.feedback)

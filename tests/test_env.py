@@ -8,7 +8,7 @@ from absl.testing import absltest
 from dm_env import test_utils
 
 import wpam_mj
-from wpam_mj.control import PoFeedback
+from wpam_mj.control import PIControl
 from wpam_mj.env import OBSERVATIONS, make_env
 from wpam_mj.params import MM, MPA, STANDARD_GRAVITY, ParameterError
 from wpam_mj.simulate import Drive
@@ -84,7 +84,7 @@ def test_steps_match_simulate_exactly() -> None:
 def run_pi_episode(env, params) -> tuple[float, list[dict]]:
     """Run one episode with the library's PI on Po; returns (final |error| [m], observations)."""
     ts = env.reset()
-    pid = PoFeedback(params, env.control_timestep(), derivative=False)
+    pid = PIControl(params, env.control_timestep())
     history = [ts.observation]
     while not ts.last():
         o = ts.observation

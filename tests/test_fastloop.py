@@ -20,7 +20,7 @@ import pytest
 
 from wpam_mj import Drive, SimulationDiverged, fastloop, preset
 from wpam_mj.simulate import simulate
-from wpam_mj.control import pi_feedforward
+from wpam_mj.control import CONTROLLERS, PIControl, pi_feedforward
 from wpam_mj.loop_contract import REC_FIELDS
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MPA
@@ -112,7 +112,7 @@ def test_env_var_disables_compiled_path():
     """WPAM_MJ_NO_COMPILE=1: available() is False and engine="auto" uses Python."""
     code = ("import importlib; from wpam_mj import fastloop; "
             "s = importlib.import_module('wpam_mj.simulate'); "
-            "print(fastloop.available(), s._select_engine('auto') is s.run_python)")
+            "print(fastloop.available(), s._select_engine('auto', 'pi') is s.run_python)")
     env = dict(os.environ, WPAM_MJ_NO_COMPILE="1")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
                          text=True, check=True).stdout.split()
@@ -147,3 +147,31 @@ def test_loops_do_not_import_each_other():
     assert isinstance(python_loop, ModuleType)
     assert "wpam_mj.simulate" not in _imported_modules(fastloop)
     assert "wpam_mj.loop_contract" in _imported_modules(fastloop)
+
+
+class _SlowPI(PIControl):
+    """A controller the compiled loop does not implement (PI under another name)."""
+
+    name = "slow_pi"
+
+
+def test_unknown_controller_runs_in_python_with_a_notice(monkeypatch, capfd):
+    """A controller the C file does not declare runs in the Python loop under
+    engine="auto", announced by one line on stderr; engine="c" refuses it."""
+    monkeypatch.setitem(CONTROLLERS, "slow_pi", _SlowPI)
+    assert "slow_pi" not in fastloop.compiled_controllers()
+    params = PARAMS["dead_time"]
+    x_ref = np.full(500, 0.02)
+    drive = feedback_drive(params, x_ref)
+    auto = simulate(params, LOAD, drive, control="slow_pi")
+    simulate(params, LOAD, drive, control="slow_pi")  # announced once per process
+    notice = capfd.readouterr().err.strip().splitlines()
+    assert len(notice) == 1 and "'slow_pi' has no compiled loop" in notice[0]
+    ref = simulate(params, LOAD, drive, control="pi", engine="python")
+    assert auto.po_cmd.tobytes() == ref.po_cmd.tobytes()  # ran as the Python PI
+    with pytest.raises(RuntimeError, match="does not implement controller 'slow_pi'"):
+        simulate(params, LOAD, drive, control="slow_pi", engine="c")
+
+
+def test_compiled_controllers_are_registered_ones():
+    assert set(fastloop.compiled_controllers()) == set(CONTROLLERS)

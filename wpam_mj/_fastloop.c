@@ -34,7 +34,7 @@
   /* RunConstants (wpam_mj/loop_contract.py) */                                    \
   X(DT, dt)                          /* physics time step [s] */                   \
   X(RECORD_EVERY, record_every)      /* record every this many steps [1] */        \
-  X(FEEDBACK, feedback)              /* 1: Po from PoFeedback, 0: from the drive */ \
+  X(CONTROLLER, controller)          /* index into WPAM_CONTROLLERS */             \
   X(LAG_ALPHA, lag_alpha)            /* 1 - exp(-dt / tau) of the regulator lag */ \
   X(DELAY_STEPS, delay_steps)        /* regulator dead time [steps] */             \
   X(ATMOSPHERE, atmosphere)          /* [Pa] */                                    \
@@ -60,7 +60,7 @@
   X(THREAD_SQ, thread_sq)            /* thread_length ** 2 [m^2] */                \
   X(VOLUME_DENOM, volume_denom)      /* 4.0 * math.pi * turns ** 2 [1] */          \
   X(DIAMETER_DENOM, diameter_denom)  /* turns * math.pi [1] */                     \
-  /* PoFeedback (wpam_mj/control.py) */                                            \
+  /* PoFeedback (wpam_mj/control.py); zeros for the open loop */                  \
   X(KP, kp)                          /* [MPa/mm] */                                \
   X(KI, ki)                          /* [MPa/(mm s)] */                            \
   X(KD, kd)                          /* [MPa s/mm]; 0 unless PID */                \
@@ -83,16 +83,23 @@
   F(PI_CMD, pi_cmd) F(PO_CMD, po_cmd) F(TENSION, tension) F(FRICTION, friction)     \
   F(PI_REG, pi_reg) F(PO_REG, po_reg)
 
+/* The controllers this file implements: names of wpam_mj.control.CONTROLLERS. Python
+   runs any other controller in its own loop (`wpam_mj.fastloop.compiled_controllers`). */
+#define WPAM_CONTROLLERS(F) F(OPEN, open) F(PI, pi) F(PID, pid)
+
 #define AS_CONST_ENUM(NAME, name) K_##NAME,
+#define AS_CONTROLLER_ENUM(NAME, name) CTRL_##NAME,
 #define AS_RECORD_ENUM(NAME, name) R_##NAME,
 #define AS_STRING(NAME, name) #name ","
 
 enum { WPAM_CONSTANTS(AS_CONST_ENUM) K_COUNT };
 enum { WPAM_RECORD(AS_RECORD_ENUM) R_COUNT };
+enum { WPAM_CONTROLLERS(AS_CONTROLLER_ENUM) CTRL_COUNT };
 
 /* Comma-separated names, in layout order (a trailing comma ends the list). */
 const char* wpam_const_names(void) { return WPAM_CONSTANTS(AS_STRING); }
 const char* wpam_record_fields(void) { return WPAM_RECORD(AS_STRING); }
+const char* wpam_controllers(void) { return WPAM_CONTROLLERS(AS_STRING); }
 
 /* Reasons written to fail_info[0] when wpam_run returns a step index + 1. */
 enum {
@@ -101,7 +108,7 @@ enum {
 };
 
 /* Return codes below zero: the call itself was wrong, nothing was simulated. */
-enum { ERR_BAD_RECORD = -1, ERR_NO_MEMORY = -2 };
+enum { ERR_BAD_RECORD = -1, ERR_NO_MEMORY = -2, ERR_BAD_CONTROLLER = -3 };
 
 /* 1 when the headers this file was compiled with match the loaded libmujoco. */
 int wpam_abi_ok(void) { return mj_version() == mjVERSION_HEADER; }
@@ -163,7 +170,8 @@ static double mass_flow(const double* k, double p_source, double p_chamber, doub
   return -c * k[K_RHO0] * p_chamber * iso6358_psi(k, p_source / p_chamber, b);
 }
 
-/* ---- PoFeedback (wpam_mj/control.py) ---- */
+/* ---- controllers (wpam_mj/control.py): OpenLoop passes the drive's Po through;
+   PIControl and PIDControl are PoFeedback, PI with kd = 0 ---- */
 
 typedef struct {
   double integral;    /* mm s */
@@ -273,7 +281,7 @@ int wpam_run(mjModel* m, mjData* d, const double* consts, int n, const double* p
              double* fail_info) {
   const double* k = consts;
   const int record_every = (int)k[K_RECORD_EVERY];
-  const int feedback = k[K_FEEDBACK] != 0.0;
+  const int controller = (int)k[K_CONTROLLER];
   const int delay = (int)k[K_DELAY_STEPS];
   const int qpos_adr = (int)k[K_QPOS_ADR], dof_adr = (int)k[K_DOF_ADR];
   const int actuator = (int)k[K_ACTUATOR_ID], tendon = (int)k[K_TENDON_ID];
@@ -283,6 +291,7 @@ int wpam_run(mjModel* m, mjData* d, const double* consts, int n, const double* p
   double* queues = NULL;
   int step, j = 0, status = 0;
 
+  if (controller < 0 || controller >= CTRL_COUNT) return ERR_BAD_CONTROLLER;
   if (record_every < 1 || n < 0 || (n > 0 && n_rec < (n - 1) / record_every + 1))
     return ERR_BAD_RECORD;
   if (delay) {
@@ -307,7 +316,7 @@ int wpam_run(mjModel* m, mjData* d, const double* consts, int n, const double* p
     po_gauge = plant.chamber_o.pressure - k[K_ATMOSPHERE];
     pi_c = pi_cmd[step];
     xr = x_ref[step];
-    po_c = feedback ? feedback_update(k, &pid, x, xr) : po_cmd[step];
+    po_c = controller == CTRL_OPEN ? po_cmd[step] : feedback_update(k, &pid, x, xr);
     if (plant_advance(k, &plant, x, v, pi_c, po_c, &tension, &friction)) {
       fail_info[0] = FAIL_PRESSURE;
       fail_info[1] = plant.chamber_i.pressure;

@@ -1,4 +1,5 @@
-"""Controllers: Pi feedforward from the mechanical equilibrium model, PI/PID on Po.
+"""Controllers: Pi feedforward from the mechanical equilibrium model; Po from a
+`PoController` (open loop, PI, PID; the registry `CONTROLLERS`).
 
 Paper §3-4: Pi is set by the mechanical equilibrium model for the target x_r and load F
 (eqs. 5-6 without friction), Po by feedback on the position error. Our feedforward
@@ -24,20 +25,12 @@ for tens of seconds, a start-up transient rather than the muscle's hysteresis.
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM, MPA, Params, ParameterError
-
-CONTROLS = ("open", "pi", "pid")
-
-
-def check_control(control: str) -> str:
-    """A control mode: one of CONTROLS."""
-    if control not in CONTROLS:
-        raise ParameterError(f"unknown control {control!r}; valid: {', '.join(CONTROLS)}")
-    return control
-
 
 def pi_feedforward(muscle: MuscleModel, params: Params, x_ref: np.ndarray, load: float,
                    po: float) -> np.ndarray:
@@ -56,24 +49,80 @@ def initial_integral(output: float, ki: float) -> float:
     return output / MPA / ki if ki > 0.0 else 0.0
 
 
-class PoFeedback:
-    """PI/PID on the contraction error, output Po command [Pa]; call once per step."""
+class PoController:
+    """The Po command of one run, decided once per physics step.
 
-    def __init__(self, params: Params, dt: float, *, derivative: bool,
-                 initial_output: float = 0.0) -> None:
+    Interface: `name` (the registry key), `feedback` (True when the controller needs a
+    finite target x_ref at every step; the Pi feedforward then assumes Po =
+    po_feedforward, else Po = 0), `for_run(params, dt)` (the controller as `simulate`
+    runs it), `reset()` (back to the state at the start of a run) and
+    `update(x, x_ref, po_cmd)` -> Po command [Pa]. A new controller is one subclass here
+    plus its entry in `CONTROLLERS`; the compiled loop runs only the names it declares
+    (`wpam_mj.fastloop.compiled_controllers`), any other runs in the Python loop.
+    """
+
+    name: ClassVar[str]
+    feedback: ClassVar[bool]
+
+    @classmethod
+    def for_run(cls, params: Params, dt: float) -> "PoController":
+        raise NotImplementedError
+
+    def reset(self) -> None:
+        raise NotImplementedError
+
+    def update(self, x: float, x_ref: float, po_cmd: float = 0.0) -> float:
+        """Advance one step at contraction x and target x_ref [m]; po_cmd is the drive's
+        open-loop Po command [Pa]. Returns the Po command [Pa]."""
+        raise NotImplementedError
+
+
+class OpenLoop(PoController):
+    """Po from the drive's schedule, unchanged (paper Figs. 8-9, 12)."""
+
+    name = "open"
+    feedback = False
+
+    @classmethod
+    def for_run(cls, params: Params, dt: float) -> "OpenLoop":
+        return cls()
+
+    def reset(self) -> None:
+        """Nothing to reset: an open loop has no state."""
+
+    def update(self, x: float, x_ref: float, po_cmd: float = 0.0) -> float:
+        return po_cmd
+
+
+class PoFeedback(PoController):
+    """PI or PID on the contraction error, output Po command [Pa] (see the module doc)."""
+
+    feedback = True
+    derivative_term: ClassVar[bool]
+
+    def __init__(self, params: Params, dt: float, *, initial_output: float = 0.0) -> None:
         """initial_output: Po [Pa] at zero error before the first update, held by the
         integral (the loop at rest before the run: bumpless start); 0 without integral."""
         c = params.controller
         self.kp, self.ki = c.kp, c.ki
-        self.kd = c.kd if derivative else 0.0
+        self.kd = c.kd if self.derivative_term else 0.0
         self.tf = c.derivative_filter
         self.dt = dt
         self.lo, self.hi = params.pneumatics.p_min, c.po_cap
-        self.integral = initial_integral(initial_output, self.ki)  # mm s
+        self.initial_output = initial_output
+        self.reset()
+
+    @classmethod
+    def for_run(cls, params: Params, dt: float) -> "PoFeedback":
+        """Started bumpless at Po = po_feedforward, the Po the Pi feedforward assumes."""
+        return cls(params, dt, initial_output=params.controller.po_feedforward)
+
+    def reset(self) -> None:
+        self.integral = initial_integral(self.initial_output, self.ki)  # mm s
         self.derivative = 0.0  # mm/s
         self.e_prev = None
 
-    def update(self, x: float, x_ref: float) -> float:
+    def update(self, x: float, x_ref: float, po_cmd: float = 0.0) -> float:
         """Advance one step with contraction x and target x_ref [m]; return Po [Pa]."""
         e = (x - x_ref) / MM
         e_prev = e if self.e_prev is None else self.e_prev
@@ -92,3 +141,35 @@ class PoFeedback:
             self.integral = integral
         self.e_prev = e
         return u
+
+
+class PIControl(PoFeedback):
+    """PI on Po (paper §4.1)."""
+
+    name = "pi"
+    derivative_term = False
+
+
+class PIDControl(PoFeedback):
+    """PID on Po (paper §4.2), the derivative through the first-order filter."""
+
+    name = "pid"
+    derivative_term = True
+
+
+# The registry: control mode name -> controller class.
+CONTROLLERS: dict[str, type[PoController]] = {
+    c.name: c for c in (OpenLoop, PIControl, PIDControl)}
+CONTROLS = tuple(CONTROLLERS)
+
+
+def check_control(control: str) -> str:
+    """A control mode: one of CONTROLS."""
+    if control not in CONTROLLERS:
+        raise ParameterError(f"unknown control {control!r}; valid: {', '.join(CONTROLS)}")
+    return control
+
+
+def make_controller(control: str, params: Params, dt: float) -> PoController:
+    """The controller `control` for one run of step `dt` [s]."""
+    return CONTROLLERS[check_control(control)].for_run(params, dt)

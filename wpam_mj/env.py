@@ -95,7 +95,7 @@ class MusclePhysics(engine.Physics):
         m = self.model.ptr
         self.params = params
         self.muscle = MuscleModel.from_params(params)
-        self.constants = RunConstants.make(params, dt, "open", record_dt=dt)
+        self.constants = RunConstants.make(params, dt, record_dt=dt)
         self._idx = MuscleIndex.of(m)
         self._load_body = m.body("load").id
         self.pi_cmd = self.po_cmd = 0.0

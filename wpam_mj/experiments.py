@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wpam_mj.control import check_control, pi_feedforward
+from wpam_mj.control import CONTROLLERS, check_control, pi_feedforward
 from wpam_mj.model import check_dt, check_load
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM, MPA, Params, check_range
@@ -92,7 +92,8 @@ def drive_for_targets(params: Params, load: float, x_ref: np.ndarray, control: s
     open-loop run assumes Po = 0, the only Po it has (paper Fig. 12).
     """
     muscle = MuscleModel.from_params(params)
-    po_ff = 0.0 if control == "open" else params.controller.po_feedforward
+    feedback = CONTROLLERS[check_control(control)].feedback
+    po_ff = params.controller.po_feedforward if feedback else 0.0
     pi_cmd = pi_feedforward(muscle, params, x_ref, load, po_ff)
     return Drive(pi_cmd=pi_cmd, po_cmd=np.zeros(len(x_ref)), x_ref=x_ref)
 

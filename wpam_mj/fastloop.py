@@ -2,7 +2,8 @@
 
 `run_compiled` is a drop-in for `wpam_mj.simulate.run_python` (same arguments, same
 return convention, bit-identical results; tests/test_fastloop.py checks this) that runs
-the whole loop, mj_step included, in C. The Python loop costs about 17 us/step; the
+the whole loop, mj_step included, in C, for the controllers the C file implements
+(`compiled_controllers`). The Python loop costs about 17 us/step; the
 compiled one stays within 2x of a bare mj_step (benchmarks/bench_step.py).
 
 The shared library is cached per user in ``$XDG_CACHE_HOME/wpam_mj`` (default
@@ -31,7 +32,7 @@ import mujoco
 import numpy as np
 
 from wpam_mj import pneumatics as pn
-from wpam_mj.control import initial_integral
+from wpam_mj.control import CONTROLLERS, PoController, PoFeedback
 from wpam_mj.model import MuscleIndex
 from wpam_mj.params import MM, MPA
 from wpam_mj.loop_contract import (REC_FIELDS, REC_ROWS, RunConstants, contraction_diverged,
@@ -48,7 +49,7 @@ CFLAGS = ("-O2", "-fPIC", "-shared", "-std=c11", "-ffp-contract=off", "-fno-fast
 # Integers (steps, flags, indices) are stored exactly as floats.
 _CONSTS = (
     # RunConstants
-    "dt", "record_every", "feedback", "lag_alpha", "delay_steps", "atmosphere", "p_max",
+    "dt", "record_every", "controller", "lag_alpha", "delay_steps", "atmosphere", "p_max",
     "conductance_i", "conductance_o", "critical_ratio", "tube_volume", "bag_volume",
     # wpam_mj.pneumatics
     "rt0", "rho0", "r_laminar",
@@ -57,7 +58,7 @@ _CONSTS = (
     "natural_diameter",
     # BraidGeometry
     "natural_length", "thread_sq", "volume_denom", "diameter_denom",
-    # PoFeedback
+    # PoFeedback (zeros for the open loop)
     "kp", "ki", "kd", "tf", "po_lo", "po_hi", "mm", "mpa", "integral0",
     # MuJoCo addresses
     "qpos_adr", "dof_adr", "actuator_id", "tendon_id",
@@ -80,7 +81,23 @@ def unavailable_reason() -> str | None:
     return _reason
 
 
-def pack_constants(model, muscle, params, k: RunConstants) -> np.ndarray:
+def compiled_controllers() -> tuple[str, ...]:
+    """Names of the controllers the compiled loop implements (() when unavailable)."""
+    lib = _load()
+    return () if lib is None else exported_names(lib, "wpam_controllers")
+
+
+def _controller_constants(controller: PoController) -> dict[str, float]:
+    """The PoFeedback constants of the layout (zeros for a controller without them)."""
+    if not isinstance(controller, PoFeedback):
+        return dict.fromkeys(("kp", "ki", "kd", "tf", "po_lo", "po_hi", "mm", "mpa",
+                              "integral0"), 0.0)
+    c = controller
+    return dict(kp=c.kp, ki=c.ki, kd=c.kd, tf=c.tf, po_lo=c.lo, po_hi=c.hi, mm=MM, mpa=MPA,
+                integral0=c.integral)
+
+
+def pack_constants(model, muscle, controller: PoController, k: RunConstants) -> np.ndarray:
     """The `_CONSTS` array for one run.
 
     Derived values use the exact expressions of the Python code they stand for (for
@@ -88,10 +105,10 @@ def pack_constants(model, muscle, params, k: RunConstants) -> np.ndarray:
     same way; C evaluates the rest in the Python order.
     """
     g = muscle.geometry
-    c = params.controller
     idx = MuscleIndex.of(model)
     values = dict(
-        dt=k.dt, record_every=k.record_every, feedback=float(k.feedback),
+        dt=k.dt, record_every=k.record_every,
+        controller=compiled_controllers().index(controller.name),
         lag_alpha=k.lag_alpha, delay_steps=k.delay_steps, atmosphere=k.atmosphere,
         p_max=k.p_max, conductance_i=k.conductance_i, conductance_o=k.conductance_o,
         critical_ratio=k.critical_ratio,
@@ -105,10 +122,7 @@ def pack_constants(model, muscle, params, k: RunConstants) -> np.ndarray:
         thread_sq=g.thread_length ** 2,  # BraidGeometry.diameter/volume/area
         volume_denom=4.0 * math.pi * g.turns ** 2,  # BraidGeometry.volume/area
         diameter_denom=g.turns * math.pi,  # BraidGeometry.diameter
-        # PoFeedback.__init__: kd only with the derivative term
-        kp=c.kp, ki=c.ki, kd=c.kd if k.derivative else 0.0, tf=c.derivative_filter,
-        po_lo=params.pneumatics.p_min, po_hi=c.po_cap, mm=MM, mpa=MPA,
-        integral0=initial_integral(k.po_initial, c.ki),
+        **_controller_constants(controller),
         qpos_adr=idx.qpos, dof_adr=idx.dof, actuator_id=idx.actuator, tendon_id=idx.tendon,
     )
     if values.keys() != set(_CONSTS):
@@ -117,22 +131,27 @@ def pack_constants(model, muscle, params, k: RunConstants) -> np.ndarray:
     return np.array([values[name] for name in _CONSTS], dtype=np.float64)
 
 
-def run_compiled(model, data, muscle, params, k, drive, rec: np.ndarray):
+def run_compiled(model, data, muscle, controller: PoController, k: RunConstants, drive,
+                 rec: np.ndarray):
     """Compiled `run_python`: same arguments, fills `rec` the same way.
 
     Returns None, or (step, reason) when the state diverged at `step`.
-    Raises RuntimeError when the compiled loop is unavailable.
+    Raises RuntimeError when the compiled loop is unavailable or does not implement
+    the controller.
     """
     lib = _load()
     if lib is None:
         raise RuntimeError(f"the compiled loop is unavailable ({_reason}); "
                            "use engine='python' or engine='auto'")
+    if controller.name not in compiled_controllers():
+        raise RuntimeError(f"the compiled loop does not implement controller "
+                           f"{controller.name!r}; use engine='python' or engine='auto'")
     n = len(drive.pi_cmd)
     if rec.dtype != np.float64 or not rec.flags.c_contiguous or rec.shape[0] != REC_ROWS:
         raise ValueError(f"rec must be a C-contiguous float64 array of shape ({REC_ROWS}, n_rec)")
     if n >= 2**31:
         raise ValueError(f"{n} steps exceed the compiled loop's int range; split the run")
-    consts = pack_constants(model, muscle, params, k)
+    consts = pack_constants(model, muscle, controller, k)
     fail = np.zeros(3)
 
     def ptr(a: np.ndarray):
@@ -227,6 +246,10 @@ def _load() -> ctypes.CDLL | None:
         for layout, python in (("wpam_const_names", _CONSTS),
                                ("wpam_record_fields", REC_FIELDS)):
             _check_layout(lib, layout, python)
+        unknown = set(exported_names(lib, "wpam_controllers")) - set(CONTROLLERS)
+        if unknown:
+            raise RuntimeError(f"{SOURCE.name} implements controllers {sorted(unknown)} "
+                               "that wpam_mj.control.CONTROLLERS does not have")
     except Exception as err:  # noqa: BLE001 (any failure means: use the Python loop)
         _reason = f"{type(err).__name__}: {err}"
         return None

@@ -10,7 +10,6 @@ import math
 from dataclasses import dataclass
 
 from wpam_mj import pneumatics as pn
-from wpam_mj.control import check_control
 from wpam_mj.params import Params, ParameterError
 
 # Rows of the recording array, in this order; `SimResult` has a field of each name.
@@ -39,8 +38,6 @@ class RunConstants:
 
     dt: float
     record_every: int
-    feedback: bool
-    derivative: bool
     lag_alpha: float  # 1 - exp(-dt / tau) of the regulator lag
     delay_steps: int  # regulator dead time in steps
     atmosphere: float
@@ -50,26 +47,21 @@ class RunConstants:
     critical_ratio: float
     tube_volume: float
     bag_volume: float
-    po_initial: float  # Po [Pa] the feedback outputs at zero error at the start (bumpless)
 
     @classmethod
-    def make(cls, params: Params, dt: float, control: str, record_dt: float) -> "RunConstants":
-        check_control(control)
+    def make(cls, params: Params, dt: float, record_dt: float) -> "RunConstants":
         record_every = round(record_dt / dt)
         if record_every < 1 or abs(record_every * dt - record_dt) > 1e-9 * record_dt:
             raise ParameterError(f"record_dt = {record_dt} s must be a whole multiple of "
                                  f"dt = {dt} s")
         p = params.pneumatics
         tau = p.time_constant
-        feedback = control != "open"
         return cls(
-            dt=dt, record_every=record_every, feedback=feedback,
-            derivative=control == "pid",
+            dt=dt, record_every=record_every,
             lag_alpha=1.0 if tau == 0.0 else -math.expm1(-dt / tau),
             delay_steps=round(p.dead_time / dt), atmosphere=p.atmosphere, p_max=p.p_max,
             conductance_i=p.inner_conductance, conductance_o=p.outer_conductance,
             critical_ratio=p.critical_ratio,
             tube_volume=p.tube_volume,
             bag_volume=pn.outer_bag_volume(params.braid.outer_bag_length,
-                                           params.braid.outer_bag_diameter),
-            po_initial=params.controller.po_feedforward if feedback else 0.0)
+                                           params.braid.outer_bag_diameter))

@@ -1,7 +1,7 @@
 """The simulation loop: MuJoCo moves the load, wpam_mj computes the muscle every step.
 
 Per physics step k (state x_k, v_k read straight from qpos/qvel, so nothing is a step old):
-  1. controller: Po command from PI/PID (or the open-loop schedule); Pi command given;
+  1. controller (`wpam_mj.control.PoController`): the Po command; Pi command given;
   2. `wpam_mj.plant.Plant.advance`: regulators (dead time + first-order lag) and chambers
      (explicit Euler of dp/dt with the flow through the restriction and the volume
      change), both from `wpam_mj.pneumatics`; tension T(x_k, Pi_k, Po_k) -> actuator ctrl
@@ -14,13 +14,14 @@ installed, so nothing leaks into other models.
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
 
 from wpam_mj import fastloop
-from wpam_mj.control import PoFeedback
+from wpam_mj.control import PoController, make_controller
 from wpam_mj.loop_contract import (REC_FIELDS, REC_ROWS, RunConstants, SimulationDiverged,
                                    contraction_diverged)
 from wpam_mj.model import MuscleIndex, build_model, check_dt, check_load
@@ -67,23 +68,26 @@ def simulate(params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
       load: hanging load [N].
       drive: commands sampled at `dt` (see `Drive`).
       dt: physics time step [s].
-      control: "open" (Po from drive.po_cmd), "pi" or "pid" (Po from feedback on x_ref).
+      control: a name of `wpam_mj.control.CONTROLLERS`: "open" (Po from drive.po_cmd),
+        "pi" or "pid" (Po from feedback on x_ref).
       record_dt: sample period of the returned series [s], a multiple of dt.
       engine: "python" (reference loop), "c" (compiled loop, same results), or "auto"
-        (compiled when available).
+        (compiled when available and it implements `control`; otherwise Python, with a
+        one-line notice on stderr when only the controller is missing).
     """
     load, dt = check_load(load), check_dt(dt)
-    k = RunConstants.make(params, dt, control, record_dt)
-    _check_commands(drive, params, dt, feedback=k.feedback)
-    if k.feedback and not np.all(np.isfinite(drive.x_ref)):
+    k = RunConstants.make(params, dt, record_dt)
+    controller = make_controller(control, params, dt)
+    _check_commands(drive, params, dt, feedback=controller.feedback)
+    if controller.feedback and not np.all(np.isfinite(drive.x_ref)):
         raise ParameterError("feedback control needs a finite target x_ref at every step")
     model = build_model(params, load, dt)
     data = mujoco.MjData(model)
     muscle = MuscleModel.from_params(params)
     n = len(drive.pi_cmd)
     rec = np.zeros((REC_ROWS, (n - 1) // k.record_every + 1))
-    run = _select_engine(engine)
-    status = run(model, data, muscle, params, k, drive, rec)
+    run = _select_engine(engine, control)
+    status = run(model, data, muscle, controller, k, drive, rec)
     if status is not None:
         step, what = status
         raise SimulationDiverged(f"simulation diverged at t = {step * dt:.4f} s: {what}; "
@@ -106,21 +110,32 @@ def _check_commands(drive: Drive, params: Params, dt: float, *, feedback: bool) 
                                  f"outside the regulator range [0, {hi / MPA:g}] MPa")
 
 
-def _select_engine(engine: str):
+_noticed: set[str] = set()  # controllers whose Python fallback was announced
+
+
+def _select_engine(engine: str, control: str):
+    """The loop for `engine` and the controller named `control`."""
     if engine == "python":
         return run_python
     if engine == "c":
         return fastloop.run_compiled
-    if engine == "auto":
-        return fastloop.run_compiled if fastloop.available() else run_python
-    raise ParameterError(f"unknown engine {engine!r}; valid: auto, python, c")
+    if engine != "auto":
+        raise ParameterError(f"unknown engine {engine!r}; valid: auto, python, c")
+    if not fastloop.available():
+        return run_python
+    if control not in fastloop.compiled_controllers():
+        if control not in _noticed:
+            _noticed.add(control)
+            print(f"wpam_mj: controller {control!r} has no compiled loop; running the Python "
+                  "loop (slower, same physics)", file=sys.stderr)
+        return run_python
+    return fastloop.run_compiled
 
 
-def run_python(model, data, muscle: MuscleModel, params: Params, k: RunConstants,
+def run_python(model, data, muscle: MuscleModel, controller: PoController, k: RunConstants,
                drive: Drive, rec: np.ndarray):
     """Reference loop in plain Python floats; returns None or (step, reason)."""
     plant = Plant(muscle, k)
-    pid = PoFeedback(params, k.dt, derivative=k.derivative, initial_output=k.po_initial)
     idx = MuscleIndex.of(model)
     qpos, qvel = data.qpos, data.qvel
     j = 0
@@ -132,7 +147,7 @@ def run_python(model, data, muscle: MuscleModel, params: Params, k: RunConstants
         pi_gauge, po_gauge = plant.pressures
         pi_c = float(drive.pi_cmd[step])
         xr = float(drive.x_ref[step])
-        po_c = pid.update(x, xr) if k.feedback else float(drive.po_cmd[step])
+        po_c = controller.update(x, xr, float(drive.po_cmd[step]))
         try:
             tension, friction = plant.actuate(model, data, idx, x, v, pi_c, po_c)
         except SimulationDiverged as err:
