@@ -1,5 +1,4 @@
-"""Studies: a process pool gives the serial results bit for bit; result structures; the
-checks of the paper's findings on hand-made data."""
+"""Studies: a process pool gives the serial results bit for bit; result structures."""
 
 import dataclasses
 import json
@@ -7,9 +6,9 @@ import json
 import numpy as np
 import pytest
 
-from wpam_mj import plots, report, studies
+from wpam_mj import paper, plots, studies
+from wpam_mj.analysis import loop_area
 from wpam_mj.params import MPA, ParameterError, preset
-from wpam_mj.studies import SweepPoint, SweepResult
 
 
 @pytest.fixture(scope="module")
@@ -64,10 +63,10 @@ def test_table2_json_structure(table2_pair):
 
 def test_feedback_area_uses_plateau_means(table2_pair):
     run = table2_pair[0].feedback_runs[0]
-    n = len(studies.STEP_LEVELS_MM)
+    n = len(paper.STEP_LEVELS_MM)
     assert run.x_mean.shape == run.pi_mean.shape == run.target.shape == (n,)
     assert int(np.argmax(run.pi_mean)) == n // 2  # up branch to 50 mm, then down
-    assert run.area == studies.loop_area(run.pi_mean, run.x_mean, method="branches")
+    assert run.area == loop_area(run.pi_mean, run.x_mean, method="branches")
 
 
 def test_worker_errors_reach_the_caller(params):
@@ -124,7 +123,7 @@ def test_inputs_are_checked_before_running(params):
 
 
 def test_figure_run_key():
-    assert studies.figure_run_key(studies.PAPER_LOADS_N, studies.PAPER_FREQS_HZ,
+    assert studies.figure_run_key(paper.LOADS_N, paper.SWEEP_FREQS_HZ,
                                   ("pi", "pid")) == (150.0, 0.5, "pi")
     assert studies.figure_run_key((50.0, 80.0), (0.2, 1.0), ("pid",)) == (80.0, 0.2, "pid")
 
@@ -142,35 +141,3 @@ def test_figures_from_a_small_study(table2_pair, tmp_path):
         assert obj.plot().axes, type(obj).__name__
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
         ["static.png", "step.png", "fig16.png", "table2.png"])  # no temporary files left
-
-
-# ---------------------------------------------------------------- checks on made-up data
-
-
-def _sweep(gain, lag, po_max=0.08 * MPA):
-    """A sweep whose gain/lag are functions of (load, freq, controller)."""
-    points = tuple(SweepPoint(load, f, c, gain(load, f, c), lag(load, f, c), po_max)
-                   for load in studies.PAPER_LOADS_N for c in ("pi", "pid")
-                   for f in studies.PAPER_FREQS_HZ)
-    return SweepResult(points=points)
-
-
-def test_sweep_checks_pass_on_the_papers_picture():
-    sw = _sweep(gain=lambda load, f, c: 1.0 / (1.0 + f),
-                lag=lambda load, f, c: 40 * f + (load / 100 if f < 0.5 else 0)
-                - (2.0 if c == "pid" else 0.0))
-    checks = report.sweep_checks(sw, 0.08 * MPA)
-    assert [c.passed for c in checks] == [True] * 5, report.checks_text(checks)
-
-
-def test_sweep_checks_fail_where_the_paper_does_not_hold():
-    sw = _sweep(gain=lambda load, f, c: (1.0 + f) * (1.0 + load / 1000),  # rises, load-dependent
-                lag=lambda load, f, c: 40 * f - load / 100 + (2.0 if c == "pid" else 0.0),
-                po_max=0.05 * MPA)
-    checks = report.sweep_checks(sw, 0.08 * MPA)
-    assert [c.passed for c in checks] == [False] * 5, report.checks_text(checks)
-
-
-def test_sweep_checks_need_their_data():
-    sw = SweepResult(points=(SweepPoint(100.0, 0.5, "pi", 0.9, 30.0, 0.07 * MPA),))
-    assert [c.passed for c in report.sweep_checks(sw, 0.08 * MPA)] == [None] * 5

@@ -27,11 +27,11 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-from wpam_mj import __version__, studies
+from wpam_mj import __version__, paper, studies
 from wpam_mj.control import CONTROLS, check_control
-from wpam_mj.experiments import (STEP_HOLD_S, STEP_LEVELS_MM, SineSpec, check_po, sine_run,
-                                 static_loop, step_run)
+from wpam_mj.experiments import SineSpec, check_po, sine_run, static_loop, step_run
 from wpam_mj.model import check_dt, check_load
+from wpam_mj.paper import STEP_HOLD_S, STEP_LEVELS_MM
 from wpam_mj.params import (CALIBRATION_FILE, MPA, PRESETS, ParameterError, Params, apply_overrides,
                             check_range, load_toml, preset)
 from wpam_mj.results import SimResult
@@ -149,12 +149,12 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = add("sweep", "frequency response to a 25 mm sinusoid about 25 mm (paper Figs. "
             "17-19): gain, phase lag, max Po", _cmd_sweep)
-    p.add_argument("--loads", type=_float_list, default=studies.PAPER_LOADS_N,
+    p.add_argument("--loads", type=_float_list, default=paper.LOADS_N,
                    metavar="N,N,...", help="hanging loads [N] (default: 50,100,150)")
-    p.add_argument("--freqs", type=_float_list, default=studies.PAPER_FREQS_HZ,
+    p.add_argument("--freqs", type=_float_list, default=paper.SWEEP_FREQS_HZ,
                    metavar="HZ,HZ,...",
                    help="target frequencies [Hz], each > 0 (default: 0.1,0.2,0.25,0.5,1.0)")
-    p.add_argument("--controllers", type=_name_list, default=studies.PAPER_CONTROLLERS,
+    p.add_argument("--controllers", type=_name_list, default=paper.SWEEP_CONTROLLERS,
                    metavar="C,C", help="feedback controllers, of " + ", ".join(CONTROLS)
                    + " (default: pi,pid)")
     p.add_argument("--json", action="store_true",
@@ -275,7 +275,7 @@ def _wrote(paths: Sequence[Path]) -> None:
 def _cmd_static(args: argparse.Namespace) -> int:
     plots, report = _output_modules()
     run = _run_options(args)
-    loads = _loads(studies.PAPER_LOADS_N if args.load is None else (args.load,))
+    loads = _loads(paper.LOADS_N if args.load is None else (args.load,))
     po_down = check_po("--po-down", args.po_down * MPA, run.params)
     names = PRESETS if args.compare_presets else (args.preset,)
     plist = [run.params if n == args.preset else _params(args, n) for n in names]

@@ -6,7 +6,8 @@
                     Po feedback (§4.1, Figs. 12-15).
   * `sine_run`      sinusoidal target, 25 mm amplitude about a 25 mm mean (§4.2, Figs. 17-19).
 
-Targets and pressures are SI; the defaults carry the paper's values in its units.
+Targets and pressures are SI; the defaults carry the paper's values in its units
+(`wpam_mj.paper`).
 """
 
 from __future__ import annotations
@@ -19,17 +20,14 @@ import numpy as np
 from wpam_mj.control import CONTROLLERS, check_control, pi_feedforward
 from wpam_mj.model import check_dt, check_load
 from wpam_mj.muscle import MuscleModel
+from wpam_mj.paper import SINE_AMPLITUDE_MM, STEP_HOLD_S, STEP_LEVELS_MM
 from wpam_mj.params import MM, MPA, Params, check_range
 from wpam_mj.results import SimResult
 from wpam_mj.simulate import Drive, simulate
 
-STEP_LEVELS_MM = (0, 10, 20, 30, 40, 50, 40, 30, 20, 10, 0)  # paper §4.1
-STEP_HOLD_S = 10.0  # paper §4.1
-SINE_AMPLITUDE_MM = 25.0  # paper §4.2
 SINE_MEAN_MM = 25.0  # our choice: the target spans 0-50 mm, the range of the step runs
 STATIC_TOP_MM = 50.0  # our choice: ramp until the contracting branch reaches this
 STATIC_RAMP_S = 60.0  # our choice: "slow" (near quasi-static), each direction
-PO_DOWN_STATIC_MPA = 0.04  # paper §2.3, Fig. 9
 
 
 def check_po(name: str, po: float, params: Params) -> float:

@@ -22,10 +22,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+from wpam_mj import paper
 from wpam_mj.paths import MODELS_DIR
+from wpam_mj.units import MM, MPA  # noqa: F401 (MM re-exported: modules take units from here)
 
-MPA = 1e6  # Pa per MPa
-MM = 1e-3  # m per mm
 STANDARD_GRAVITY = 9.80665  # m/s^2, ISO 80000-3
 
 
@@ -136,11 +136,11 @@ class Controller(_Validated):
     e = x - x_r in mm, output Po in MPa, time in s; u = Kp e + Ki int(e) dt + Kd de/dt.
     """
 
-    kp: float = _p(0.1, "MPa/mm", 0.0, 1e3, "paper §4.1")
-    ki: float = _p(0.008, "MPa/(mm s)", 0.0, 1e3, "paper §4.1")
-    kd: float = _p(0.004, "MPa s/mm", 0.0, 1e3, "paper §4.2 (used in PID mode only)")
+    kp: float = _p(paper.KP, "MPa/mm", 0.0, 1e3, "paper §4.1")
+    ki: float = _p(paper.KI, "MPa/(mm s)", 0.0, 1e3, "paper §4.1")
+    kd: float = _p(paper.KD, "MPa s/mm", 0.0, 1e3, "paper §4.2 (used in PID mode only)")
     derivative_filter: float = _p(0.02, "s", 0.0, 10.0, "our choice (first-order D filter)")
-    po_cap: float = _p(0.08 * MPA, "Pa", 0.0, 1.0 * MPA, "paper §4.2 (bag durability)")
+    po_cap: float = _p(paper.PO_CAP_MPA * MPA, "Pa", 0.0, 1.0 * MPA, "paper §4.2 (bag durability)")
     po_feedforward: float = _p(0.04 * MPA, "Pa", 0.0, 1.0 * MPA,
                                "our choice: mid-range Po assumed by the Pi feedforward")
 

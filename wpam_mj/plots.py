@@ -18,7 +18,8 @@ from wpam_mj.experiments import step_targets
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM, MPA, Params
 from wpam_mj.results import SimResult, write_atomic
-from wpam_mj.studies import PAPER_TABLE2, StaticLoop, StepRun, SweepResult, Table2Result
+from wpam_mj.paper import TABLE2
+from wpam_mj.studies import StaticLoop, StepRun, SweepResult, Table2Result
 
 DPI = 100
 _LOAD_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple",
@@ -197,7 +198,7 @@ def table2_figure(t2: Table2Result) -> Figure:
     for ax, row, ours, title in ((ax_po, "open_po", t2.open_po,
                                   f"open loop, Po = {t2.po_down / MPA:g} MPa while Pi falls"),
                                  (ax_fb, "feedback", t2.feedback, "PI feedback (Fig. 16)")):
-        paper = [PAPER_TABLE2[row].get(load, np.nan) for load in loads]
+        paper = [TABLE2[row].get(load, np.nan) for load in loads]
         sim = [ours[load] for load in loads]
         b1 = ax.bar(idx - w / 2, paper, w, color="0.6", label="paper")
         b2 = ax.bar(idx + w / 2, sim, w, color="tab:blue", label="simulation")

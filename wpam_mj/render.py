@@ -11,7 +11,7 @@ What a frame shows (models/wpam/scene.xml, camera "front" by default):
     (`wpam_mj.geometry.BraidGeometry.diameter`) with its threads drawn as helices of the
     pantograph's n turns, coloured by the inner pressure Pi (beige 0 -> red 0.5 MPa);
   * the translucent outer bag spanning the two fittings, tinted by the outer pressure Po
-    (clear 0 -> blue 0.08 MPa);
+    (clear 0 -> blue at the paper's Po cap, `wpam_mj.paper.PO_CAP_MPA`);
   * the hanging mass labelled with its weight [N];
   * a ruler fixed beside the load with a tick every 10 mm from the load's x = 0 position
     (site ``ruler_zero``) and a red pointer that moves with the load;
@@ -48,6 +48,7 @@ import mujoco
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from wpam_mj import paper
 from wpam_mj.geometry import BraidGeometry
 from wpam_mj.model import build_model
 from wpam_mj.params import MM, MPA, ParameterError, Params, check_range
@@ -58,14 +59,14 @@ FORMATS = (".mp4", ".gif")
 FPS_RANGE = {".mp4": (1.0, 120.0), ".gif": (1.0, 50.0)}  # GIF: 10 ms delay resolution
 SIZE_RANGE = (32, 4096)  # px, width and height
 PI_COLOUR_RANGE = (0.0, 0.5 * MPA)  # Pa: ITV2031 range (paper §2.3)
-PO_COLOUR_RANGE = (0.0, 0.08 * MPA)  # Pa: Po cap (paper §4.2)
+PO_COLOUR_RANGE = (0.0, paper.PO_CAP_MPA * MPA)  # Pa: Po cap (paper §4.2)
 RULER_TICK = 10 * MM  # m between ruler ticks
 
 # colours, RGBA in 0..1
 _SLEEVE_LOW = np.array([0.88, 0.82, 0.62, 1.0], np.float32)  # Pi = 0
 _SLEEVE_HIGH = np.array([0.80, 0.12, 0.10, 1.0], np.float32)  # Pi = 0.5 MPa
 _BAG_LOW = np.array([0.80, 0.88, 0.95, 0.15], np.float32)  # Po = 0
-_BAG_HIGH = np.array([0.15, 0.45, 0.95, 0.35], np.float32)  # Po = 0.08 MPa
+_BAG_HIGH = np.array([0.15, 0.45, 0.95, 0.35], np.float32)  # Po at the cap
 _THREAD = np.array([0.22, 0.18, 0.14, 1.0], np.float32)
 _RULER = np.array([0.1, 0.1, 0.1, 1.0], np.float32)
 _POINTER = np.array([0.9, 0.1, 0.1, 1.0], np.float32)

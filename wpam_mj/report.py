@@ -16,23 +16,14 @@ from typing import Sequence
 
 import numpy as np
 
-from wpam_mj import plots
+from wpam_mj import paper, plots
+from wpam_mj.paper import Check
 from wpam_mj.params import CALIBRATION_FILE, MM, MPA, Params, describe, preset
 from wpam_mj.results import write_text_atomic
-from wpam_mj.studies import (FIG18_FREQ_HZ, FIG18_LOAD_N, PAPER_CONTROLLERS, PAPER_FREQS_HZ,
-                             PAPER_LOADS_N, PAPER_TABLE2_SOURCE, StaticLoop,
+from wpam_mj.studies import (StaticLoop,
                              StaticTask, StepRun, StepTask, SweepResult, Table2Result, Batch,
                              TaskPool, figure_run_key, submit_batches, sweep_batch, table2_batch)
 
-# thresholds of the checks (from the task's fidelity targets, SPEC.md)
-TABLE2_PO_RTOL = 0.15  # Po = 0.04 MPa row: within 15 % of the paper per cell
-FEEDBACK_MAX = 0.02  # feedback row: below 0.02
-GAIN_LOAD_RTOL = 0.05  # gains of the loads within 5 % at each frequency
-PO_CAP_RTOL = 0.02  # "Po reaches the cap": chamber Po within 2 % of it
-# our tolerances for "gain falls / lag grows": ignore wiggles smaller than these between
-# neighbouring frequencies (fit noise near gain 1 and lag 0 at low frequency)
-GAIN_RISE_TOL = 0.01
-LAG_FALL_TOL_DEG = 1.0
 PRESET_COMPARE_LOAD_N = 100.0  # our choice for Fig. 3 (the paper's load is not given)
 
 
@@ -78,13 +69,13 @@ def write_table2(out: Path, t2: Table2Result) -> list[Path]:
 
 def table2_text(t2: Table2Result) -> str:
     """Our Table 2 beside the paper's, as plain text."""
-    paper = t2.paper()
+    ref = t2.paper()
     head = f"{'condition':<34}" + "".join(f"{f'{v:g} N':>20}" for v in t2.loads)
     sub = f"{'':<34}" + "".join(f"{'ours':>10}{'paper':>10}" for _ in t2.loads)
     lines = ["Table 2: hysteresis-loop area / open-loop (Po = 0) area", head, sub]
 
     def row(name: str, ours: dict, key: str) -> str:
-        cells = "".join(f"{ours[v]:>10.4f}{_fmt(paper[key].get(v)):>10}" for v in t2.loads)
+        cells = "".join(f"{ours[v]:>10.4f}{_fmt(ref[key].get(v)):>10}" for v in t2.loads)
         return f"{name:<34}{cells}"
 
     lines.append(row("open loop, no Po", {v: 1.0 for v in t2.loads}, "open"))
@@ -142,116 +133,14 @@ def params_markdown(params: Params) -> str:
 # ------------------------------------------------------------------ checks
 
 
-@dataclass(frozen=True)
-class Check:
-    """One qualitative finding of the paper: passed is None when the data are missing."""
-
-    finding: str
-    passed: bool | None
-    detail: str
-
-    @property
-    def verdict(self) -> str:
-        return {True: "PASS", False: "FAIL", None: "n/a"}[self.passed]
-
-
 def sweep_checks(sw: SweepResult, po_cap: float) -> list[Check]:
-    """The paper's frequency-response findings (§4.2) on a sweep."""
-    checks = []
-    # 1. gain falls and lag grows with frequency
-    worst_g, worst_l, ok = (0.0, ""), (0.0, ""), True
-    for load in sw.loads:
-        for c in sw.controllers:
-            pts = sw.curve(load, c)
-            if len(pts) < 2:
-                continue
-            g = np.array([p.gain for p in pts])
-            lag = np.array([p.phase_lag_deg for p in pts])
-            dg, dl = np.diff(g), np.diff(lag)
-            i, j = int(np.argmax(dg)), int(np.argmin(dl))
-            where = f"{load:g} N {c.upper()}"
-            if dg[i] > worst_g[0]:
-                worst_g = (dg[i], f"{where} {pts[i].freq:g}->{pts[i + 1].freq:g} Hz")
-            if -dl[j] > worst_l[0]:
-                worst_l = (-dl[j], f"{where} {pts[j].freq:g}->{pts[j + 1].freq:g} Hz")
-            ok &= bool(dg.max() <= GAIN_RISE_TOL and -dl.min() <= LAG_FALL_TOL_DEG
-                       and g[-1] < g[0] and lag[-1] > lag[0])
-    have = len(sw.freqs) >= 2
-    checks.append(Check(
-        "gain falls and phase lag grows with frequency (every load and controller)",
-        ok if have else None,
-        (f"largest gain rise {worst_g[0]:+.3f} ({worst_g[1] or '-'}), largest lag drop "
-         f"{worst_l[0]:.1f} deg ({worst_l[1] or '-'}); tolerated: {GAIN_RISE_TOL} and "
-         f"{LAG_FALL_TOL_DEG:g} deg between neighbouring frequencies") if have else
-        "needs >= 2 frequencies"))
-    # 2. gain independent of load
-    worst, where = 0.0, "-"
-    for c in sw.controllers:
-        for f in sw.freqs:
-            g = [p.gain for p in sw.points if p.controller == c and p.freq == f]
-            if len(g) >= 2:
-                spread = max(g) / min(g) - 1.0
-                if spread >= worst:
-                    worst, where = spread, f"{c.upper()} {f:g} Hz"
-    have = len(sw.loads) >= 2
-    checks.append(Check(
-        f"gains of the loads within {GAIN_LOAD_RTOL:.0%} at each frequency",
-        worst <= GAIN_LOAD_RTOL if have else None,
-        f"largest spread max/min - 1 = {worst:.1%} ({where})" if have else "needs >= 2 loads"))
-    # 3. below 0.5 Hz, lag smaller at lower load
-    low = [f for f in sw.freqs if f < FIG18_FREQ_HZ]
-    bad = []
-    for c in sw.controllers:
-        for f in low:
-            lags = [sw.point(load, f, c).phase_lag_deg for load in sw.loads]
-            if not all(b > a for a, b in zip(lags, lags[1:])):
-                bad.append(f"{c.upper()} {f:g} Hz: " + "/".join(f"{v:.1f}" for v in lags))
-    have = len(sw.loads) >= 2 and bool(low)
-    checks.append(Check(
-        "below 0.5 Hz the phase lag is smaller at lower load",
-        not bad if have else None,
-        ("lags [deg] by increasing load out of order at " + "; ".join(bad) if bad else
-         f"lag increases with load at every f < 0.5 Hz ({', '.join(sw.controllers)})")
-        if have else "needs >= 2 loads and a frequency below 0.5 Hz"))
-    # 4. PID lag < PI lag at 150 N
-    if FIG18_LOAD_N in sw.loads and {"pi", "pid"} <= set(sw.controllers):
-        pi = sw.curve(FIG18_LOAD_N, "pi")
-        pid = sw.curve(FIG18_LOAD_N, "pid")
-        margin = [(a.phase_lag_deg - b.phase_lag_deg, a.freq) for a, b in zip(pi, pid)]
-        m, f = min(margin)
-        checks.append(Check("PID lag < PI lag at 150 N at every frequency", m > 0.0,
-                            f"smallest PI - PID lag {m:+.2f} deg (at {f:g} Hz)"))
-    else:
-        checks.append(Check("PID lag < PI lag at 150 N at every frequency", None,
-                            "needs 150 N and both PI and PID"))
-    # 5. Po reaches its cap at 150 N, 0.5 Hz
-    p = sw.point(FIG18_LOAD_N, FIG18_FREQ_HZ, "pi")
-    finding = f"Po reaches the {po_cap / MPA:g} MPa cap at 150 N, 0.5 Hz (PI)"
-    if p is None:
-        checks.append(Check(finding, None, "needs the 150 N, 0.5 Hz PI run"))
-    else:
-        checks.append(Check(finding, p.po_max >= (1.0 - PO_CAP_RTOL) * po_cap,
-                            f"regulator-gauge Po max {p.po_max / MPA:.4f} MPa "
-                            f"(pass: >= {(1 - PO_CAP_RTOL) * po_cap / MPA:.4f} MPa); "
-                            f"chamber Po max {p.po_chamber_max / MPA:.4f} MPa"))
-    return checks
+    """The paper's frequency-response findings (§4.2) on a sweep (po_cap [Pa])."""
+    return paper.check_all(paper.SWEEP_FINDINGS, sw, po_cap)
 
 
 def table2_checks(t2: Table2Result) -> list[Check]:
-    """Table 2 targets: Po row within 15 % of the paper, feedback row < 0.02 and rising."""
-    paper = t2.paper()
-    errs = {load: t2.open_po[load] / paper["open_po"][load] - 1.0
-            for load in t2.loads if load in paper["open_po"]}
-    po = Check(f"Table 2 'Po = 0.04 MPa' row within {TABLE2_PO_RTOL:.0%} of the paper",
-               all(abs(e) <= TABLE2_PO_RTOL for e in errs.values()) if errs else None,
-               ", ".join(f"{load:g} N: {t2.open_po[load]:.4f} vs {paper['open_po'][load]:.4f}"
-                         f" ({e:+.0%})" for load, e in errs.items()) or "no paper loads")
-    fb = [t2.feedback[load] for load in t2.loads]
-    feedback = Check(
-        f"Table 2 feedback row < {FEEDBACK_MAX} and increasing with load",
-        all(v < FEEDBACK_MAX for v in fb) and all(b > a for a, b in zip(fb, fb[1:])),
-        ", ".join(f"{load:g} N: {v:.4f}" for load, v in zip(t2.loads, fb)))
-    return [po, feedback]
+    """The Table 2 targets: Po row within 15 % of the paper, feedback row < 0.02 and rising."""
+    return paper.check_all(paper.TABLE2_FINDINGS, t2, math.nan)
 
 
 def checks_markdown(checks: Sequence[Check]) -> str:
@@ -359,7 +248,8 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
                                                       "PI on Po (cf. Figs. 12-13)"))}))
 
         sw = sweep_response()
-        fig_key = figure_run_key(PAPER_LOADS_N, PAPER_FREQS_HZ, PAPER_CONTROLLERS)
+        fig_key = figure_run_key(paper.LOADS_N, paper.SWEEP_FREQS_HZ,
+                                 paper.SWEEP_CONTROLLERS)
         outputs += pool.submit(
             [_CsvTask(data / sine_csv_name(fig_key), sw.series[fig_key])]
             + figure_tasks({
@@ -380,7 +270,7 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
 def _report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResult,
                      open_step: StepRun, preset_loops: Sequence[StaticLoop],
                      checks: Sequence[Check]) -> str:
-    paper = t2.paper()
+    ref = t2.paper()
     calib = (f"`{CALIBRATION_FILE.name}` present" if CALIBRATION_FILE.exists() else
              "no calibration file: built-in defaults")
     n_pass = sum(c.passed is True for c in checks)
@@ -402,17 +292,17 @@ def _report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResul
         " normalized by the open-loop, Po = 0 area of the same load. Feedback: the loop of"
         f" the plateau means (last {t2.feedback_runs[0].settle:g} s of each 10 s plateau,"
         " up branch then down branch), as in the paper's Fig. 16."
-        f" Paper values: {PAPER_TABLE2_SOURCE}.",
+        f" Paper values: {paper.TABLE2_SOURCE}.",
         "",
         "| condition | " + " | ".join(f"{v:g} N ours | {v:g} N paper" for v in t2.loads)
         + " |",
         "|---|" + "---|---|" * len(t2.loads),
         "| open loop, no Po (Fig. 8) | " + " | ".join(
-            f"1.0000 | {_fmt(paper['open'].get(v))}" for v in t2.loads) + " |",
+            f"1.0000 | {_fmt(ref['open'].get(v))}" for v in t2.loads) + " |",
         f"| open loop, Po = {_mpa(t2.po_down)} MPa (Fig. 9) | " + " | ".join(
-            f"{t2.open_po[v]:.4f} | {_fmt(paper['open_po'].get(v))}" for v in t2.loads) + " |",
+            f"{t2.open_po[v]:.4f} | {_fmt(ref['open_po'].get(v))}" for v in t2.loads) + " |",
         "| feedback control (Fig. 16) | " + " | ".join(
-            f"{t2.feedback[v]:.4f} | {_fmt(paper['feedback'].get(v))}" for v in t2.loads)
+            f"{t2.feedback[v]:.4f} | {_fmt(ref['feedback'].get(v))}" for v in t2.loads)
         + " |",
         "",
         "Raw areas [MPa mm]: " + "; ".join(
@@ -461,7 +351,7 @@ def _report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResul
         "whole steady cycles. Paper: gain falls and lag grows with frequency; gain does "
         "not change with load; below 0.5 Hz lag is smaller at lower load; PID lags less "
         "than PI (150 N); above about 0.5 Hz the system runs at its limit velocity and Po "
-        "hits its 0.08 MPa cap.",
+        f"hits its {paper.PO_CAP_MPA:g} MPa cap.",
         "",
         _sweep_table(sw),
         "",

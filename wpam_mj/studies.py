@@ -29,29 +29,17 @@ import numpy as np
 from tqdm import tqdm
 
 from wpam_mj.analysis import frequency_response, loop_area, steady_state_means
-from wpam_mj.experiments import (PO_DOWN_STATIC_MPA, STATIC_RAMP_S, STEP_HOLD_S,
-                                 STEP_LEVELS_MM, SineSpec, check_po,
-                                 sine_run, static_loop, step_run)
+from wpam_mj.experiments import STATIC_RAMP_S, SineSpec, check_po, sine_run, static_loop, step_run
 from wpam_mj.control import check_control
 from wpam_mj.model import check_dt, check_load
+from wpam_mj.paper import (FIG18_FREQ_HZ, FIG18_LOAD_N, LOADS_N, PO_DOWN_STATIC_MPA,
+                           STEP_HOLD_S, STEP_LEVELS_MM, SWEEP_CONTROLLERS, SWEEP_FREQS_HZ,
+                           TABLE2, TABLE2_SOURCE)
 from wpam_mj.params import MM, MPA, Params, ParameterError
 from wpam_mj.results import SimResult
 
-PAPER_LOADS_N = (50.0, 100.0, 150.0)  # paper §2.3, §4
-PAPER_FREQS_HZ = (0.1, 0.2, 0.25, 0.5, 1.0)  # paper §4.2
-PAPER_CONTROLLERS = ("pi", "pid")  # paper §4.2
-FIG18_LOAD_N = 150.0  # paper Figs. 18-19
-FIG18_FREQ_HZ = 0.5  # paper Figs. 18-19
 PLATEAU_SETTLE_S = 5.0  # our choice: average the last half of each 10 s plateau (Fig. 16)
 LOOP_METHOD = "branches"  # one loop-area method for every Table 2 cell
-
-# Paper Table 2: hysteresis-loop areas normalized by the open-loop, Po = 0 area per load.
-PAPER_TABLE2 = {
-    "open": {50.0: 1.0, 100.0: 1.0, 150.0: 1.0},
-    "open_po": {50.0: 0.7042, 100.0: 0.1899, 150.0: 0.0638},
-    "feedback": {50.0: 0.0008, 100.0: 0.0019, 150.0: 0.0170},
-}
-PAPER_TABLE2_SOURCE = "Saito, Satoh & Saga, Actuators 2024, 13, 282, Table 2"
 
 
 def load_key(load: float) -> str:
@@ -227,7 +215,7 @@ def _check_loads(loads: Iterable[float]) -> tuple[float, ...]:
     return loads
 
 
-def static_study(params: Params, loads: Iterable[float] = PAPER_LOADS_N,
+def static_study(params: Params, loads: Iterable[float] = LOADS_N,
                  po_down: float = 0.0, *, dt: float = 1e-3, jobs: int = 1,
                  progress: bool = False) -> list[StaticLoop]:
     """Open-loop static characteristic at each load [N]; Po = `po_down` [Pa] while Pi falls."""
@@ -356,14 +344,14 @@ class Table2Result:
     def paper(self) -> dict[str, dict[float, float]]:
         """The paper's rows for the loads of this study that the paper has."""
         return {row: {load: v[load] for load in self.loads if load in v}
-                for row, v in PAPER_TABLE2.items()}
+                for row, v in TABLE2.items()}
 
     def as_json(self) -> dict:
         """{"open_po": {"50": a, ...}, "feedback": {...}, "paper": {...}}."""
         paper: dict = {row: {load_key(k): v for k, v in vals.items()}
                        for row, vals in self.paper().items()}
         paper["po_down_mpa"] = PO_DOWN_STATIC_MPA
-        paper["source"] = PAPER_TABLE2_SOURCE
+        paper["source"] = TABLE2_SOURCE
         return {"open_po": {load_key(k): v for k, v in self.open_po.items()},
                 "feedback": {load_key(k): v for k, v in self.feedback.items()},
                 "paper": paper}
@@ -391,7 +379,7 @@ class Table2Result:
         return out
 
 
-def table2(params: Params, *, loads: Iterable[float] = PAPER_LOADS_N,
+def table2(params: Params, *, loads: Iterable[float] = LOADS_N,
            po_down: float = PO_DOWN_STATIC_MPA * MPA, dt: float = 1e-3, jobs: int = 1,
            progress: bool = False) -> Table2Result:
     """Run the open-loop ramps (Po = 0 and Po = `po_down` [Pa]) and the PI staircase at
@@ -400,7 +388,7 @@ def table2(params: Params, *, loads: Iterable[float] = PAPER_LOADS_N,
     return run_batches([batch], jobs=jobs, progress=progress, desc="table 2")[0]
 
 
-def table2_batch(params: Params, *, loads: Iterable[float] = PAPER_LOADS_N,
+def table2_batch(params: Params, *, loads: Iterable[float] = LOADS_N,
                  po_down: float = PO_DOWN_STATIC_MPA * MPA, dt: float = 1e-3) -> Batch:
     """The runs of `table2` as a `Batch` (to share a pool with other studies)."""
     loads, dt = _check_loads(loads), check_dt(dt)
@@ -531,9 +519,9 @@ def figure_run_key(loads: Sequence[float], freqs: Sequence[float],
     return load, freq, ctrl
 
 
-def sweep(params: Params, loads: Iterable[float] = PAPER_LOADS_N,
-          freqs: Iterable[float] = PAPER_FREQS_HZ,
-          controllers: Iterable[str] = PAPER_CONTROLLERS, *, keep: Iterable[SweepKey] | None = None,
+def sweep(params: Params, loads: Iterable[float] = LOADS_N,
+          freqs: Iterable[float] = SWEEP_FREQS_HZ,
+          controllers: Iterable[str] = SWEEP_CONTROLLERS, *, keep: Iterable[SweepKey] | None = None,
           dt: float = 1e-3, jobs: int = 1, progress: bool = False) -> SweepResult:
     """Sinusoidal-target runs (25 mm about 25 mm, `SineSpec`) for every combination.
 
@@ -547,9 +535,9 @@ def sweep(params: Params, loads: Iterable[float] = PAPER_LOADS_N,
     return run_batches([batch], jobs=jobs, progress=progress, desc="sweep")[0]
 
 
-def sweep_batch(params: Params, loads: Iterable[float] = PAPER_LOADS_N,
-                freqs: Iterable[float] = PAPER_FREQS_HZ,
-                controllers: Iterable[str] = PAPER_CONTROLLERS, *,
+def sweep_batch(params: Params, loads: Iterable[float] = LOADS_N,
+                freqs: Iterable[float] = SWEEP_FREQS_HZ,
+                controllers: Iterable[str] = SWEEP_CONTROLLERS, *,
                 keep: Iterable[SweepKey] | None = None, dt: float = 1e-3) -> Batch:
     """The runs of `sweep` as a `Batch` (to share a pool with other studies)."""
     loads, dt = _check_loads(loads), check_dt(dt)

@@ -1,0 +1,77 @@
+"""The paper's findings as signed margins, on hand-made sweeps: PASS/FAIL, the places a
+finding fails (by load, frequency and controller) and the calibration residuals all
+come from the same margins."""
+
+import pytest
+
+from wpam_mj import paper, report
+from wpam_mj.params import MPA, preset
+from wpam_mj.studies import SweepPoint, SweepResult
+
+CAP = paper.PO_CAP_MPA * MPA
+
+
+def _sweep(gain, lag, po_max=CAP):
+    """A sweep whose gain/lag are functions of (load, freq, controller)."""
+    points = tuple(SweepPoint(load, f, c, gain(load, f, c), lag(load, f, c), po_max)
+                   for load in paper.LOADS_N for c in paper.SWEEP_CONTROLLERS
+                   for f in paper.SWEEP_FREQS_HZ)
+    return SweepResult(points=points)
+
+
+def _papers_picture():
+    return _sweep(gain=lambda load, f, c: 1.0 / (1.0 + f),
+                  lag=lambda load, f, c: 40 * f + (load / 20 if f < 0.5 else 0)
+                  - (2.0 if c == "pid" else 0.0))
+
+
+def test_sweep_checks_pass_on_the_papers_picture():
+    checks = report.sweep_checks(_papers_picture(), CAP)
+    assert [c.passed for c in checks] == [True] * 5, report.checks_text(checks)
+    assert all(m.margin >= 0.0 for c in checks for m in c.margins)
+
+
+def test_sweep_checks_fail_where_the_paper_does_not_hold():
+    sw = _sweep(gain=lambda load, f, c: (1.0 + f) * (1.0 + load / 1000),  # rises, load-dependent
+                lag=lambda load, f, c: 40 * f - load / 100 + (2.0 if c == "pid" else 0.0),
+                po_max=0.05 * MPA)
+    checks = report.sweep_checks(sw, CAP)
+    assert [c.passed for c in checks] == [False] * 5, report.checks_text(checks)
+
+
+def test_sweep_checks_need_their_data():
+    sw = SweepResult(points=(SweepPoint(100.0, 0.5, "pi", 0.9, 30.0, 0.07 * MPA),))
+    assert [c.passed for c in report.sweep_checks(sw, CAP)] == [None] * 5
+
+
+def test_a_failing_margin_names_its_load_and_frequency():
+    """Only the 100 N PID lag at 0.2 Hz breaks 'lag smaller at lower load': exactly that
+    margin is negative, and the check's text names it."""
+    def lag(load, f, c):
+        base = 40 * f + (load / 20 if f < 0.5 else 0) - (2.0 if c == "pid" else 0.0)
+        return base + (5.0 if (load, f, c) == (100.0, 0.2, "pid") else 0.0)
+
+    sw = _sweep(gain=lambda load, f, c: 1.0 / (1.0 + f), lag=lag)
+    (lag_load,) = [c for c in report.sweep_checks(sw, CAP) if "lower load" in c.finding]
+    bad = [(m.load, m.freq, m.controller) for m in lag_load.margins if m.margin < 0.0]
+    assert bad == [(150.0, 0.2, "pid")]  # 150 N is now below the 100 N lag
+    assert lag_load.passed is False and "PID 0.2 Hz" in lag_load.detail
+
+
+def test_calibration_residuals_are_the_margins():
+    """Zero where every finding holds with headroom; the Po-cap residual grows as the
+    regulator's Po falls short of the cap, in units of a tenth of the cap."""
+    assert not paper.residuals(report.sweep_checks(_papers_picture(), CAP)).any()
+    short = _sweep(gain=lambda load, f, c: 1.0 / (1.0 + f),
+                   lag=lambda load, f, c: 40 * f + (load / 20 if f < 0.5 else 0)
+                   - (2.0 if c == "pid" else 0.0), po_max=0.5 * CAP)
+    (cap,) = [c for c in report.sweep_checks(short, CAP) if "cap" in c.finding]
+    limit = (1.0 - paper.PO_CAP_RTOL) * CAP
+    assert paper.residuals([cap]) == pytest.approx(
+        [paper.CALIBRATION_HEADROOM + (limit - 0.5 * CAP) / (0.1 * CAP)])
+
+
+def test_parameter_defaults_are_the_papers_numbers():
+    c = preset("wpam").controller
+    assert (c.kp, c.ki, c.kd) == (paper.KP, paper.KI, paper.KD)
+    assert c.po_cap == paper.PO_CAP_MPA * MPA

@@ -1,0 +1,307 @@
+"""The paper, in one place: its reference numbers and its findings as signed margins.
+
+Saito, Satoh & Saga, "Double-air-chamber pneumatic artificial muscle", Actuators 2024,
+13(8), 282. Numbers are in the paper's own units (N, Hz, mm, MPa, s); SI conversion
+happens where they are used.
+
+Each finding is written once, as a function from a study's result to `Margin`s: one
+signed distance per place it can be checked (a load, a frequency, a controller), >= 0
+where it holds. `wpam reproduce` prints PASS/FAIL from them (`Check`), and calibration
+uses the same margins as its residuals (`residuals`), so the two never disagree about
+what the paper says or how closely we must match it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from wpam_mj.units import MPA
+
+SOURCE = "Saito, Satoh & Saga, Actuators 2024, 13, 282"
+
+# ---- reference numbers
+
+LOADS_N = (50.0, 100.0, 150.0)  # §2.3, §4
+SWEEP_FREQS_HZ = (0.1, 0.2, 0.25, 0.5, 1.0)  # §4.2
+SWEEP_CONTROLLERS = ("pi", "pid")  # §4.2
+FIG18_LOAD_N = 150.0  # Figs. 18-19
+FIG18_FREQ_HZ = 0.5  # Figs. 18-19
+KP = 0.1  # §4.1, read as MPa/mm (see wpam_mj.control)
+KI = 0.008  # §4.1, MPa/(mm s)
+KD = 0.004  # §4.2, MPa s/mm (PID only)
+PO_CAP_MPA = 0.08  # §4.2: Po limit for the outer bag's durability
+STEP_LEVELS_MM = (0, 10, 20, 30, 40, 50, 40, 30, 20, 10, 0)  # §4.1 staircase
+STEP_HOLD_S = 10.0  # §4.1
+SINE_AMPLITUDE_MM = 25.0  # §4.2
+PO_DOWN_STATIC_MPA = 0.04  # §2.3, Fig. 9: constant Po while Pi falls
+
+# Table 2: hysteresis-loop areas normalized by the open-loop, Po = 0 area per load.
+TABLE2 = {
+    "open": {50.0: 1.0, 100.0: 1.0, 150.0: 1.0},
+    "open_po": {50.0: 0.7042, 100.0: 0.1899, 150.0: 0.0638},
+    "feedback": {50.0: 0.0008, 100.0: 0.0019, 150.0: 0.0170},
+}
+TABLE2_SOURCE = f"{SOURCE}, Table 2"
+
+# ---- how closely we must match (our fidelity targets, not the paper's)
+
+TABLE2_PO_RTOL = 0.15  # Po = 0.04 MPa row: within 15 % of the paper per cell
+FEEDBACK_MAX = 0.02  # feedback row: below 0.02
+GAIN_LOAD_RTOL = 0.05  # gains of the loads within 5 % at each frequency
+PO_CAP_RTOL = 0.02  # "Po reaches the cap": regulator Po within 2 % of it
+# "gain falls / lag grows": ignore wiggles smaller than these between neighbouring
+# frequencies (fit noise near gain 1 and lag 0 at low frequency)
+GAIN_RISE_TOL = 0.01
+LAG_FALL_TOL_DEG = 1.0
+# Calibration aims past each limit by this fraction of the margin's scale, so that the
+# fitted model keeps its findings under small changes (dt, another machine's libm).
+CALIBRATION_HEADROOM = 0.1
+
+
+# ---- margins and checks
+
+
+@dataclass(frozen=True)
+class Margin:
+    """One place a finding is checked: `value` against `limit` in the same unit.
+
+    sense = +1: holds when value >= limit; -1: when value <= limit. `margin` is the
+    signed distance (>= 0 holds); `scale` is the size of a clear miss in that unit (the
+    calibration residual's unit). load [N], freq [Hz], controller: where it was checked.
+    """
+
+    value: float
+    limit: float
+    sense: int
+    scale: float
+    load: float | None = None
+    freq: float | None = None
+    controller: str | None = None
+
+    @property
+    def margin(self) -> float:
+        return self.sense * (self.value - self.limit)
+
+
+@dataclass(frozen=True)
+class Finding:
+    """A finding of the paper: `text` (formatted with the simulated po_cap_mpa), its
+    `margins(result, po_cap)` (None when the result lacks the data, said by `needs`),
+    and `detail(result, po_cap, margins)`, the numbers a reader checks it by."""
+
+    text: str
+    margins: Callable[[Any, float], list[Margin] | None]
+    detail: Callable[[Any, float, list[Margin]], str]
+    needs: str
+
+
+@dataclass(frozen=True)
+class Check:
+    """A finding checked on a result: passed is None when the data are missing."""
+
+    finding: str
+    passed: bool | None
+    detail: str
+    margins: tuple[Margin, ...] = ()
+
+    @property
+    def verdict(self) -> str:
+        return {True: "PASS", False: "FAIL", None: "n/a"}[self.passed]
+
+
+def check(finding: Finding, result, po_cap: float) -> Check:
+    """Evaluate one finding on a study result (po_cap: the simulated Po cap [Pa])."""
+    text = finding.text.format(po_cap_mpa=po_cap / MPA)
+    margins = finding.margins(result, po_cap)
+    if margins is None:
+        return Check(text, None, finding.needs)
+    return Check(text, all(m.margin >= 0.0 for m in margins),
+                 finding.detail(result, po_cap, margins), tuple(margins))
+
+
+def check_all(findings: Sequence[Finding], result, po_cap: float) -> list[Check]:
+    return [check(f, result, po_cap) for f in findings]
+
+
+def residuals(checks: Sequence[Check]) -> np.ndarray:
+    """Calibration residuals of checked findings: one per margin, 0 where it holds with
+    CALIBRATION_HEADROOM to spare, else the shortfall in units of the margin's scale."""
+    return np.array([max(0.0, CALIBRATION_HEADROOM - m.margin / m.scale)
+                     for c in checks for m in c.margins])
+
+
+# ---- §4.2, the frequency response (on a `wpam_mj.studies.SweepResult`)
+
+
+def _falls_and_grows(sw, po_cap):
+    if len(sw.freqs) < 2:
+        return None
+    out = []
+    for load in sw.loads:
+        for c in sw.controllers:
+            pts = sw.curve(load, c)
+            if len(pts) < 2:
+                continue
+            g = np.array([p.gain for p in pts])
+            lag = np.array([p.phase_lag_deg for p in pts])
+            where = dict(load=load, controller=c)
+            for i, (dg, dl) in enumerate(zip(np.diff(g), np.diff(lag))):
+                out.append(Margin(dg, GAIN_RISE_TOL, -1, 0.1, freq=pts[i].freq, **where))
+                out.append(Margin(dl, -LAG_FALL_TOL_DEG, +1, 10.0, freq=pts[i].freq, **where))
+            out.append(Margin(g[-1] - g[0], 0.0, -1, 0.1, **where))
+            out.append(Margin(lag[-1] - lag[0], 0.0, +1, 10.0, **where))
+    return out
+
+
+def _falls_and_grows_detail(sw, po_cap, margins):
+    def worst(limit: float, sign: float) -> tuple[float, str]:
+        """The first largest rise (sign +1) or drop (-1) between neighbours, if any."""
+        best, where = 0.0, ""
+        for m in margins:
+            if m.limit == limit and m.freq is not None and sign * m.value > best:
+                nxt = sw.curve(m.load, m.controller)
+                f1 = nxt[[p.freq for p in nxt].index(m.freq) + 1].freq
+                best = sign * m.value
+                where = f"{m.load:g} N {m.controller.upper()} {m.freq:g}->{f1:g} Hz"
+        return best, where
+
+    (rise, rise_at), (drop, drop_at) = worst(GAIN_RISE_TOL, 1.0), worst(-LAG_FALL_TOL_DEG, -1.0)
+    return (f"largest gain rise {rise:+.3f} ({rise_at or '-'}), largest lag drop "
+            f"{drop:.1f} deg ({drop_at or '-'}); tolerated: {GAIN_RISE_TOL} and "
+            f"{LAG_FALL_TOL_DEG:g} deg between neighbouring frequencies")
+
+
+def _gain_spread(sw, po_cap):
+    if len(sw.loads) < 2:
+        return None
+    out = []
+    for c in sw.controllers:
+        for f in sw.freqs:
+            g = [p.gain for p in sw.points if p.controller == c and p.freq == f]
+            if len(g) >= 2:
+                out.append(Margin(max(g) / min(g) - 1.0, GAIN_LOAD_RTOL, -1, 0.1, freq=f,
+                                  controller=c))
+    return out
+
+
+def _gain_spread_detail(sw, po_cap, margins):
+    worst, where = 0.0, "-"
+    for m in margins:  # the last of the largest, as a reader scanning the table finds it
+        if m.value >= worst:
+            worst, where = m.value, f"{m.controller.upper()} {m.freq:g} Hz"
+    return f"largest spread max/min - 1 = {worst:.1%} ({where})"
+
+
+def _low_lags(sw, f, c):
+    return [sw.point(load, f, c).phase_lag_deg for load in sw.loads]
+
+
+def _lag_rises_with_load(sw, po_cap):
+    low = [f for f in sw.freqs if f < FIG18_FREQ_HZ]
+    if len(sw.loads) < 2 or not low:
+        return None
+    out = []
+    for c in sw.controllers:
+        for f in low:
+            lags = _low_lags(sw, f, c)
+            for load, a, b in zip(sw.loads[1:], lags, lags[1:]):
+                out.append(Margin(b - a, 0.0, +1, 10.0, load=load, freq=f, controller=c))
+    return out
+
+
+def _lag_rises_with_load_detail(sw, po_cap, margins):
+    bad = list(dict.fromkeys((m.controller, m.freq) for m in margins if m.margin < 0.0))
+    if not bad:
+        return (f"lag increases with load at every f < {FIG18_FREQ_HZ:g} Hz "
+                f"({', '.join(sw.controllers)})")
+    return "lags [deg] by increasing load out of order at " + "; ".join(
+        f"{c.upper()} {f:g} Hz: " + "/".join(f"{v:.1f}" for v in _low_lags(sw, f, c))
+        for c, f in bad)
+
+
+def _pid_leads_pi(sw, po_cap):
+    if FIG18_LOAD_N not in sw.loads or not {"pi", "pid"} <= set(sw.controllers):
+        return None
+    pi, pid = sw.curve(FIG18_LOAD_N, "pi"), sw.curve(FIG18_LOAD_N, "pid")
+    return [Margin(a.phase_lag_deg - b.phase_lag_deg, 0.0, +1, 10.0, load=FIG18_LOAD_N,
+                   freq=a.freq) for a, b in zip(pi, pid)]
+
+
+def _pid_leads_pi_detail(sw, po_cap, margins):
+    m, f = min((m.value, m.freq) for m in margins)
+    return f"smallest PI - PID lag {m:+.2f} deg (at {f:g} Hz)"
+
+
+def _po_reaches_cap(sw, po_cap):
+    p = sw.point(FIG18_LOAD_N, FIG18_FREQ_HZ, "pi")
+    if p is None:
+        return None
+    return [Margin(p.po_max, (1.0 - PO_CAP_RTOL) * po_cap, +1, 0.1 * po_cap,
+                   load=FIG18_LOAD_N, freq=FIG18_FREQ_HZ, controller="pi")]
+
+
+def _po_reaches_cap_detail(sw, po_cap, margins):
+    p = sw.point(FIG18_LOAD_N, FIG18_FREQ_HZ, "pi")
+    return (f"regulator-gauge Po max {p.po_max / MPA:.4f} MPa "
+            f"(pass: >= {margins[0].limit / MPA:.4f} MPa); "
+            f"chamber Po max {p.po_chamber_max / MPA:.4f} MPa")
+
+
+SWEEP_FINDINGS = (
+    Finding("gain falls and phase lag grows with frequency (every load and controller)",
+            _falls_and_grows, _falls_and_grows_detail, "needs >= 2 frequencies"),
+    Finding(f"gains of the loads within {GAIN_LOAD_RTOL:.0%} at each frequency",
+            _gain_spread, _gain_spread_detail, "needs >= 2 loads"),
+    Finding(f"below {FIG18_FREQ_HZ:g} Hz the phase lag is smaller at lower load",
+            _lag_rises_with_load, _lag_rises_with_load_detail,
+            f"needs >= 2 loads and a frequency below {FIG18_FREQ_HZ:g} Hz"),
+    Finding(f"PID lag < PI lag at {FIG18_LOAD_N:g} N at every frequency",
+            _pid_leads_pi, _pid_leads_pi_detail,
+            f"needs {FIG18_LOAD_N:g} N and both PI and PID"),
+    Finding("Po reaches the {po_cap_mpa:g} MPa cap at "
+            f"{FIG18_LOAD_N:g} N, {FIG18_FREQ_HZ:g} Hz (PI)",
+            _po_reaches_cap, _po_reaches_cap_detail,
+            f"needs the {FIG18_LOAD_N:g} N, {FIG18_FREQ_HZ:g} Hz PI run"),
+)
+
+
+# ---- Table 2 (on a `wpam_mj.studies.Table2Result`)
+
+
+def _po_row_errors(t2) -> dict[float, float]:
+    paper = t2.paper()["open_po"]
+    return {load: t2.open_po[load] / paper[load] - 1.0 for load in t2.loads if load in paper}
+
+
+def _po_row(t2, po_cap):
+    errs = _po_row_errors(t2)
+    return [Margin(abs(e), TABLE2_PO_RTOL, -1, 0.1, load=load)
+            for load, e in errs.items()] or None
+
+
+def _po_row_detail(t2, po_cap, margins):
+    paper = t2.paper()["open_po"]
+    return ", ".join(f"{load:g} N: {t2.open_po[load]:.4f} vs {paper[load]:.4f} ({e:+.0%})"
+                     for load, e in _po_row_errors(t2).items())
+
+
+def _feedback_row(t2, po_cap):
+    fb = [t2.feedback[load] for load in t2.loads]
+    return ([Margin(v, FEEDBACK_MAX, -1, 0.01, load=load) for load, v in zip(t2.loads, fb)]
+            + [Margin(b - a, 0.0, +1, 0.01, load=load)
+               for load, a, b in zip(t2.loads[1:], fb, fb[1:])])
+
+
+def _feedback_row_detail(t2, po_cap, margins):
+    return ", ".join(f"{load:g} N: {t2.feedback[load]:.4f}" for load in t2.loads)
+
+
+TABLE2_FINDINGS = (
+    Finding(f"Table 2 'Po = {PO_DOWN_STATIC_MPA:g} MPa' row within {TABLE2_PO_RTOL:.0%} "
+            "of the paper", _po_row, _po_row_detail, "no paper loads"),
+    Finding(f"Table 2 feedback row < {FEEDBACK_MAX} and increasing with load",
+            _feedback_row, _feedback_row_detail, ""),
+)

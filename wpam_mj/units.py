@@ -1,0 +1,4 @@
+"""Display units of the paper, as factors to SI (the code is SI inside)."""
+
+MPA = 1e6  # Pa per MPa
+MM = 1e-3  # m per mm
