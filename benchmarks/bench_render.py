@@ -25,7 +25,7 @@ from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM
 from wpam_mj.render import render_video
 
-TARGET_S = 3.0  # s for 10 s of 640x480 at 30 fps (lead engineer's brief)
+TARGET_S = 3.0  # s for 10 s of 640x480 at 30 fps (the project's rendering target, README)
 DURATION_S = 10.0
 FPS = 30
 SIZE = (640, 480)

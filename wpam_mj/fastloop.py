@@ -188,11 +188,21 @@ def _library_path() -> tuple[Path, Path]:
     return cache_dir() / f"fastloop-{key.hexdigest()[:16]}.so", libs[-1]
 
 
+def compiler() -> str | None:
+    """Path of the C compiler the loop is built with ($CC, default gcc), None if absent."""
+    return shutil.which(os.environ.get("CC") or "gcc")
+
+
+def disabled() -> bool:
+    """True when WPAM_MJ_NO_COMPILE turns the compiled path off."""
+    return os.environ.get("WPAM_MJ_NO_COMPILE", "") not in ("", "0")
+
+
 def _build(target: Path, libmujoco: Path) -> None:
     """Compile _fastloop.c to `target`, atomically (temp name, then os.replace)."""
-    cc = os.environ.get("CC") or "gcc"
-    if shutil.which(cc) is None:
-        raise FileNotFoundError(f"C compiler {cc!r} not found")
+    cc = compiler()
+    if cc is None:
+        raise FileNotFoundError(f"C compiler {os.environ.get('CC') or 'gcc'!r} not found")
     include = MUJOCO_DIR / "include"
     if not (include / "mujoco" / "mujoco.h").exists():
         raise FileNotFoundError(f"MuJoCo headers not found in {include}")
@@ -233,7 +243,7 @@ def _load() -> ctypes.CDLL | None:
     if _checked:
         return _lib
     _checked = True
-    if os.environ.get("WPAM_MJ_NO_COMPILE", "") not in ("", "0"):
+    if disabled():
         _reason = "disabled by WPAM_MJ_NO_COMPILE"
         return None
     try:

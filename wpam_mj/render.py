@@ -19,7 +19,7 @@ What a frame shows (models/wpam/scene.xml, camera "front" by default):
 SI inside; mm and MPa only in the drawn text.
 
 Speed: shadows and multisampling dominate the cost of software (llvmpipe/EGL) rendering
-(shared/brief/MUJOCO_NOTES.md), so videos are drawn without shadows and with
+(docs/mujoco_notes.md), so videos are drawn without shadows and with
 ``offsamples = 0`` (set in scene.xml), and with coarser built-in meshes. What is left is
 mostly pixel fill (clear, backdrop, read-back: ~4 ms of a 640x480 frame on one core), so
 frames are drawn by two threads, each with its own scene and GL context (MuJoCo's GL
