@@ -20,8 +20,9 @@ import pytest
 
 from wpam_mj import Drive, SimulationDiverged, fastloop, preset
 from wpam_mj.simulate import simulate
-from wpam_mj.control import CONTROLLERS, CONTROLS, PIControl, pi_feedforward
-from wpam_mj.loop_contract import REC_FIELDS
+from wpam_mj.control import CONTROLLERS, CONTROLS, PIControl, make_controller, pi_feedforward
+from wpam_mj.loop_contract import REC_FIELDS, RunConstants
+from wpam_mj.model import build_model
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MPA, PRESETS
 
@@ -127,16 +128,33 @@ def test_env_var_disables_compiled_path():
 
 
 def test_layout_checked_by_name():
-    """The C library's constant and record names are compared with Python's when it loads:
-    a reordered or missing name is refused with both lists in the message."""
+    """The C library's constant and record names are compared with Python's when it
+    loads: a constant missing on either side, or a reordered record row, is refused
+    with both lists in the message. Constants are packed by name, in C's order."""
     lib = fastloop._load()
-    assert fastloop.exported_names(lib, "wpam_const_names") == fastloop._CONSTS
+    assert set(fastloop.exported_names(lib, "wpam_const_names")) == fastloop.constant_names()
     assert fastloop.exported_names(lib, "wpam_record_fields") == REC_FIELDS
-    swapped = (fastloop._CONSTS[1], fastloop._CONSTS[0], *fastloop._CONSTS[2:])
-    with pytest.raises(RuntimeError, match="wpam_const_names .* C order"):
-        fastloop._check_layout(lib, "wpam_const_names", swapped)
-    with pytest.raises(RuntimeError, match=r"missing \['leak'\]"):
-        fastloop._check_layout(lib, "wpam_record_fields", (*REC_FIELDS, "leak"))
+    with pytest.raises(RuntimeError, match=r"wpam_const_names .*missing \['leak'\]"):
+        fastloop._check_layout(lib, "wpam_const_names", fastloop.constant_names() | {"leak"})
+    with pytest.raises(RuntimeError, match=r"extra \['dt'\]"):
+        fastloop._check_layout(lib, "wpam_const_names", fastloop.constant_names() - {"dt"})
+    swapped = (REC_FIELDS[1], REC_FIELDS[0], *REC_FIELDS[2:])
+    with pytest.raises(RuntimeError, match="wpam_record_fields .* C order"):
+        fastloop._check_layout(lib, "wpam_record_fields", swapped)
+
+
+def test_constants_packed_by_name():
+    """Each packed value sits at the index C reads it from."""
+    lib = fastloop._load()
+    params = preset("mckibben")
+    model = build_model(params, LOAD, DT)
+    muscle = MuscleModel.from_params(params)
+    consts = fastloop.pack_constants(lib, model, muscle, make_controller("pid", params, DT),
+                                     RunConstants.make(params, DT, DT))
+    at = dict(zip(fastloop.exported_names(lib, "wpam_const_names"), consts))
+    assert at["rubber_stiffness"] == params.muscle.rubber_stiffness > 0.0
+    assert at["kd"] == params.controller.kd and at["dt"] == DT
+    assert at["controller"] == fastloop.compiled_controllers().index("pid")
 
 
 def _imported_modules(module) -> set[str]:

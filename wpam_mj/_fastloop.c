@@ -14,7 +14,7 @@
        into one FMA and nothing is reassociated (wpam_mj/fastloop.py sets the flags).
      - The only libm call is sqrt, which IEEE 754 requires to be correctly rounded.
        Constants that Python derives with `**` or math.expm1 (b^2, 4 pi n^2, lag alpha)
-       are computed by Python and passed in (see the K_* layout), not recomputed here.
+       are computed by Python and passed in (see WPAM_CONSTANTS), not recomputed here.
      - min/max follow Python's builtins: max(a, b) is b if b > a else a (first wins ties).
    tests/test_fastloop.py checks every recorded array for equality bit for bit.
 
@@ -26,10 +26,10 @@
 #include <mujoco/mujoco.h>
 
 /* The per-run constants, in the order of the `consts` array: X(ENUM_NAME, python_name).
-   `wpam_const_names` returns the python names, which wpam_mj/fastloop.py compares with
-   its own list when it loads this library, so a reordered, renamed or missing constant
-   stops the compiled loop from loading instead of running with wrong numbers. Integers
-   (steps, flags, indices) are stored exactly as doubles. */
+   `wpam_const_names` returns the python names; wpam_mj/fastloop.py fills the array by
+   these names (a field of RunConstants, MuscleModel or MuscleIndex under its own name, or
+   one of its derived values) and refuses to load this library when a name is missing on
+   either side. Integers (steps, flags, indices) are stored exactly as doubles. */
 #define WPAM_CONSTANTS(X)                                                          \
   /* RunConstants (wpam_mj/loop_contract.py) */                                    \
   X(DT, dt)                          /* physics time step [s] */                   \
@@ -53,7 +53,7 @@
   X(FRICTION_COEFF, friction_coeff)  /* mu [1] */                                  \
   X(FRICTION_CONST, friction_const)  /* F_f0 [N] */                                \
   X(AXIAL_AREA, axial_area)          /* A_ax [m^2] */                              \
-  X(PI_KR, pi_kr)                    /* math.pi * rubber_stiffness [N/m] */        \
+  X(RUBBER_STIFFNESS, rubber_stiffness) /* K_R [N/m] */                            \
   X(NATURAL_DIAMETER, natural_diameter) /* D0 [m] */                               \
   /* BraidGeometry (wpam_mj/geometry.py) */                                        \
   X(NATURAL_LENGTH, natural_length)  /* L0 [m] */                                  \
@@ -70,11 +70,11 @@
   X(MM, mm)                          /* m per mm */                                \
   X(MPA, mpa)                        /* Pa per MPa */                              \
   X(INTEGRAL0, integral0)            /* initial integral [mm s] (bumpless start) */ \
-  /* where the loop reads and writes MuJoCo (looked up by name in Python) */       \
-  X(QPOS_ADR, qpos_adr)              /* qpos address of the contraction joint */   \
-  X(DOF_ADR, dof_adr)                /* dof address of the contraction joint */    \
-  X(ACTUATOR_ID, actuator_id)        /* the muscle motor */                        \
-  X(TENDON_ID, tendon_id)            /* the muscle tendon */
+  /* MuscleIndex: where the loop reads and writes MuJoCo (looked up by name) */     \
+  X(QPOS, qpos)                      /* qpos address of the contraction joint */   \
+  X(DOF, dof)                        /* dof address of the contraction joint */    \
+  X(ACTUATOR, actuator)              /* the muscle motor */                        \
+  X(TENDON, tendon)                  /* the muscle tendon */
 
 /* Rows of the recording array: REC_FIELDS of wpam_mj/loop_contract.py, checked by name
    in the same way (`wpam_record_fields`). */
@@ -113,6 +113,9 @@ enum { ERR_BAD_RECORD = -1, ERR_NO_MEMORY = -2, ERR_BAD_CONTROLLER = -3 };
 /* 1 when the headers this file was compiled with match the loaded libmujoco. */
 int wpam_abi_ok(void) { return mj_version() == mjVERSION_HEADER; }
 
+/* math.pi: the literal rounds to the same double (M_PI is not part of C11). */
+#define PI 3.14159265358979323846
+
 static double py_max(double a, double b) { return b > a ? b : a; }
 static double py_min(double a, double b) { return b < a ? b : a; }
 
@@ -136,7 +139,7 @@ static double geom_area(const double* k, double x) {
 /* ---- MuscleModel (wpam_mj/muscle.py); gauge pressures ---- */
 
 static double muscle_rubber_force(const double* k, double x) {
-  return k[K_PI_KR] * (geom_diameter(k, x) - k[K_NATURAL_DIAMETER]);
+  return PI * k[K_RUBBER_STIFFNESS] * (geom_diameter(k, x) - k[K_NATURAL_DIAMETER]);
 }
 
 static double muscle_tension(const double* k, double x, double pi, double po) {
@@ -283,8 +286,8 @@ int wpam_run(mjModel* m, mjData* d, const double* consts, int n, const double* p
   const int record_every = (int)k[K_RECORD_EVERY];
   const int controller = (int)k[K_CONTROLLER];
   const int delay = (int)k[K_DELAY_STEPS];
-  const int qpos_adr = (int)k[K_QPOS_ADR], dof_adr = (int)k[K_DOF_ADR];
-  const int actuator = (int)k[K_ACTUATOR_ID], tendon = (int)k[K_TENDON_ID];
+  const int qpos_adr = (int)k[K_QPOS], dof_adr = (int)k[K_DOF];
+  const int actuator = (int)k[K_ACTUATOR], tendon = (int)k[K_TENDON];
   Plant plant = {{0.0, NULL, 0, delay}, {0.0, NULL, 0, delay},
                  {k[K_CONDUCTANCE_I], k[K_ATMOSPHERE]}, {k[K_CONDUCTANCE_O], k[K_ATMOSPHERE]}};
   Feedback pid = {k[K_INTEGRAL0], 0.0, 0.0, 0};

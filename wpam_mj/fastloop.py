@@ -26,7 +26,9 @@ import os
 import shutil
 import subprocess
 import tempfile
+from dataclasses import fields
 from pathlib import Path
+from typing import Callable
 
 import mujoco
 import numpy as np
@@ -34,6 +36,7 @@ import numpy as np
 from wpam_mj import pneumatics as pn
 from wpam_mj.control import CONTROLLERS, PoController, PoFeedback
 from wpam_mj.model import MuscleIndex
+from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM, MPA
 from wpam_mj.loop_contract import (REC_FIELDS, REC_ROWS, RunConstants, contraction_diverged,
                                    pressure_diverged)
@@ -44,25 +47,50 @@ MUJOCO_DIR = Path(mujoco.__file__).resolve().parent
 # Both are what makes the results bit-identical to Python floats (see _fastloop.c).
 CFLAGS = ("-O2", "-fPIC", "-shared", "-std=c11", "-ffp-contract=off", "-fno-fast-math")
 
-# Layout of the float64 constants array passed to wpam_run: the WPAM_CONSTANTS list of
-# _fastloop.c, which exports its names; `_load` refuses a library whose names differ.
-# Integers (steps, flags, indices) are stored exactly as floats.
-_CONSTS = (
-    # RunConstants
-    "dt", "record_every", "controller", "lag_alpha", "delay_steps", "atmosphere", "p_max",
-    "conductance_i", "conductance_o", "critical_ratio", "tube_volume", "bag_volume",
-    # wpam_mj.pneumatics
-    "rt0", "rho0", "r_laminar",
-    # MuscleModel
-    "output_coeff", "friction_coeff", "friction_const", "axial_area", "pi_kr",
-    "natural_diameter",
-    # BraidGeometry
-    "natural_length", "thread_sq", "volume_denom", "diameter_denom",
-    # PoFeedback (zeros for the open loop)
-    "kp", "ki", "kd", "tf", "po_lo", "po_hi", "mm", "mpa", "integral0",
-    # MuJoCo addresses
-    "qpos_adr", "dof_adr", "actuator_id", "tendon_id",
-)
+# The constants array passed to wpam_run holds, in the order of the WPAM_CONSTANTS list of
+# _fastloop.c (whose names the library exports), every number of RunConstants, MuscleModel
+# and MuscleIndex under its own field name, plus the values below, each computed with
+# the exact expression of the Python code it stands for (so it rounds the same way).
+# `_load` refuses a library whose names differ from these. A new field of RunConstants or
+# MuscleModel therefore reaches C by name; only _fastloop.c must read it.
+
+
+def _feedback(attr: str) -> Callable[[MuscleModel, PoController], float]:
+    """A PoFeedback attribute; 0 for a controller without it."""
+    return lambda muscle, ctl: getattr(ctl, attr) if isinstance(ctl, PoFeedback) else 0.0
+
+
+_DERIVED: dict[str, Callable[[MuscleModel, PoController], float]] = {
+    "controller": lambda muscle, ctl: compiled_controllers().index(ctl.name),
+    # wpam_mj.pneumatics module constants
+    "rt0": lambda muscle, ctl: pn.RT0,
+    "rho0": lambda muscle, ctl: pn.RHO_0,
+    "r_laminar": lambda muscle, ctl: pn.R_LAMINAR,
+    # BraidGeometry.diameter/volume/area
+    "natural_length": lambda muscle, ctl: muscle.geometry.natural_length,
+    "thread_sq": lambda muscle, ctl: muscle.geometry.thread_length ** 2,
+    "volume_denom": lambda muscle, ctl: 4.0 * math.pi * muscle.geometry.turns ** 2,
+    "diameter_denom": lambda muscle, ctl: muscle.geometry.turns * math.pi,
+    # PoFeedback (kd is 0 for PI; integral0 is the bumpless initial integral)
+    "kp": _feedback("kp"), "ki": _feedback("ki"), "kd": _feedback("kd"),
+    "tf": _feedback("tf"), "po_lo": _feedback("lo"), "po_hi": _feedback("hi"),
+    "integral0": _feedback("integral"),
+    "mm": lambda muscle, ctl: MM,
+    "mpa": lambda muscle, ctl: MPA,
+}
+
+
+def _numbers(obj) -> dict[str, float]:
+    """The int and float fields of a dataclass instance, by name."""
+    return {f.name: getattr(obj, f.name) for f in fields(obj) if f.type in ("int", "float")}
+
+
+def constant_names() -> set[str]:
+    """Names of every constant Python hands the compiled loop (see `pack_constants`)."""
+    return {f.name for cls in (RunConstants, MuscleModel, MuscleIndex) for f in fields(cls)
+            if f.type in ("int", "float")} | set(_DERIVED)
+
+
 _FAIL_CONTRACTION, _FAIL_PRESSURE = 1, 2  # fail_info[0] codes of _fastloop.c
 
 _lib: ctypes.CDLL | None = None
@@ -87,48 +115,13 @@ def compiled_controllers() -> tuple[str, ...]:
     return () if lib is None else exported_names(lib, "wpam_controllers")
 
 
-def _controller_constants(controller: PoController) -> dict[str, float]:
-    """The PoFeedback constants of the layout (zeros for a controller without them)."""
-    if not isinstance(controller, PoFeedback):
-        return dict.fromkeys(("kp", "ki", "kd", "tf", "po_lo", "po_hi", "mm", "mpa",
-                              "integral0"), 0.0)
-    c = controller
-    return dict(kp=c.kp, ki=c.ki, kd=c.kd, tf=c.tf, po_lo=c.lo, po_hi=c.hi, mm=MM, mpa=MPA,
-                integral0=c.integral)
-
-
-def pack_constants(model, muscle, controller: PoController, k: RunConstants) -> np.ndarray:
-    """The `_CONSTS` array for one run.
-
-    Derived values use the exact expressions of the Python code they stand for (for
-    example ``4.0 * math.pi * turns ** 2`` from BraidGeometry.area), so they round the
-    same way; C evaluates the rest in the Python order.
-    """
-    g = muscle.geometry
-    idx = MuscleIndex.of(model)
-    values = dict(
-        dt=k.dt, record_every=k.record_every,
-        controller=compiled_controllers().index(controller.name),
-        lag_alpha=k.lag_alpha, delay_steps=k.delay_steps, atmosphere=k.atmosphere,
-        p_max=k.p_max, conductance_i=k.conductance_i, conductance_o=k.conductance_o,
-        critical_ratio=k.critical_ratio,
-        tube_volume=k.tube_volume, bag_volume=k.bag_volume,
-        rt0=pn.RT0, rho0=pn.RHO_0, r_laminar=pn.R_LAMINAR,
-        output_coeff=muscle.output_coeff, friction_coeff=muscle.friction_coeff,
-        friction_const=muscle.friction_const, axial_area=muscle.axial_area,
-        pi_kr=math.pi * muscle.rubber_stiffness,  # MuscleModel.rubber_force
-        natural_diameter=muscle.natural_diameter,
-        natural_length=g.natural_length,
-        thread_sq=g.thread_length ** 2,  # BraidGeometry.diameter/volume/area
-        volume_denom=4.0 * math.pi * g.turns ** 2,  # BraidGeometry.volume/area
-        diameter_denom=g.turns * math.pi,  # BraidGeometry.diameter
-        **_controller_constants(controller),
-        qpos_adr=idx.qpos, dof_adr=idx.dof, actuator_id=idx.actuator, tendon_id=idx.tendon,
-    )
-    if values.keys() != set(_CONSTS):
-        raise RuntimeError(f"pack_constants fills {sorted(values.keys() ^ set(_CONSTS))} "
-                           "inconsistently with _CONSTS")
-    return np.array([values[name] for name in _CONSTS], dtype=np.float64)
+def pack_constants(lib: ctypes.CDLL, model, muscle: MuscleModel, controller: PoController,
+                   k: RunConstants) -> np.ndarray:
+    """The constants array of one run, in the order the library `lib` declares."""
+    values = {**_numbers(k), **_numbers(muscle), **_numbers(MuscleIndex.of(model)),
+              **{name: value(muscle, controller) for name, value in _DERIVED.items()}}
+    return np.array([values[name] for name in exported_names(lib, "wpam_const_names")],
+                    dtype=np.float64)
 
 
 def run_compiled(model, data, muscle, controller: PoController, k: RunConstants, drive,
@@ -151,7 +144,7 @@ def run_compiled(model, data, muscle, controller: PoController, k: RunConstants,
         raise ValueError(f"rec must be a C-contiguous float64 array of shape ({REC_ROWS}, n_rec)")
     if n >= 2**31:
         raise ValueError(f"{n} steps exceed the compiled loop's int range; split the run")
-    consts = pack_constants(model, muscle, controller, k)
+    consts = pack_constants(lib, model, muscle, controller, k)
     fail = np.zeros(3)
 
     def ptr(a: np.ndarray):
@@ -227,10 +220,11 @@ def exported_names(lib: ctypes.CDLL, function: str) -> tuple[str, ...]:
     return tuple(name for name in getter().decode().split(",") if name)
 
 
-def _check_layout(lib: ctypes.CDLL, function: str, python: tuple[str, ...]) -> None:
-    """Raise unless the C list `function` names exactly `python`, in the same order."""
+def _check_layout(lib: ctypes.CDLL, function: str, python: tuple[str, ...] | set[str]) -> None:
+    """Raise unless the C list `function` names exactly `python` (in the same order when
+    `python` is a tuple: the record rows are written by position)."""
     c_names = exported_names(lib, function)
-    if c_names != python:
+    if (c_names if isinstance(python, tuple) else set(c_names)) != python:
         missing = [n for n in python if n not in c_names]
         extra = [n for n in c_names if n not in python]
         raise RuntimeError(f"{function} of {SOURCE.name} differs from Python: "
@@ -253,9 +247,8 @@ def _load() -> ctypes.CDLL | None:
         lib = ctypes.CDLL(str(target))
         if not lib.wpam_abi_ok():
             raise RuntimeError("MuJoCo headers and library versions differ")
-        for layout, python in (("wpam_const_names", _CONSTS),
-                               ("wpam_record_fields", REC_FIELDS)):
-            _check_layout(lib, layout, python)
+        _check_layout(lib, "wpam_const_names", constant_names())
+        _check_layout(lib, "wpam_record_fields", REC_FIELDS)
         unknown = set(exported_names(lib, "wpam_controllers")) - set(CONTROLLERS)
         if unknown:
             raise RuntimeError(f"{SOURCE.name} implements controllers {sorted(unknown)} "
