@@ -28,7 +28,7 @@ def _papers_picture():
 
 def test_sweep_checks_pass_on_the_papers_picture():
     checks = paper.sweep_checks(_papers_picture(), CAP)
-    assert [c.passed for c in checks] == [True] * 5, checks_text(checks)
+    assert all(c.passed is True for c in checks), checks_text(checks)
     assert all(m.margin >= 0.0 for c in checks for m in c.margins)
 
 
@@ -37,12 +37,12 @@ def test_sweep_checks_fail_where_the_paper_does_not_hold():
                 lag=lambda load, f, c: 40 * f - load / 100 + (2.0 if c == "pid" else 0.0),
                 po_max=0.05 * MPA)
     checks = paper.sweep_checks(sw, CAP)
-    assert [c.passed for c in checks] == [False] * 5, checks_text(checks)
+    assert all(c.passed is False for c in checks), checks_text(checks)
 
 
 def test_sweep_checks_need_their_data():
     sw = SweepResult(points=(SweepPoint(100.0, 0.5, "pi", 0.9, 30.0, 0.07 * MPA),))
-    assert [c.passed for c in paper.sweep_checks(sw, CAP)] == [None] * 5
+    assert all(c.passed is None for c in paper.sweep_checks(sw, CAP))
 
 
 def test_a_failing_margin_names_its_load_and_frequency():
