@@ -11,10 +11,12 @@ from wpam_mj.study_results import StepRun, SweepResult, Table2Result
 
 
 def mpa_label(po: float) -> str:
+    """A pressure [Pa] as its number of MPa, e.g. "0.04" (file names, labels)."""
     return f"{po / MPA:g}"
 
 
 def fmt_value(v: float | None, spec: str = ".4f") -> str:
+    """A table cell; "-" where the value is missing (None or NaN)."""
     return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, spec)
 
 
