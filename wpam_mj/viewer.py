@@ -31,6 +31,7 @@ import math
 import os
 import queue
 import sys
+import threading
 import time
 import warnings
 from collections.abc import Callable
@@ -222,7 +223,7 @@ def check_display() -> None:
 def view(params: Params, *, load: float = 100.0, control: str = "pi",
          target: str | float = "step", dt: float = 1e-3, duration: float | None = None,
          realtime: bool = True, perturb: Callable[[float], float] | None = None,
-         on_frame: Callable[[float], None] | None = None) -> ViewTrace:
+         on_frame: Callable[[float, mujoco.viewer.Handle], None] | None = None) -> ViewTrace:
     """Open the viewer and run the rig until the window closes or `duration` [s] of
     simulated time have passed.
 
@@ -233,8 +234,9 @@ def view(params: Params, *, load: float = 100.0, control: str = "pi",
         (scripts and tests).
       perturb: external force on the load along +z [N] as a function of time [s], added
         to the mouse's (scripted perturbations).
-      on_frame: called with the simulated time [s] after each frame is handed to the
-        viewer (scripts: screenshots, logging).
+      on_frame: called with the simulated time [s] and the viewer's handle after each
+        frame is handed to the viewer (scripts: screenshots, or a drag through
+        `handle.perturb`, the struct the mouse fills in).
     Returns the state at each frame. Raises NoDisplay without a display.
     """
     if duration is not None:
@@ -247,8 +249,13 @@ def view(params: Params, *, load: float = 100.0, control: str = "pi",
     rows = []
     frame = 1.0 / FPS
     texts_at = -math.inf
-    with mujoco.viewer.launch_passive(rig.model, rig.data, key_callback=keys.put,
-                                      show_left_ui=False, show_right_ui=False) as handle:
+    running = set(threading.enumerate())
+    handle = mujoco.viewer.launch_passive(rig.model, rig.data, key_callback=keys.put,
+                                          show_left_ui=False, show_right_ui=False)
+    # the viewer's window thread: joined after closing, since the process's exit would
+    # otherwise terminate GLFW under its clean-up (a segfault at exit)
+    window_threads = set(threading.enumerate()) - running
+    try:
         _frame_the_rig(handle.cam)
         start = time.perf_counter()
         while handle.is_running() and (duration is None or rig.time < duration - 0.5 * dt):
@@ -269,9 +276,13 @@ def view(params: Params, *, load: float = 100.0, control: str = "pi",
             pi, po = rig.plant.pressures
             rows.append((rig.time, rig.x, rig.target(rig.time), pi, po, force))
             if on_frame is not None:
-                on_frame(rig.time)
+                on_frame(rig.time, handle)
             if realtime:
                 time.sleep(max(0.0, rig.time - (time.perf_counter() - start)))
+    finally:
+        handle.close()
+        for thread in window_threads:
+            thread.join(timeout=10.0)
     return ViewTrace(*np.array(rows, dtype=float).reshape(-1, 6).T)
 
 
