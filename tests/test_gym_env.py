@@ -106,6 +106,21 @@ def test_same_seed_same_episode_other_seed_other_task() -> None:
     assert len(np.unique(a[:, 4])) > 10, "the sine target moves"
 
 
+def test_sine_target_follows_the_paper_sinusoid() -> None:
+    """x_r(t) = 25 mm - 25 mm cos(2 pi f t), observed at each control step (paper §4.2)."""
+    env = WPAMEnv(PARAMS, reference="sine", sine_freq=0.5, time_limit=2.0)
+    obs, _ = env.reset(seed=0)
+    targets, times = [obs[4]], [0.0]
+    truncated = False
+    while not truncated:
+        obs, _, _, truncated, info = env.step([0.02 * MPA])
+        targets.append(obs[4])
+        times.append(info["time_s"])
+    expected = 25 * MM - 25 * MM * np.cos(2 * np.pi * 0.5 * np.array(times))
+    np.testing.assert_allclose(targets, expected, rtol=0, atol=1e-12)
+    assert max(targets) == pytest.approx(50 * MM)
+
+
 # Gains for the 10 ms control step (MPa/mm, MPa/(mm s)), as in tests/test_env.py: the
 # paper's Kp = 0.1 MPa/mm sampled every 10 ms hunts ~1 mm about the target here.
 PI_GAINS = {"kp": 0.02, "ki": 0.008}

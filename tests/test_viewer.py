@@ -207,3 +207,14 @@ def test_viewer_shows_the_rig_and_rejects_a_pull(xvfb, tmp_path) -> None:
     r, g, b = image[..., 0], image[..., 1], image[..., 2]
     brown = (r - b > 60) & (r > g) & (g > b)  # the hanging mass (material "mass")
     assert brown.sum() > 500, "the screenshot does not show the load"
+
+
+def test_cli_runs_the_viewer_in_real_time(xvfb) -> None:
+    env = {**os.environ, "DISPLAY": xvfb, "MUJOCO_GL": "glfw"}
+    start = time.monotonic()
+    proc = run_cli(["view", "--duration", "1", "--target", "sine", "--control", "pid",
+                    "--load", "50"], env)
+    wall = time.monotonic() - start
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "viewed 1.0 s of simulated time" in proc.stdout
+    assert wall >= 1.0, f"1 s of simulated time took {wall:.2f} s: not paced in real time"

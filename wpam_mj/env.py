@@ -187,6 +187,10 @@ class TrackingTask(control.Task):
         self._fixed_freq = None if sine_freq is None else SineSpec(sine_freq).freq
         self._sine: SineSpec | None = None
         x_max = BraidGeometry.from_params(params.braid).max_contraction
+        if reference == "sine":  # its peak must be a reachable contraction
+            spec = SineSpec(self._freq_range[0])
+            check_range("sine target peak", (spec.mean + spec.amplitude) / MM, 0.0,
+                        x_max / MM, "mm")
         self._target_range = _check_interval("target_range", target_range, 0.0, x_max, "m")
         self._load_range = tuple(check_load(v) for v in _check_interval(
             "load_range", load_range, -np.inf, np.inf, "N"))

@@ -104,6 +104,7 @@ class LiveRig:
         self.push = 0.0  # N along +z: the mouse's force on the load, read at each sync
         self._pi_key: tuple[float, float] | None = None
         self._t0 = 0.0  # s: start of the current step/sine pattern
+        self._sine = SineSpec(SINE_FREQ_HZ)
         if isinstance(target, str):
             if target not in TARGET_MODES[:2]:
                 raise ParameterError(f"target = {target!r}; valid: step, sine or a "
@@ -132,7 +133,7 @@ class LiveRig:
             k = int((t - self._t0) // STEP_HOLD_S) % len(levels)
             return levels[k] * MM
         if self.mode == "sine":
-            return float(SineSpec(SINE_FREQ_HZ).target(t - self._t0))
+            return float(self._sine.target(t - self._t0))
         return self.fixed
 
     def set_control(self, control: str, *, bumpless: bool = True) -> None:
