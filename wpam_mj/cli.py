@@ -439,7 +439,7 @@ def _cmd_view(args: argparse.Namespace) -> int:
     try:
         trace = viewer.view(run.params, load=args.load, control=check_control(args.control),
                             target=target, dt=run.dt, duration=args.duration)
-    except viewer.NoDisplay as err:
+    except viewer.ViewerUnavailable as err:
         raise RunFailed(str(err)) from None
     if len(trace.time):
         print(f"viewed {trace.time[-1]:.1f} s of simulated time")

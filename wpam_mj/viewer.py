@@ -14,14 +14,15 @@ Keys (MuJoCo's viewer uses every letter and the digits 0-5 itself):
                 25 mm at 0.2 Hz), fixed
     End         next controller: pi, pid, open (switching is bumpless: the new PI/PID
                 starts from the current Po command)
-Mouse: Ctrl + right drag pulls the load (MuJoCo's perturbation). The viewer writes that
+Mouse: double-click the load to select it, then Ctrl + right drag pulls it (MuJoCo's
+perturbation). The viewer writes that
 force into `data.xfrc_applied` of the load body at each sync; MuJoCo maps it onto the
 slide joint through the body's Jacobian, so it acts on the contraction x like any other
 load and the Po feedback rejects it. Scripts can add a force of their own (`perturb`).
 
-The viewer needs a display and GLFW; without them `view` raises `NoDisplay` (one line)
-before any window is attempted, since MuJoCo's viewer thread would otherwise exit the
-process or wait forever.
+The viewer needs a display and GLFW; without them `view` raises `ViewerUnavailable` (one
+line) before any window is attempted, since MuJoCo's viewer thread would otherwise exit
+the process or wait forever.
 """
 
 from __future__ import annotations
@@ -61,8 +62,9 @@ TEXT_PERIOD_S = 0.1  # s (wall clock) between overlay updates: `set_texts` waits
 KEY_UP, KEY_DOWN, KEY_HOME, KEY_END = 265, 264, 268, 269
 
 
-class NoDisplay(RuntimeError):
-    """No display to open the viewer on."""
+class ViewerUnavailable(RuntimeError):
+    """The interactive viewer cannot open here (no display, no GLFW, macOS without
+    mjpython)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -197,19 +199,21 @@ class LiveRig:
                  f"{self.time:.1f} s\n{self.x / MM:.2f} mm\n{x_ref / MM:.2f} mm ({self.mode})\n"
                  f"{(self.x - x_ref) / MM:+.2f} mm\n{pi / MPA:.3f} MPa\n{po / MPA:.3f} MPa\n"
                  f"{self.control}\n{self.load:.0f} N\n{push:+.1f} N")
-        keys = ("Up / Down\nHome\nEnd\nCtrl + right drag",
-                "target +-5 mm\ntarget: step, sine, fixed\ncontrol: pi, pid, open\npull the load")
+        keys = ("Up / Down\nHome\nEnd\ndouble-click, Ctrl + right drag",
+                "target +-5 mm\ntarget: step, sine, fixed\ncontrol: pi, pid, open\n"
+                "select and pull the load")
         font = mujoco.mjtFontScale.mjFONTSCALE_150
         return [(font, mujoco.mjtGridPos.mjGRID_TOPLEFT, *state),
                 (font, mujoco.mjtGridPos.mjGRID_BOTTOMLEFT, *keys)]
 
 
 def check_display() -> None:
-    """Raise NoDisplay (one line) unless a GLFW window can be opened."""
+    """Raise ViewerUnavailable (one line) unless a GLFW window can be opened."""
     if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY")
                                                  or os.environ.get("WAYLAND_DISPLAY")):
-        raise NoDisplay("wpam view needs a display: DISPLAY is not set (run it on a desktop, "
-                        "over ssh -X, or under Xvfb; `wpam render` makes videos headless)")
+        raise ViewerUnavailable("wpam view needs a display: DISPLAY is not set (run it on a "
+                                "desktop, over ssh -X, or under Xvfb; `wpam render` makes "
+                                "videos headless)")
     import glfw  # noqa: PLC0415 (mujoco's own dependency; only the viewer needs it)
 
     with warnings.catch_warnings(record=True) as caught:
@@ -217,8 +221,8 @@ def check_display() -> None:
         ok = glfw.init()
     if not ok:
         why = "; ".join(str(w.message) for w in caught) or "glfw.init() failed"
-        raise NoDisplay(f"wpam view cannot open a window on display "
-                        f"{os.environ.get('DISPLAY', '')!r}: {why}")
+        raise ViewerUnavailable(f"wpam view cannot open a window on display "
+                                f"{os.environ.get('DISPLAY', '')!r}: {why}")
 
 
 def view(params: Params, *, load: float = 100.0, control: str = "pi",
@@ -238,7 +242,7 @@ def view(params: Params, *, load: float = 100.0, control: str = "pi",
       on_frame: called with the simulated time [s] and the viewer's handle after each
         frame is handed to the viewer (scripts: screenshots, or a drag through
         `handle.perturb`, the struct the mouse fills in).
-    Returns the state at each frame. Raises NoDisplay without a display.
+    Returns the state at each frame. Raises ViewerUnavailable without a display.
     """
     if duration is not None:
         duration = check_range("duration", duration, 0.0, 1e6, "s", lo_open=True)
@@ -251,8 +255,11 @@ def view(params: Params, *, load: float = 100.0, control: str = "pi",
     frame = 1.0 / FPS
     texts_at = -math.inf
     running = set(threading.enumerate())
-    handle = mujoco.viewer.launch_passive(rig.model, rig.data, key_callback=keys.put,
-                                          show_left_ui=False, show_right_ui=False)
+    try:
+        handle = mujoco.viewer.launch_passive(rig.model, rig.data, key_callback=keys.put,
+                                              show_left_ui=False, show_right_ui=False)
+    except RuntimeError as err:  # e.g. macOS outside mjpython
+        raise ViewerUnavailable(f"wpam view cannot open MuJoCo's viewer: {err}") from None
     # the viewer's window thread: joined after closing, since the process's exit would
     # otherwise terminate GLFW under its clean-up (a segfault at exit)
     window_threads = set(threading.enumerate()) - running
