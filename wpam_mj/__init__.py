@@ -1,5 +1,6 @@
 """wpam-mj: MuJoCo simulator of the double-air-chamber pneumatic artificial muscle (W-PAM)."""
 
+import importlib.util as _importlib_util
 import os as _os
 import sys as _sys
 
@@ -14,3 +15,8 @@ from wpam_mj.simulate import Drive
 # `wpam_mj.simulate` is the module; run a simulation with `wpam_mj.simulate.simulate`.
 __all__ = ["Drive", "Params", "ParameterError", "SimResult", "SimulationDiverged", "preset"]
 __version__ = "0.1.0"
+
+if _importlib_util.find_spec("gymnasium") is not None:  # the optional `rl` extra
+    from gymnasium.envs.registration import register as _register
+
+    _register(id="wpam_mj/WPAM-v0", entry_point="wpam_mj.gym_env:WPAMEnv")

@@ -8,6 +8,7 @@ Subcommands (each has --help):
   reproduce  all of the above into one folder with report.md
   calibrate  fit the parameters the paper does not give
   render     offscreen video of a simulated run
+  view       MuJoCo's interactive viewer on the muscle, stepped live (needs a display)
 
 Units at this edge: loads in N, pressures in MPa, lengths in mm, times in s, frequencies
 in Hz (the library is SI inside). Exit status: 0 success, 1 the run failed (simulation
@@ -185,7 +186,25 @@ def build_parser() -> argparse.ArgumentParser:
                    help="frame size [px] (default: 640x480)")
     p.add_argument("--out", type=Path, metavar="FILE.mp4|FILE.gif",
                    help="video file (default: out/render/<experiment>.mp4)")
+    _add_view_parser(add)
     return parser
+
+
+def _add_view_parser(add) -> None:
+    p = add("view", "MuJoCo's interactive viewer on the hung muscle, stepped live by the "
+            "simulation loop; pull the load with Ctrl + right drag (needs a display)",
+            _cmd_view)
+    p.add_argument("--load", type=float, default=100.0, metavar="N",
+                   help="hanging load [N] (default: 100)")
+    p.add_argument("--control", choices=CONTROLS, default="pi",
+                   help="Po controller; End cycles it in the viewer (default: pi)")
+    p.add_argument("--target", default="step", metavar="step|sine|MM",
+                   help="target: the 0-50-0 mm staircase, a 25 mm sine about 25 mm at "
+                        "0.2 Hz, or a fixed contraction [mm]; Up/Down/Home change it "
+                        "(default: step)")
+    p.add_argument("--duration", type=float, metavar="S",
+                   help="close after this much simulated time [s] (default: when the "
+                        "window is closed)")
 
 
 # ------------------------------------------------------------------ helpers
@@ -386,6 +405,27 @@ def _cmd_render(args: argparse.Namespace) -> int:
     except RuntimeError as err:
         raise RunFailed(str(err)) from None
     print(f"wrote {path} ({result.time[-1]:.2f} s of simulated time)")
+    return 0
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    from wpam_mj import viewer  # noqa: PLC0415 (GLFW viewer; only here)
+
+    run = _run_options(args)
+    target = args.target
+    if target not in ("step", "sine"):
+        try:
+            target = float(target) * 1e-3  # mm -> m
+        except ValueError:
+            raise ParameterError(f"--target {args.target!r} must be step, sine or a "
+                                 "contraction in mm") from None
+    try:
+        trace = viewer.view(run.params, load=args.load, control=check_control(args.control),
+                            target=target, dt=run.dt, duration=args.duration)
+    except viewer.ViewerUnavailable as err:
+        raise RunFailed(str(err)) from None
+    if len(trace.time):
+        print(f"viewed {trace.time[-1]:.1f} s of simulated time")
     return 0
 
 

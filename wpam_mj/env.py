@@ -28,7 +28,7 @@ Observations (each a float64 array of shape (1,), SI units, named with their uni
     velocity_m_s  contraction velocity dx/dt [m/s]
     pi_pa         inner-chamber gauge pressure Pi [Pa]
     po_pa         outer-chamber gauge pressure Po [Pa]
-    target_m      target contraction x_r [m] (constant over an episode)
+    target_m      target contraction x_r [m] at the current time
     load_n        hanging load F [N] (constant over an episode)
 Actions (`BoundedArray`, float64, [Pa]; out-of-range values are clipped):
     action="po"   shape (1,): Po command in [p_min, po_cap]; Pi is the equilibrium-model
@@ -36,12 +36,17 @@ Actions (`BoundedArray`, float64, [Pa]; out-of-range values are clipped):
                   as in the paper's §4 controller).
     action="both" shape (2,): (Pi command in [p_min, p_max], Po command in [p_min, po_cap]);
                   Po keeps the bag's 0.08 MPa durability cap (paper §4.2).
+Targets (`reference`):
+    "step"  x_r constant over the episode, reached from rest at x = 0 (paper §4.1);
+    "sine"  x_r(t) = 25 mm - 25 mm cos(2 pi f t) (paper §4.2, `experiments.SineSpec`),
+            f drawn from `sine_freq_range` [Hz] (or fixed with `sine_freq=`); under
+            action="po" the Pi feedforward follows x_r at the start of each control step.
 Reward: `dm_control.utils.rewards.tolerance(x - x_r)`: 1 within +-0.5 mm of the target,
 Gaussian fall-off to 0.1 at 2 mm outside that band. Discount 1; episodes end at
 `time_limit` [s]. At each reset the muscle hangs at rest at x = 0 with vented chambers, and
 target and load are drawn uniformly from `target_range` [m] and `load_range` [N] with the
-task's seeded `numpy.random.RandomState` (or fixed with `target=` / `load=`); the load
-mass is load / g.
+task's seeded `numpy.random.RandomState` (or fixed with `target=` / `load=`), then for
+"sine" the frequency; the load mass is load / g.
 """
 
 from __future__ import annotations
@@ -58,6 +63,7 @@ from dm_control.utils import rewards
 from dm_env import specs
 
 from wpam_mj.control import pi_feedforward
+from wpam_mj.experiments import SineSpec
 from wpam_mj.geometry import BraidGeometry
 from wpam_mj.model import MuscleIndex, build_model, check_dt, check_load
 from wpam_mj.muscle import MuscleModel
@@ -66,6 +72,8 @@ from wpam_mj.loop_contract import RunConstants, SimulationDiverged
 from wpam_mj.plant import Plant
 
 ACTIONS = ("po", "both")
+REFERENCES = ("step", "sine")
+SINE_FREQ_RANGE = (0.1, 1.0)  # Hz: the paper's frequency sweep (§4.2, Fig. 17)
 TARGET_RANGE = (0.0, 50 * MM)  # m: the paper's step experiment spans 0-50 mm (§4.1)
 LOAD_RANGE = (50.0, 150.0)  # N: the paper's loads (§4)
 REWARD_BOUND = 0.5 * MM  # m: reward 1 inside +-bound
@@ -167,10 +175,23 @@ class TrackingTask(control.Task):
                  load: float | None = None, target_range: tuple[float, float] = TARGET_RANGE,
                  load_range: tuple[float, float] = LOAD_RANGE,
                  random: int | np.random.RandomState | None = None,
-                 flat_observation: bool = False) -> None:
+                 flat_observation: bool = False, reference: str = "step",
+                 sine_freq: float | None = None,
+                 sine_freq_range: tuple[float, float] = SINE_FREQ_RANGE) -> None:
         if action not in ACTIONS:
             raise ParameterError(f"action = {action!r}; valid actions: {', '.join(ACTIONS)}")
+        if reference not in REFERENCES:
+            raise ParameterError(f"reference = {reference!r}; valid references: "
+                                 f"{', '.join(REFERENCES)}")
+        self._reference = reference
+        self._freq_range = _check_interval("sine_freq_range", sine_freq_range, 1e-3, 20.0, "Hz")
+        self._fixed_freq = None if sine_freq is None else SineSpec(sine_freq).freq
+        self._sine: SineSpec | None = None
         x_max = BraidGeometry.from_params(params.braid).max_contraction
+        if reference == "sine":  # its peak must be a reachable contraction
+            spec = SineSpec(self._freq_range[0])
+            check_range("sine target peak", (spec.mean + spec.amplitude) / MM, 0.0,
+                        x_max / MM, "mm")
         self._target_range = _check_interval("target_range", target_range, 0.0, x_max, "m")
         self._load_range = tuple(check_load(v) for v in _check_interval(
             "load_range", load_range, -np.inf, np.inf, "N"))
@@ -204,9 +225,19 @@ class TrackingTask(control.Task):
         load = self._random.uniform(*self._load_range)
         self.target = target if self._fixed_target is None else self._fixed_target
         physics.set_load(load if self._fixed_load is None else self._fixed_load)
-        self._pi_ff = float(pi_feedforward(self._muscle, self._params, [self.target],
-                                           physics.load(),
-                                           self._params.controller.po_feedforward)[0])
+        if self._reference == "sine":
+            freq = self._random.uniform(*self._freq_range)
+            self._sine = SineSpec(freq if self._fixed_freq is None else self._fixed_freq)
+        self._pi_ff = self._feedforward(self.target_at(0.0), physics.load())
+
+    def _feedforward(self, target: float, load: float) -> float:
+        """Pi [Pa] holding `target` [m] under `load` [N] at the nominal Po."""
+        return float(pi_feedforward(self._muscle, self._params, [target], load,
+                                    self._params.controller.po_feedforward)[0])
+
+    def target_at(self, t: float) -> float:
+        """Target contraction x_r [m] at episode time `t` [s]."""
+        return self.target if self._sine is None else float(self._sine.target(t))
 
     def action_spec(self, physics: MusclePhysics) -> specs.BoundedArray:
         return specs.BoundedArray(shape=self._lo.shape, dtype=np.float64, minimum=self._lo,
@@ -218,6 +249,8 @@ class TrackingTask(control.Task):
             raise ParameterError(f"action = {action!r} must be {self._lo.size} finite "
                                  f"number(s) [Pa] ({self._name})")
         a = np.clip(a, self._lo, self._hi)
+        if self._action == "po" and self._sine is not None:
+            self._pi_ff = self._feedforward(self.target_at(physics.time()), physics.load())
         if self._action == "po":
             physics.set_commands(self._pi_ff, a[0])
         else:
@@ -234,13 +267,13 @@ class TrackingTask(control.Task):
 
     def get_observation(self, physics: MusclePhysics) -> collections.OrderedDict:
         pi, po = physics.pressures()
-        values = (physics.contraction(), physics.velocity(), pi, po, self.target,
-                  physics.load())
+        values = (physics.contraction(), physics.velocity(), pi, po,
+                  self.target_at(physics.time()), physics.load())
         return collections.OrderedDict(
             (name, np.array([v], dtype=np.float64)) for name, v in zip(OBSERVATIONS, values))
 
     def get_reward(self, physics: MusclePhysics) -> float:
-        return float(rewards.tolerance(physics.contraction() - self.target,
+        return float(rewards.tolerance(physics.contraction() - self.target_at(physics.time()),
                                        bounds=(-REWARD_BOUND, REWARD_BOUND),
                                        margin=REWARD_MARGIN, sigmoid="gaussian",
                                        value_at_margin=0.1))
@@ -254,7 +287,9 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
              target: float | None = None, load: float | None = None,
              target_range: tuple[float, float] = TARGET_RANGE,
              load_range: tuple[float, float] = LOAD_RANGE,
-             flat_observation: bool = False) -> control.Environment:
+             flat_observation: bool = False, reference: str = "step",
+             sine_freq: float | None = None,
+             sine_freq_range: tuple[float, float] = SINE_FREQ_RANGE) -> control.Environment:
     """The hung W-PAM as a `dm_control.rl.control.Environment`.
 
     Args:
@@ -270,6 +305,9 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
       load_range: (low, high) [N] for random loads.
       flat_observation: concatenate the observations, in `OBSERVATIONS` order, into one
         array of shape (6,) under the key "observations".
+      reference: "step" (constant target) or "sine" (sinusoidal target), see above.
+      sine_freq: fix the sine target's frequency [Hz] instead of drawing it.
+      sine_freq_range: (low, high) [Hz] for random sine frequencies.
     """
     params = preset() if params is None else params
     time_limit = check_range("time_limit", time_limit, *TIME_LIMIT_RANGE, "s")
@@ -283,7 +321,8 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
     physics = MusclePhysics.create(params, dt)
     task = TrackingTask(params, action=action, target=target, load=load,
                         target_range=target_range, load_range=load_range, random=seed,
-                        flat_observation=flat_observation)
+                        flat_observation=flat_observation, reference=reference,
+                        sine_freq=sine_freq, sine_freq_range=sine_freq_range)
     return control.Environment(physics, task, time_limit=time_limit, n_sub_steps=n_sub,
                                flat_observation=flat_observation)
 

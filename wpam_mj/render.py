@@ -143,11 +143,11 @@ def _samples(result: SimResult, times: np.ndarray) -> Iterator[_Sample]:
 class _Scene:
     """Scene model, renderer and fixed drawing constants for one video."""
 
-    def __init__(self, result: SimResult, params: Params, size: tuple[int, int],
+    def __init__(self, load: float, params: Params, size: tuple[int, int],
                  camera: str, shadows: bool, fast: bool) -> None:
         width, height = size
         _check_camera(camera)
-        model = build_model(params, result.load, result.dt, xml=SCENE_XML)
+        model = build_model(params, load, xml=SCENE_XML)  # drawn, never stepped: any dt
         # offscreen buffer of exactly the frame size: a larger one costs a full-buffer
         # clear per frame (4 ms at 1280x960 in llvmpipe)
         model.vis.global_.offwidth, model.vis.global_.offheight = width, height
@@ -161,7 +161,7 @@ class _Scene:
         self.geometry = BraidGeometry.from_params(params.braid)
         self.bag_radius = 0.5 * params.braid.outer_bag_diameter
         self.x_max = self.geometry.max_contraction
-        self.load_text = f"{result.load:.0f} N"
+        self.load_text = f"{load:.0f} N"
         self.option = mujoco.MjvOption()
         self.option.flags[mujoco.mjtVisFlag.mjVIS_TENDON] = False  # the sleeve replaces it
         self.line_px = max(1.0, 1.5 * height / 480)
@@ -468,7 +468,7 @@ def render_frames(result: SimResult, params: Params, *, fps: float = 30,
     samples = list(_samples(result, frame_times(result.time, fps)))
 
     def scene() -> _Scene:
-        return _Scene(result, params, size, camera, shadows, fast=True)
+        return _Scene(result.load, params, size, camera, shadows, fast=True)
 
     if threads == 1 or len(samples) == 1:
         return _frames(scene, samples)
@@ -638,9 +638,33 @@ def still_frame(result: SimResult, params: Params, t: float, out_png: str | Path
     if Path(out_png).suffix.lower() != ".png":
         raise ParameterError(f"out_png = {str(out_png)!r} must end in .png")
     size = _check_size(size, "")
-    scene = _Scene(result, params, size, camera, shadows, fast=False)
+    scene = _Scene(result.load, params, size, camera, shadows, fast=False)
     try:
         image = scene.frame(next(_samples(result, np.array([t]))))
     finally:
         scene.close()
     return write_atomic(out_png, lambda p: Image.fromarray(image).save(p, format="PNG"))
+
+
+class StateFrames:
+    """Frames of single live states (an environment's), drawn as the video frames are.
+
+    Owns one scene and GL context; `close` frees them.
+    """
+
+    def __init__(self, params: Params, load: float, *, size: tuple[int, int] = (640, 480),
+                 camera: str = "front") -> None:
+        self._scene = _Scene(load, params, _check_size(size, ""), camera, shadows=False,
+                             fast=True)
+
+    def set_load(self, load: float) -> None:
+        """Label the hanging mass with `load` [N] (its drawn size does not change)."""
+        self._scene.load_text = f"{load:.0f} N"
+
+    def frame(self, t: float, x: float, x_ref: float, pi: float, po: float) -> np.ndarray:
+        """RGB image (height, width, 3) uint8 at time t [s], contraction x and target
+        x_ref [m], gauge pressures Pi and Po [Pa]."""
+        return self._scene.frame(_Sample(t, x, x_ref, pi, po))
+
+    def close(self) -> None:
+        self._scene.close()

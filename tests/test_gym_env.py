@@ -1,0 +1,205 @@
+"""The Gymnasium environment: API contract, same trajectories as dm_control, a PI reaches."""
+
+from __future__ import annotations
+
+import re
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+gymnasium = pytest.importorskip("gymnasium", reason="gymnasium (the `rl` extra) not installed")
+from gymnasium.utils.env_checker import check_env  # noqa: E402
+
+import wpam_mj  # noqa: E402
+from wpam_mj.control import PIControl  # noqa: E402
+from wpam_mj.env import OBSERVATIONS, make_env  # noqa: E402
+from wpam_mj.gym_env import ENV_ID, WPAMEnv  # noqa: E402
+from wpam_mj.params import MM, MPA, ParameterError  # noqa: E402
+
+# Code defaults, not the calibration file: these tests pin the environment, not the fit.
+PARAMS = wpam_mj.preset("wpam", calibration=None)
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def checked(env) -> None:
+    """gymnasium's checker; its advice on unbounded and non-normalized Boxes is by design."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # any other warning fails the test
+        warnings.filterwarnings("ignore", message=".*(infinity|symmetric and normalized)")
+        check_env(env)
+
+
+@pytest.mark.parametrize("kwargs", [{}, {"action": "both"}, {"reference": "sine"},
+                                    {"frame_skip": 1, "load": 80.0}])
+def test_passes_gymnasium_env_checker(kwargs) -> None:
+    checked(gymnasium.make(ENV_ID, params=PARAMS, **kwargs).unwrapped)  # with its spec
+
+
+def test_registered_on_import_with_si_spaces() -> None:
+    env = gymnasium.make(ENV_ID, params=PARAMS, time_limit=0.05)
+    assert isinstance(env.unwrapped, WPAMEnv)
+    space = env.action_space
+    assert space.low[0] == PARAMS.pneumatics.p_min
+    assert space.high[0] == PARAMS.controller.po_cap == pytest.approx(0.08 * MPA)
+    obs, info = env.reset(seed=1)
+    assert obs.shape == (len(OBSERVATIONS),) and info["time_s"] == 0.0
+    steps, truncated = 0, False
+    while not truncated:
+        obs, _, terminated, truncated, info = env.step(space.high)
+        assert not terminated
+        steps += 1
+    assert steps == 5 and info["time_s"] == pytest.approx(0.05)
+    with pytest.raises(RuntimeError, match="time limit; call reset"):
+        env.unwrapped.step(space.high)
+
+
+@pytest.mark.parametrize("frame_skip, dt", [(1, 1e-3), (4, 5e-4), (25, 2e-3)])
+def test_frame_skip_sets_the_control_step(frame_skip, dt) -> None:
+    env = WPAMEnv(PARAMS, frame_skip=frame_skip, dt=dt)
+    env.reset(seed=0)
+    _, _, _, _, info = env.step([0.02 * MPA])
+    assert env.physics.model.opt.timestep == dt
+    assert info["time_s"] == pytest.approx(frame_skip * dt, rel=1e-9)
+    assert env.metadata["render_fps"] == pytest.approx(1 / (frame_skip * dt))
+
+
+@pytest.mark.parametrize("reference, action", [("step", "po"), ("sine", "po"),
+                                               ("step", "both")])
+def test_same_trajectory_as_dm_control(reference, action) -> None:
+    """Same seed and actions: identical observations and rewards, two episodes each."""
+    gym_env = WPAMEnv(PARAMS, action=action, reference=reference, time_limit=0.5)
+    dm_env = make_env(PARAMS, action=action, reference=reference, time_limit=0.5, seed=3,
+                      flat_observation=True)
+    rng = np.random.default_rng(0)
+    space = gym_env.action_space
+    obs, _ = gym_env.reset(seed=3)
+    for episode in range(2):
+        if episode:
+            obs, _ = gym_env.reset()
+        ts = dm_env.reset()
+        np.testing.assert_array_equal(obs, ts.observation["observations"])
+        truncated = False
+        while not truncated:
+            action = rng.uniform(space.low, space.high)
+            obs, reward, _, truncated, _ = gym_env.step(action)
+            ts = dm_env.step(action)
+            np.testing.assert_array_equal(obs, ts.observation["observations"])
+            assert reward == ts.reward
+        assert ts.last()
+    assert obs[0] > 1 * MM, "the comparison should include motion"
+
+
+def test_same_seed_same_episode_other_seed_other_task() -> None:
+    env = WPAMEnv(PARAMS, reference="sine", time_limit=0.3)
+    actions = np.random.default_rng(1).uniform(env.action_space.low, env.action_space.high,
+                                               (30, 1))
+
+    def episode(seed):
+        obs, _ = env.reset(seed=seed)
+        return np.array([obs] + [env.step(a)[0] for a in actions])
+
+    a, b, c = episode(5), episode(5), episode(6)
+    np.testing.assert_array_equal(a, b)
+    assert a[0, 5] != c[0, 5], "another seed draws another load"
+    assert len(np.unique(a[:, 4])) > 10, "the sine target moves"
+
+
+def test_sine_target_follows_the_paper_sinusoid() -> None:
+    """x_r(t) = 25 mm - 25 mm cos(2 pi f t), observed at each control step (paper §4.2)."""
+    env = WPAMEnv(PARAMS, reference="sine", sine_freq=0.5, time_limit=2.0)
+    obs, _ = env.reset(seed=0)
+    targets, times = [obs[4]], [0.0]
+    truncated = False
+    while not truncated:
+        obs, _, _, truncated, info = env.step([0.02 * MPA])
+        targets.append(obs[4])
+        times.append(info["time_s"])
+    expected = 25 * MM - 25 * MM * np.cos(2 * np.pi * 0.5 * np.array(times))
+    np.testing.assert_allclose(targets, expected, rtol=0, atol=1e-12)
+    assert max(targets) == pytest.approx(50 * MM)
+
+
+# Gains for the 10 ms control step (MPa/mm, MPa/(mm s)), as in tests/test_env.py: the
+# paper's Kp = 0.1 MPa/mm sampled every 10 ms hunts ~1 mm about the target here.
+PI_GAINS = {"kp": 0.02, "ki": 0.008}
+
+
+@pytest.mark.parametrize("target, load", [(20 * MM, 100.0), (40 * MM, 50.0)])
+def test_pi_policy_reaches_a_step_target(target, load) -> None:
+    params = PARAMS.replace(controller=PI_GAINS)
+    env = gymnasium.make(ENV_ID, params=params, target=target, load=load, time_limit=10.0)
+    obs, _ = env.reset(seed=0)
+    pid = PIControl.for_run(params, env.unwrapped.physics.model.opt.timestep * 10)
+    start = obs[0]
+    done = False
+    while not done:
+        obs, _, terminated, truncated, _ = env.step([pid.update(obs[0], obs[4])])
+        done = terminated or truncated
+    assert not terminated
+    assert abs(start - target) > 10 * MM, "the episode starts away from the target"
+    error = abs(obs[0] - obs[4])
+    assert error < 0.5 * MM, (f"|x - x_r| = {error / MM:.3f} mm after 10 s (target "
+                              f"{target / MM:.0f} mm, {load:.0f} N), limit 0.5 mm")
+
+
+def test_divergence_ends_the_episode_cleanly() -> None:
+    """Explicit Euler of a chamber with a 1e-6 m^3/(s Pa) valve at dt = 5 ms is unstable."""
+    params = PARAMS.replace(pneumatics={"inner_conductance": 1e-6})
+    env = WPAMEnv(params, action="both", frame_skip=1, dt=5e-3)
+    last, _ = env.reset(seed=0)
+    for _ in range(100):
+        obs, reward, terminated, truncated, info = env.step([0.5 * MPA, 0.05 * MPA])
+        if terminated:
+            break
+        last = obs
+    assert terminated and not truncated and reward == 0.0
+    assert "chamber pressure" in info["diverged"]
+    np.testing.assert_array_equal(obs, last)  # the last valid observation
+    assert obs in env.observation_space
+    with pytest.raises(RuntimeError, match="diverged .* call reset"):
+        env.step([0.5 * MPA, 0.05 * MPA])
+    env.reset()
+    env.step([0.1 * MPA, 0.05 * MPA])  # a new episode runs
+
+
+def test_step_before_reset_and_bad_options() -> None:
+    env = WPAMEnv(PARAMS)
+    with pytest.raises(RuntimeError, match="no episode has started"):
+        env.step([0.02 * MPA])
+    for kwargs, message in (({"frame_skip": 0}, "frame_skip = 0"),
+                            ({"frame_skip": 2.5}, "frame_skip = 2.5"),
+                            ({"render_mode": "human"}, "render_mode = 'human'"),
+                            ({"reference": "ramp"}, "valid references: step, sine"),
+                            ({"sine_freq": -1.0}, "freq = -1"),
+                            ({"dt": 1.0}, "dt = 1")):
+        with pytest.raises(ParameterError, match=re.escape(message)):
+            WPAMEnv(PARAMS, **kwargs)
+
+
+def test_rgb_array_render_follows_the_load() -> None:
+    env = WPAMEnv(PARAMS, action="both", render_mode="rgb_array", render_size=(160, 120),
+                  target=0.04, load=100.0)
+    env.reset(seed=0)
+    try:
+        rest = env.render()
+    except RuntimeError as err:  # wpam_mj.render: no OpenGL context here
+        pytest.skip(str(err))
+    for _ in range(100):  # 1 s at full Pi: the muscle contracts
+        obs, *_ = env.step([0.5 * MPA, 0.0])
+    moved = env.render()
+    env.close()
+    assert rest.shape == (120, 160, 3) and rest.dtype == np.uint8
+    assert rest.std() > 10, "the frame shows the rig"
+    assert obs[0] > 20 * MM
+    assert np.abs(rest.astype(int) - moved).mean() > 1, "the frame follows the load"
+
+
+def test_readme_gymnasium_example_runs(capsys) -> None:
+    text = README.read_text(encoding="utf-8")
+    section = text.split("## Gymnasium", 1)[1].split("\n## ", 1)[0]
+    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    assert len(code.strip().splitlines()) <= 12
+    exec(compile(code, "README.md", "exec"), {})
+    assert "mm" in capsys.readouterr().out
