@@ -47,7 +47,8 @@ from wpam_mj.model import MuscleIndex, build_model, check_dt, check_load
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM, MPA, Params, ParameterError, check_range
 from wpam_mj.paths import SCENE_XML
-from wpam_mj.simulate import Plant, RunConstants
+from wpam_mj.loop_contract import RunConstants
+from wpam_mj.plant import Plant
 
 TARGET_MODES = ("step", "sine", "fixed")
 STEP_HOLD_S = 4.0  # s per staircase level: livelier than the paper's 10 s (settles in ~2 s)
@@ -100,7 +101,7 @@ class LiveRig:
         self._idx = MuscleIndex.of(self.model)
         self.load_body = self.model.body("load").id
         self._muscle = MuscleModel.from_params(params)
-        self.plant = Plant(self._muscle, RunConstants.make(params, self.dt, "open", self.dt))
+        self.plant = Plant(self._muscle, RunConstants.make(params, self.dt, self.dt))
         self.po_cmd = 0.0
         self.pi_cmd = 0.0
         self.push = 0.0  # N along +z: the mouse's force on the load, read at each sync
