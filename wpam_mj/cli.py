@@ -8,6 +8,7 @@ Subcommands (each has --help):
   reproduce  all of the above into one folder with report.md
   calibrate  fit the parameters the paper does not give
   render     offscreen video of a simulated run
+  linear     the paper's §3 linear model beside the simulated frequency response
 
 Units at this edge: loads in N, pressures in MPa, lengths in mm, times in s, frequencies
 in Hz (the library is SI inside). Exit status: 0 success, 1 the run failed (simulation
@@ -29,12 +30,12 @@ from typing import Sequence
 
 from wpam_mj import __version__, studies
 from wpam_mj.control import CONTROLS, check_control
-from wpam_mj.experiments import (STEP_HOLD_S, STEP_LEVELS_MM, SineSpec, check_po, sine_run,
-                                 static_loop, step_run)
+from wpam_mj.experiments import (SINE_AMPLITUDE_MM, SINE_MEAN_MM, STEP_HOLD_S, STEP_LEVELS_MM,
+                                 SineSpec, check_po, sine_run, static_loop, step_run)
 from wpam_mj.model import check_dt, check_load
-from wpam_mj.params import (CALIBRATION_FILE, MPA, PRESETS, ParameterError, Params, apply_overrides,
-                            check_range, load_toml, preset)
-from wpam_mj.results import SimResult
+from wpam_mj.params import (CALIBRATION_FILE, MM, MPA, PRESETS, ParameterError, Params,
+                            apply_overrides, check_range, load_toml, preset)
+from wpam_mj.results import SimResult, write_text_atomic
 from wpam_mj.simulate import SimulationDiverged
 
 EXPERIMENTS = ("step", "sweep", "static")  # for `wpam render`
@@ -149,6 +150,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = add("sweep", "frequency response to a 25 mm sinusoid about 25 mm (paper Figs. "
             "17-19): gain, phase lag, max Po", _cmd_sweep)
+    p.add_argument("--amplitude", type=float, default=SINE_AMPLITUDE_MM, metavar="MM",
+                   help=f"amplitude of the sinusoidal target [mm], in (0, {SINE_MEAN_MM:g}] "
+                        f"(default: the paper's {SINE_AMPLITUDE_MM:g})")
     p.add_argument("--loads", type=_float_list, default=studies.PAPER_LOADS_N,
                    metavar="N,N,...", help="hanging loads [N] (default: 50,100,150)")
     p.add_argument("--freqs", type=_float_list, default=studies.PAPER_FREQS_HZ,
@@ -190,7 +194,27 @@ def build_parser() -> argparse.ArgumentParser:
                    help="frame size [px] (default: 640x480)")
     p.add_argument("--out", type=Path, metavar="FILE.mp4|FILE.gif",
                    help="video file (default: out/render/<experiment>.mp4)")
+
+    _add_linear_parser(add("linear", "the paper's §3 linear model (and an extended one) "
+                           "at an operating point: poles, margins, DC gains, and its Bode "
+                           "plot beside the simulated frequency response", _cmd_linear))
     return parser
+
+
+def _add_linear_parser(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--load", type=float, default=100.0, metavar="N",
+                   help="hanging load [N] (default: 100)")
+    p.add_argument("--contraction", type=float, default=SINE_MEAN_MM, metavar="MM",
+                   help="operating contraction [mm] (default: the sweep's mean, "
+                        f"{SINE_MEAN_MM:g}; the simulated sweeps always run about it)")
+    p.add_argument("--amplitudes", type=_float_list, default=None, metavar="MM,MM",
+                   help="amplitudes of the simulated sweeps [mm] (default: the paper's 25 "
+                        "and a small one, 5)")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object (operating point, poles, margins, DC gains, "
+                        "comparison rows) on stdout")
+    p.add_argument("--out", type=Path, metavar="DIR",
+                   help="output folder (default: out/linear under the current folder)")
 
 
 # ------------------------------------------------------------------ helpers
@@ -326,10 +350,16 @@ def _cmd_table2(args: argparse.Namespace) -> int:
     return 0
 
 
+def _amplitude(name: str, mm: float) -> float:
+    """A sine amplitude [m] from mm: the target must stay at or above 0 mm."""
+    return check_range(name, mm, 0.0, SINE_MEAN_MM, "mm", lo_open=True) * MM
+
+
 def _cmd_sweep(args: argparse.Namespace) -> int:
     plots, report = _output_modules()
     run = _run_options(args)
     loads = _loads(args.loads)
+    amplitude = _amplitude("--amplitude", args.amplitude)
     freqs = tuple(SineSpec(f).freq for f in args.freqs)
     controllers = tuple(check_control(c) for c in args.controllers)
     if not controllers:
@@ -337,7 +367,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     out = _out_dir(args)
     key = studies.figure_run_key(loads, freqs, controllers)
     sw = studies.sweep(run.params, loads, freqs, controllers, keep=[key], dt=run.dt,
-                       jobs=run.jobs, progress=run.progress)
+                       jobs=run.jobs, progress=run.progress, amplitude=amplitude)
     load, freq, ctrl = key
     written = [
         *report.write_sweep(out, sw),
@@ -351,6 +381,28 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     else:
         print(report.sweep_text(sw))
         print(report.checks_text(report.sweep_checks(sw, run.params.controller.po_cap)))
+        _wrote(written)
+    return 0
+
+
+def _cmd_linear(args: argparse.Namespace) -> int:
+    plots, _ = _output_modules()
+    from wpam_mj import linear_study  # noqa: PLC0415 (python-control: slow import)
+    run = _run_options(args)
+    load = check_load(args.load)
+    amplitudes = tuple(_amplitude("--amplitudes", a) for a in
+                       (args.amplitudes or linear_study.AMPLITUDES_MM))
+    out = _out_dir(args)
+    (cmp,) = linear_study.compare(run.params, (load,), contraction=args.contraction * MM,
+                                  amplitudes=amplitudes, dt=run.dt, jobs=run.jobs,
+                                  progress=run.progress)
+    stem = f"linear_{load:g}N"
+    written = [plots.save_figure(cmp.plot(), out / f"{stem}.png"),
+               write_text_atomic(out / f"{stem}.csv", cmp.csv_text())]
+    if args.json:
+        _print_json(cmp.as_json())
+    else:
+        print(cmp.text())
         _wrote(written)
     return 0
 

@@ -264,8 +264,8 @@ class LinearLoop:
 
     def step_info(self) -> dict[str, float]:
         """Rise time [s], settling time [s] and overshoot [%] of a step in x_r
-        (`control.step_info` on `control.step_response`)."""
-        info = ct.step_info(ct.step_response(self.g_yr))
+        (`control.step_info`, which runs `control.step_response`)."""
+        info = ct.step_info(self.g_yr)
         return {"rise_time_s": float(info["RiseTime"]),
                 "settling_time_s": float(info["SettlingTime"]),
                 "overshoot_pct": float(info["Overshoot"])}

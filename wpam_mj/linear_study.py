@@ -12,9 +12,13 @@ SI inside (m, N, Hz as in `SineSpec`); mm, dB and deg only in `rows`, JSON and t
 
 from __future__ import annotations
 
+import csv
+import io
 import math
 from dataclasses import dataclass
 from typing import Iterable, Mapping, Sequence
+
+import numpy as np
 
 from wpam_mj import linear, studies
 from wpam_mj.experiments import SINE_AMPLITUDE_MM, SINE_MEAN_MM
@@ -81,7 +85,8 @@ class LinearComparison:
                   freqs: Iterable[float] = AGREEMENT_FREQS_HZ) -> dict:
         """Worst |gain difference| [dB] and |lag difference| [deg] between the simulation
         at `amplitude` [m] and `model` over `freqs` [Hz] and every controller, and whether
-        both are within GAIN_TOL_DB and LAG_TOL_DEG."""
+        both are within GAIN_TOL_DB and LAG_TOL_DEG (an unstable model's G_yr(jw) is still
+        compared, but no steady sinusoid follows it: see `model_stable`)."""
         freqs = set(freqs)
         rows = [r for r in self.rows() if math.isclose(r["amplitude_mm"], amplitude / MM)
                 and r["freq_hz"] in freqs]
@@ -90,18 +95,29 @@ class LinearComparison:
                                  f"{sorted(freqs)} Hz")
         db = max(abs(r[f"{model}_diff_db"]) for r in rows)
         deg = max(abs(r[f"{model}_diff_deg"]) for r in rows)
-        return {"amplitude_mm": amplitude / MM, "model": model, "worst_gain_db": db,
-                "worst_lag_deg": deg, "agrees": db <= GAIN_TOL_DB and deg <= LAG_TOL_DEG}
+        return {"amplitude_mm": amplitude / MM, "model": model,
+                "model_stable": all(lp.stable for lp in self.loops if lp.model == model),
+                "worst_gain_db": db, "worst_lag_deg": deg,
+                "agrees": db <= GAIN_TOL_DB and deg <= LAG_TOL_DEG}
 
     def as_json(self) -> dict:
-        return {"load_n": self.load, "contraction_mm": self.contraction / MM,
-                "operating_point": self.loops[0].op.as_json(),
-                "models": [lp.as_json() for lp in self.loops],
-                "comparison": self.rows(),
-                "agreement": [self.agreement(a, model=m) for a in self.sweeps
-                              for m in linear.MODELS],
-                "tolerance": {"gain_db": GAIN_TOL_DB, "lag_deg": LAG_TOL_DEG,
-                              "freqs_hz": list(AGREEMENT_FREQS_HZ)}}
+        """Plain JSON types (non-finite numbers become None)."""
+        return _finite({"load_n": self.load, "contraction_mm": self.contraction / MM,
+                        "operating_point": self.loops[0].op.as_json(),
+                        "models": [lp.as_json() for lp in self.loops],
+                        "comparison": self.rows(),
+                        "agreement": [self.agreement(a, model=m) for a in self.sweeps
+                                      for m in linear.MODELS],
+                        "tolerance": {"gain_db": GAIN_TOL_DB, "lag_deg": LAG_TOL_DEG,
+                                      "freqs_hz": list(AGREEMENT_FREQS_HZ)}})
+
+    def csv_text(self) -> str:
+        """`rows` as CSV, one header line."""
+        buf = io.StringIO()
+        writer = csv.DictWriter(buf, fieldnames=list(self.rows()[0]), lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(self.rows())
+        return buf.getvalue()
 
     def text(self) -> str:
         """Operating point, poles, margins, DC gains, and the comparison table."""
@@ -141,6 +157,19 @@ class LinearComparison:
         """Bode plot of G_yr (`control.bode_plot`) with the simulated points."""
         from wpam_mj.linear_plot import comparison_figure  # noqa: PLC0415 (matplotlib)
         return comparison_figure(self)
+
+
+def _finite(obj):
+    """`obj` with numpy scalars as Python numbers and inf/NaN as None, recursively."""
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if math.isfinite(obj) else None
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
 
 
 def _complex(p: complex) -> str:
