@@ -2,7 +2,8 @@
 
 For each load, the linear models at the sweep's mean contraction and the simulated sweeps at
 several amplitudes; prints Markdown tables (operating points and stability; worst agreement
-at 0.1-0.25 Hz per amplitude; every point at the paper's and the small amplitude) and writes
+at 0.1-0.25 Hz per amplitude; every point at the paper's and the small amplitude; the Po
+limit cycle beside the extended model's instability) and writes
 linear_vs_sim.json and linear_vs_sim.csv. About 30 s on two cores.
 
 Usage: python scripts/linear_vs_sim.py [--loads 50,100,150] [--amplitudes MM,...] [--out DIR]
@@ -13,8 +14,11 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from wpam_mj import linear_study, studies
 from wpam_mj.cli import _float_list
+from wpam_mj.experiments import SineSpec, sine_run
 from wpam_mj.linear_study import AGREEMENT_FREQS_HZ, GAIN_TOL_DB, LAG_TOL_DEG
 from wpam_mj.params import MM, MPA, preset
 from wpam_mj.results import write_text_atomic
@@ -64,6 +68,28 @@ def _points_table(comparisons, amplitudes_mm) -> list[str]:
     return lines
 
 
+def _limit_cycle_table(params, comparisons, freq: float = 0.25) -> list[str]:
+    """Frequency of the Po oscillation under PI at the small amplitude beside the extended
+    model's phase crossover (where a describing-function limit cycle sits)."""
+    lines = ["| load [N] | Po oscillation in the simulation [Hz] | Po range [MPa] | "
+             "extended model: phase crossover [Hz], unstable pole [Hz] |", "|---|---|---|---|"]
+    spec = SineSpec(freq, amplitude=linear_study.SMALL_AMPLITUDE_MM * MM)
+    for c in comparisons:
+        r = sine_run(params, c.load, "pi", spec)
+        window = r.time >= spec.settle_cycles / freq
+        po = r.po[window] - r.po[window].mean()
+        f = np.fft.rfftfreq(po.size, r.time[1] - r.time[0])
+        above = f > 4 * freq  # beyond the target's own harmonics
+        peak = f[above][np.argmax(np.abs(np.fft.rfft(po))[above])]
+        lp = c.loop("extended", "pi")
+        pole = max(lp.poles(), key=lambda p: p.real)
+        lines.append(f"| {c.load:g} | {peak:.2f} | {r.po[window].min() / MPA:.3f}-"
+                     f"{r.po[window].max() / MPA:.3f} | "
+                     f"{lp.margins()['phase_crossover_hz']:.2f}, "
+                     f"{abs(pole.imag) / (2 * np.pi):.2f} |")
+    return lines
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -77,7 +103,8 @@ def main(argv=None) -> int:
     parser.add_argument("--out", type=Path, default=Path("out") / "linear_vs_sim",
                         metavar="DIR", help="output folder (default: out/linear_vs_sim)")
     args = parser.parse_args(argv)
-    comparisons = linear_study.compare(preset("wpam"), args.loads,
+    params = preset("wpam")
+    comparisons = linear_study.compare(params, args.loads,
                                        amplitudes=[a * MM for a in args.amplitudes],
                                        jobs=args.jobs)
     shown = {linear_study.SMALL_AMPLITUDE_MM, max(args.amplitudes)}
@@ -85,7 +112,9 @@ def main(argv=None) -> int:
                      f"## Agreement with the §3 model at {', '.join(map(str, AGREEMENT_FREQS_HZ))}"
                      " Hz (PI and PID)", *_agreement_table(comparisons), "",
                      "## Every point at " + " and ".join(f"{a:g}" for a in sorted(shown)) + " mm",
-                     *_points_table(comparisons, shown)]))
+                     *_points_table(comparisons, shown), "",
+                     f"## The Po limit cycle (PI, {linear_study.SMALL_AMPLITUDE_MM:g} mm, "
+                     "0.25 Hz)", *_limit_cycle_table(params, comparisons)]))
     args.out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.out / "linear_vs_sim.json",
                       json.dumps([c.as_json() for c in comparisons], indent=2) + "\n")
