@@ -3,7 +3,7 @@
 For each load, the linear models at the sweep's mean contraction and the simulated sweeps at
 several amplitudes; prints Markdown tables (operating points and stability; worst agreement
 at 0.1-0.25 Hz per amplitude; every point at the paper's and the small amplitude; the Po
-limit cycle beside the extended model's instability) and writes
+limit cycle beside the extended model's instability; what bounds the linear range) and writes
 linear_vs_sim.json and linear_vs_sim.csv. About 30 s on two cores.
 
 Usage: python scripts/linear_vs_sim.py [--loads 50,100,150] [--amplitudes MM,...] [--out DIR]
@@ -17,13 +17,21 @@ from pathlib import Path
 import numpy as np
 
 from wpam_mj import linear_study, studies
-from wpam_mj.cli import _float_list
+from wpam_mj import pneumatics as pn
 from wpam_mj.experiments import SineSpec, sine_run
 from wpam_mj.linear_study import AGREEMENT_FREQS_HZ, GAIN_TOL_DB, LAG_TOL_DEG
+from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM, MPA, preset
 from wpam_mj.results import write_text_atomic
 
 SCAN_AMPLITUDES_MM = (0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 25.0)
+
+
+def _float_list(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a list like 1,2.5") from None
 
 
 def _models_table(comparisons) -> list[str]:
@@ -90,6 +98,31 @@ def _limit_cycle_table(params, comparisons, freq: float = 0.25) -> list[str]:
     return lines
 
 
+def _regimes_table(params, comparisons) -> list[str]:
+    """What bounds the linear range at each load: the friction band Po must cross to reverse
+    the load, the Po swing over which the line's flow law is linear, and how fast the
+    outer chamber can fill (regulator at the cap) and vent (at p_min) from the rest Po."""
+    muscle = MuscleModel.from_params(params)
+    pnm, cap = params.pneumatics, params.controller.po_cap
+    lines = ["| load [N] | friction Ff [N] | reversal band 2 Ff / A_o [MPa] | linear flow "
+             "range of Po [kPa] (= error [mm]) | fill / vent rate [MPa/s] |",
+             "|---|---|---|---|---|"]
+    for c in comparisons:
+        op = c.loops[0].op
+        ff = muscle.friction(op.x, op.pi, op.po)
+        linear_kpa = (1.0 - pn.R_LAMINAR) * op.outer.pressure / 1e3
+        kp = params.controller.kp  # MPa/mm
+
+        def rate(p_set: float) -> float:
+            flow = pn.mass_flow(p_set + pnm.atmosphere, op.outer.pressure,
+                                pnm.outer_conductance, pnm.critical_ratio)
+            return abs(pn.RT0 * flow / op.outer.volume) / MPA
+        lines.append(f"| {c.load:g} | {ff:.1f} | {2 * ff / op.po_area / MPA:.4f} | "
+                     f"{linear_kpa:.2f} (= {linear_kpa / 1e3 / kp:.3f}) | "
+                     f"{rate(cap):.3f} / {rate(pnm.p_min):.3f} |")
+    return lines
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -114,7 +147,8 @@ def main(argv=None) -> int:
                      "## Every point at " + " and ".join(f"{a:g}" for a in sorted(shown)) + " mm",
                      *_points_table(comparisons, shown), "",
                      f"## The Po limit cycle (PI, {linear_study.SMALL_AMPLITUDE_MM:g} mm, "
-                     "0.25 Hz)", *_limit_cycle_table(params, comparisons)]))
+                     "0.25 Hz)", *_limit_cycle_table(params, comparisons), "",
+                     "## What bounds the linear range", *_regimes_table(params, comparisons)]))
     args.out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.out / "linear_vs_sim.json",
                       json.dumps([c.as_json() for c in comparisons], indent=2) + "\n")

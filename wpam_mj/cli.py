@@ -205,8 +205,8 @@ def _add_linear_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--load", type=float, default=100.0, metavar="N",
                    help="hanging load [N] (default: 100)")
     p.add_argument("--contraction", type=float, default=SINE_MEAN_MM, metavar="MM",
-                   help="operating contraction [mm] (default: the sweep's mean, "
-                        f"{SINE_MEAN_MM:g}; the simulated sweeps always run about it)")
+                   help=f"operating contraction [mm] (default: {SINE_MEAN_MM:g}, the mean "
+                        "the simulated sweeps always run about)")
     p.add_argument("--amplitudes", type=_float_list, default=None, metavar="MM,MM",
                    help="amplitudes of the simulated sweeps [mm] (default: the paper's 25 "
                         "and a small one, 5)")
