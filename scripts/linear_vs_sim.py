@@ -123,6 +123,25 @@ def _regimes_table(params, comparisons) -> list[str]:
     return lines
 
 
+def _saturation_table(params, comparisons, amplitudes_mm, freq: float = 0.25) -> list[str]:
+    """How long the Po command sits at a limit of its range (PI): short stints are the limit
+    cycle, stints of most of a half cycle mean the loop is open."""
+    lo, hi = params.pneumatics.p_min, params.controller.po_cap
+    lines = ["| load [N] | amplitude [mm] | Po command at a limit [% of time] | longest stint "
+             "[s] |", "|---|---|---|---|"]
+    for c in comparisons:
+        for amp in sorted(amplitudes_mm):
+            spec = SineSpec(freq, amplitude=amp * MM)
+            r = sine_run(params, c.load, "pi", spec)
+            window = r.time >= spec.settle_cycles / freq
+            at_limit = (r.po_cmd[window] <= lo) | (r.po_cmd[window] >= hi)
+            edges = np.flatnonzero(np.diff(np.concatenate([[0], at_limit.astype(int), [0]])))
+            longest = np.max(np.diff(edges)[::2], initial=0) * (r.time[1] - r.time[0])
+            lines.append(f"| {c.load:g} | {amp:g} | {100 * at_limit.mean():.0f} | "
+                         f"{longest:.2f} |")
+    return lines
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -148,7 +167,9 @@ def main(argv=None) -> int:
                      *_points_table(comparisons, shown), "",
                      f"## The Po limit cycle (PI, {linear_study.SMALL_AMPLITUDE_MM:g} mm, "
                      "0.25 Hz)", *_limit_cycle_table(params, comparisons), "",
-                     "## What bounds the linear range", *_regimes_table(params, comparisons)]))
+                     "## What bounds the linear range", *_regimes_table(params, comparisons),
+                     "", "## The Po command at its limits (PI, 0.25 Hz)",
+                     *_saturation_table(params, comparisons, shown)]))
     args.out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.out / "linear_vs_sim.json",
                       json.dumps([c.as_json() for c in comparisons], indent=2) + "\n")
