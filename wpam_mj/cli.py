@@ -148,8 +148,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="print one JSON object (normalized areas, unit-free) on stdout")
     out_dir(p, "table2")
 
-    p = add("sweep", "frequency response to a 25 mm sinusoid about 25 mm (paper Figs. "
-            "17-19): gain, phase lag, max Po", _cmd_sweep)
+    p = add("sweep", "frequency response to a sinusoid about 25 mm, 25 mm amplitude unless "
+            "--amplitude (paper Figs. 17-19): gain, phase lag, max Po", _cmd_sweep)
     p.add_argument("--amplitude", type=float, default=SINE_AMPLITUDE_MM, metavar="MM",
                    help=f"amplitude of the sinusoidal target [mm], in (0, {SINE_MEAN_MM:g}] "
                         f"(default: the paper's {SINE_AMPLITUDE_MM:g})")

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import control as ct
 import mujoco
@@ -39,13 +40,14 @@ import numpy as np
 
 from wpam_mj import pneumatics as pn
 from wpam_mj.control import pi_feedforward
+from wpam_mj.geometry import BraidGeometry
 from wpam_mj.model import MuscleIndex, build_model, check_load
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM, MPA, Params, ParameterError, check_range
 
 CONTROLLERS = ("pi", "pid")
 MODELS = ("paper", "extended")
-PADE_ORDER = 3  # our choice: phase within 1 deg of e^{-sL} up to wL ~ 2 rad
+PADE_ORDER = 5  # our choice: phase within 1 deg of e^{-sL} up to wL ~ 6 rad
 _REL_STEP = 1e-6  # central-difference step relative to the variable's scale
 
 
@@ -57,9 +59,9 @@ def check_linear_control(control: str) -> str:
     return control
 
 
-def _slope(f, at: float, step: float) -> float:
+def _slope(f: Callable[[float], float], at: float, step: float) -> float:
     """Central difference df/dv at v = `at` with half-step `step`."""
-    return (f(at + step) - f(at - step)) / (2.0 * step)
+    return float(f(at + step) - f(at - step)) / (2.0 * step)
 
 
 # ------------------------------------------------------------------ operating point
@@ -93,34 +95,35 @@ class Chamber:
                      inputs=[set_input, "v"], outputs=[output])
 
 
-def chamber_volumes(params: Params, x: float) -> tuple[float, float]:
-    """Inner and outer chamber volumes [m^3] at contraction x [m], as `wpam_mj.pneumatics`
-    states them: V_i = V(x) + V_tube, V_o = V_bag - V(x) - A_ax x + V_tube."""
-    geom = MuscleModel.from_params(params).geometry
-    tube = params.pneumatics.tube_volume
+def inner_volume(params: Params, x: float) -> float:
+    """Inner chamber volume [m^3] at contraction x [m] as `wpam_mj.pneumatics` states it:
+    V_i = V(x) + V_tube."""
+    return BraidGeometry.from_params(params.braid).volume(x) + params.pneumatics.tube_volume
+
+
+def outer_volume(params: Params, x: float) -> float:
+    """Outer chamber volume [m^3] at contraction x [m] as `wpam_mj.pneumatics` states it:
+    V_o = V_bag - V(x) - A_ax x + V_tube."""
     bag = pn.outer_bag_volume(params.braid.outer_bag_length, params.braid.outer_bag_diameter)
-    v = geom.volume(x)
-    return v + tube, bag - v - params.muscle.axial_area * x + tube
+    return (bag - BraidGeometry.from_params(params.braid).volume(x)
+            - params.muscle.axial_area * x + params.pneumatics.tube_volume)
 
 
 def _chamber(params: Params, x: float, gauge: float, conductance: float,
-             which: int) -> Chamber:
+             volume: Callable[[Params, float], float]) -> Chamber:
+    """Linearise one chamber at contraction x [m] and gauge pressure [Pa] at rest."""
     pnm = params.pneumatics
     p0 = gauge + pnm.atmosphere
     step = _REL_STEP * p0
-
-    def flow_from_set(p_set: float) -> float:
-        return pn.mass_flow(p_set, p0, conductance, pnm.critical_ratio)
-
-    def flow_at(p: float) -> float:
-        return pn.mass_flow(p0, p, conductance, pnm.critical_ratio)
-
-    def volume(xx: float) -> float:
-        return chamber_volumes(params, xx)[which]
-
-    return Chamber(volume=volume(x), volume_slope=_slope(volume, x, _REL_STEP),
-                   pressure=p0, set_slope=_slope(flow_from_set, p0, step),
-                   pressure_slope=-_slope(flow_at, p0, step))
+    geom_scale = BraidGeometry.from_params(params.braid).max_contraction
+    return Chamber(
+        volume=volume(params, x),
+        volume_slope=_slope(lambda xx: volume(params, xx), x, _REL_STEP * geom_scale),
+        pressure=p0,
+        set_slope=_slope(lambda ps: pn.mass_flow(ps, p0, conductance, pnm.critical_ratio),
+                         p0, step),
+        pressure_slope=-_slope(lambda p: pn.mass_flow(p0, p, conductance,
+                                                      pnm.critical_ratio), p0, step))
 
 
 @dataclass(frozen=True)
@@ -168,31 +171,31 @@ def moving_mass_and_damping(params: Params, load: float) -> tuple[float, float]:
 def operating_point(params: Params, load: float, x: float) -> OperatingPoint:
     """Linearise the nonlinear model at contraction x [m] under `load` [N]."""
     load = check_load(load)
-    geom_max = MuscleModel.from_params(params).geometry.max_contraction
-    check_range("contraction", x / MM, 0.0, geom_max / MM, "mm", lo_open=True)
     muscle = MuscleModel.from_params(params)
+    x_max = muscle.geometry.max_contraction
+    check_range("contraction", x / MM, 0.0, x_max / MM, "mm", lo_open=True)
     po = params.controller.po_feedforward
 
     def feedforward(xr: float) -> float:
         return float(pi_feedforward(muscle, params, xr, load, po))
 
     pi = feedforward(x)
-    pn_ = params.pneumatics
-    if not pn_.p_min < pi < pn_.p_max:
+    pnm = params.pneumatics
+    if not pnm.p_min < pi < pnm.p_max:
         raise ParameterError(f"contraction = {x / MM:g} mm under {load:g} N needs Pi = "
-                             f"{pi / MPA:g} MPa, at the regulator's limit [{pn_.p_min / MPA:g}, "
-                             f"{pn_.p_max / MPA:g}] MPa: no linear operating point")
+                             f"{pi / MPA:g} MPa, at the regulator's limit [{pnm.p_min / MPA:g}, "
+                             f"{pnm.p_max / MPA:g}] MPa: no linear operating point")
     mass, damping = moving_mass_and_damping(params, load)
-    dp = _REL_STEP * (pi + pn_.atmosphere)
-    dx = _REL_STEP * geom_max
+    dp = _REL_STEP * (pi + pnm.atmosphere)
+    dx = _REL_STEP * x_max
     return OperatingPoint(
         load=load, x=x, pi=pi, po=po, mass=mass, damping=damping,
         po_area=-_slope(lambda p: muscle.tension(x, pi, p), po, dp),
         pi_area=_slope(lambda p: muscle.tension(x, p, po), pi, dp),
         stiffness=-_slope(lambda xx: muscle.tension(xx, pi, po), x, dx),
         pi_ff_slope=_slope(feedforward, x, dx),
-        inner=_chamber(params, x, pi, pn_.inner_conductance, 0),
-        outer=_chamber(params, x, po, pn_.outer_conductance, 1))
+        inner=_chamber(params, x, pi, pnm.inner_conductance, inner_volume),
+        outer=_chamber(params, x, po, pnm.outer_conductance, outer_volume))
 
 
 # ------------------------------------------------------------------ controllers
@@ -246,7 +249,10 @@ class LinearLoop:
     def margins(self) -> dict[str, float]:
         """Gain margin [1], phase margin [deg] and their crossover frequencies [Hz] of L;
         inf where L never crosses (`control.stability_margins`)."""
-        gm, pm, _, w_pc, w_gc, _ = ct.stability_margins(self.loop)
+        # the polynomial method evaluates the stability-margin polynomial far beyond the
+        # Pade poles, where it overflows; gain and phase margins are not affected
+        with np.errstate(over="ignore", invalid="ignore"):
+            gm, pm, _, w_pc, w_gc, _ = ct.stability_margins(self.loop)
         return {"gain_margin": float(gm), "phase_margin_deg": float(pm),
                 "phase_crossover_hz": float(w_pc) / (2 * math.pi),
                 "gain_crossover_hz": float(w_gc) / (2 * math.pi)}

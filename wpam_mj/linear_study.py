@@ -132,9 +132,10 @@ class LinearComparison:
             poles = ", ".join(_complex(p) for p in lp.poles())
             lines += [f"{lp.model} model, {lp.control.upper()}: "
                       f"{'stable' if lp.stable else 'UNSTABLE'}; G_yr(0) = {g_yr0:.6g}, "
-                      f"G_yd(0) = {g_yd0:.3g} m/N; gain margin {mg['gain_margin']:.3g} at "
-                      f"{mg['phase_crossover_hz']:.3g} Hz, phase margin "
-                      f"{mg['phase_margin_deg']:.3g} deg at {mg['gain_crossover_hz']:.3g} Hz",
+                      f"G_yd(0) = {g_yd0:.3g} m/N; gain margin "
+                      f"{_margin(mg['gain_margin'], '', mg['phase_crossover_hz'])}, "
+                      f"phase margin "
+                      f"{_margin(mg['phase_margin_deg'], ' deg', mg['gain_crossover_hz'])}",
                       f"  poles [rad/s]: {poles}"]
         lines.append(f"{'amp [mm]':>9}{'ctrl':>5}{'f [Hz]':>7}{'sim gain':>9}{'lag':>7}"
                      f"{'§3 gain':>9}{'lag':>7}{'ext gain':>9}{'lag':>7}{'dB':>7}{'deg':>7}")
@@ -170,6 +171,12 @@ def _finite(obj):
     if isinstance(obj, np.bool_):
         return bool(obj)
     return obj
+
+
+def _margin(value: float, unit: str, freq_hz: float) -> str:
+    if not math.isfinite(value):
+        return "inf (no crossover)"
+    return f"{value:.3g}{unit} at {freq_hz:.3g} Hz"
 
 
 def _complex(p: complex) -> str:
