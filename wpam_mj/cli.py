@@ -9,6 +9,7 @@ Subcommands (each has --help):
   calibrate  fit the parameters the paper does not give
   render     offscreen video of a simulated run
   view       MuJoCo's interactive viewer on the muscle, stepped live (needs a display)
+  linear     the paper's §3 linear model beside the simulated frequency response
 
 Units at this edge: loads in N, pressures in MPa, lengths in mm, times in s, frequencies
 in Hz (the library is SI inside). Exit status: 0 success, 1 the run failed (simulation
@@ -29,10 +30,12 @@ from typing import Sequence
 
 from wpam_mj import __version__, paper, pool, studies
 from wpam_mj.control import CONTROLS, check_control
-from wpam_mj.experiments import EXPERIMENTS, SineSpec, check_po, simulate_for_render
+from wpam_mj.experiments import (EXPERIMENTS, SINE_AMPLITUDE_MM, SINE_MEAN_MM, SineSpec,
+                                 check_po, simulate_for_render)
 from wpam_mj.model import check_dt, check_load
-from wpam_mj.params import (CALIBRATION_FILE, MPA, PRESETS, ParameterError, Params, apply_overrides,
-                            check_range, load_toml, preset)
+from wpam_mj.params import (CALIBRATION_FILE, MM, MPA, PRESETS, ParameterError, Params,
+                            apply_overrides, check_range, load_toml, preset)
+from wpam_mj.results import write_text_atomic
 from wpam_mj.simulate import SimulationDiverged
 
 
@@ -143,8 +146,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="print one JSON object (normalized areas, unit-free) on stdout")
     out_dir(p, "table2")
 
-    p = add("sweep", "frequency response to a 25 mm sinusoid about 25 mm (paper Figs. "
-            "17-19): gain, phase lag, max Po", _cmd_sweep)
+    p = add("sweep", "frequency response to a sinusoid about 25 mm, 25 mm amplitude unless "
+            "--amplitude (paper Figs. 17-19): gain, phase lag, max Po", _cmd_sweep)
+    p.add_argument("--amplitude", type=float, default=SINE_AMPLITUDE_MM, metavar="MM",
+                   help=f"amplitude of the sinusoidal target [mm], in (0, {SINE_MEAN_MM:g}] "
+                        f"(default: the paper's {SINE_AMPLITUDE_MM:g})")
     p.add_argument("--loads", type=_float_list, default=paper.LOADS_N,
                    metavar="N,N,...", help="hanging loads [N] (default: 50,100,150)")
     p.add_argument("--freqs", type=_float_list, default=paper.SWEEP_FREQS_HZ,
@@ -187,6 +193,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, metavar="FILE.mp4|FILE.gif",
                    help="video file (default: out/render/<experiment>.mp4)")
     _add_view_parser(add)
+    _add_linear_parser(add("linear", "the paper's §3 linear model (and an extended one) "
+                           "at an operating point: poles, margins, DC gains, and its Bode "
+                           "plot beside the simulated frequency response", _cmd_linear))
     return parser
 
 
@@ -205,6 +214,22 @@ def _add_view_parser(add) -> None:
     p.add_argument("--duration", type=float, metavar="S",
                    help="close after this much simulated time [s] (default: when the "
                         "window is closed)")
+
+
+def _add_linear_parser(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--load", type=float, default=100.0, metavar="N",
+                   help="hanging load [N] (default: 100)")
+    p.add_argument("--contraction", type=float, default=SINE_MEAN_MM, metavar="MM",
+                   help=f"operating contraction [mm] (default: {SINE_MEAN_MM:g}, the mean "
+                        "the simulated sweeps always run about)")
+    p.add_argument("--amplitudes", type=_float_list, default=None, metavar="MM,MM",
+                   help="amplitudes of the simulated sweeps [mm] (default: the paper's 25 "
+                        "and a small one, 5)")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object (operating point, poles, margins, DC gains, "
+                        "comparison rows) on stdout")
+    p.add_argument("--out", type=Path, metavar="DIR",
+                   help="output folder (default: out/linear under the current folder)")
 
 
 # ------------------------------------------------------------------ helpers
@@ -333,10 +358,16 @@ def _cmd_table2(args: argparse.Namespace) -> int:
     return 0
 
 
+def _amplitude(name: str, mm: float) -> float:
+    """A sine amplitude [m] from mm: the target must stay at or above 0 mm."""
+    return check_range(name, mm, 0.0, SINE_MEAN_MM, "mm", lo_open=True) * MM
+
+
 def _cmd_sweep(args: argparse.Namespace) -> int:
     summaries, writers = _output_modules()
     run = _run_options(args)
     loads = _loads(args.loads)
+    amplitude = _amplitude("--amplitude", args.amplitude)
     freqs = tuple(SineSpec(f).freq for f in args.freqs)
     controllers = tuple(check_control(c) for c in args.controllers)
     if not controllers:
@@ -344,7 +375,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     out = _out_dir(args)
     key = studies.figure_run_key(loads, freqs, controllers)
     sw = studies.sweep(run.params, loads, freqs, controllers, keep=[key], dt=run.dt,
-                       jobs=run.jobs, progress=run.progress)
+                       jobs=run.jobs, progress=run.progress, amplitude=amplitude)
     po_cap = run.params.controller.po_cap
     written = writers.write_sweep_outputs(out, sw, key, po_cap)
     if args.json:
@@ -352,6 +383,27 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     else:
         print(summaries.sweep_text(sw))
         print(summaries.checks_text(paper.sweep_checks(sw, po_cap)))
+        _wrote(written)
+    return 0
+
+
+def _cmd_linear(args: argparse.Namespace) -> int:
+    from wpam_mj import linear_study, plots  # noqa: PLC0415 (python-control, matplotlib: slow)
+    run = _run_options(args)
+    load = check_load(args.load)
+    amplitudes = tuple(_amplitude("--amplitudes", a) for a in
+                       (args.amplitudes or linear_study.AMPLITUDES_MM))
+    out = _out_dir(args)
+    (cmp,) = linear_study.compare(run.params, (load,), contraction=args.contraction * MM,
+                                  amplitudes=amplitudes, dt=run.dt, jobs=run.jobs,
+                                  progress=run.progress)
+    stem = f"linear_{load:g}N"
+    written = [plots.save_figure(cmp.plot(), out / f"{stem}.png"),
+               write_text_atomic(out / f"{stem}.csv", cmp.csv_text())]
+    if args.json:
+        _print_json(cmp.as_json())
+    else:
+        print(cmp.text())
         _wrote(written)
     return 0
 

@@ -243,7 +243,7 @@ def sweep_figure(sw: SweepResult) -> Figure:
     for ax in (ax_g, ax_ph):
         ax.grid(alpha=0.3)
     ax_g.legend(fontsize=8, ncol=2)
-    fig.suptitle("Frequency response, 25 mm amplitude about 25 mm")
+    fig.suptitle(f"Frequency response, {sw.amplitude / MM:g} mm amplitude about 25 mm")
     return fig
 
 

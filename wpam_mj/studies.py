@@ -23,7 +23,8 @@ from wpam_mj.control import check_control
 from wpam_mj.experiments import STATIC_RAMP_S, SineSpec, check_po, sine_run, static_loop, step_run
 from wpam_mj.model import check_dt, check_load
 from wpam_mj.paper import (FIG18_FREQ_HZ, FIG18_LOAD_N, LOADS_N, PO_DOWN_STATIC_MPA,
-                           STEP_HOLD_S, STEP_LEVELS_MM, SWEEP_CONTROLLERS, SWEEP_FREQS_HZ)
+                           SINE_AMPLITUDE_MM, STEP_HOLD_S, STEP_LEVELS_MM, SWEEP_CONTROLLERS,
+                           SWEEP_FREQS_HZ)
 from wpam_mj.params import MM, MPA, Params, ParameterError
 from wpam_mj.pool import Batch, run_batches, run_tasks
 from wpam_mj.results import SimResult
@@ -152,13 +153,14 @@ class SineTask:
     freq: float
     dt: float
     keep: bool  # send the time series back (for a figure)
+    amplitude: float = SINE_AMPLITUDE_MM * MM  # m
 
     @property
     def cost(self) -> float:
         return SineSpec(self.freq).duration / self.dt
 
     def run(self) -> tuple[SweepPoint, SimResult | None]:
-        spec = SineSpec(self.freq)
+        spec = SineSpec(self.freq, amplitude=self.amplitude)
         r = sine_run(self.params, self.load, self.controller, spec, dt=self.dt)
         fr = frequency_response(r.time, r.x_ref, r.x, self.freq,
                                 settle_cycles=spec.settle_cycles, n_cycles=spec.cycles)
@@ -187,8 +189,10 @@ def figure_run_key(loads: Sequence[float], freqs: Sequence[float],
 def sweep(params: Params, loads: Iterable[float] = LOADS_N,
           freqs: Iterable[float] = SWEEP_FREQS_HZ,
           controllers: Iterable[str] = SWEEP_CONTROLLERS, *, keep: Iterable[SweepKey] | None = None,
-          dt: float = 1e-3, jobs: int = 1, progress: bool = False) -> SweepResult:
-    """Sinusoidal-target runs (25 mm about 25 mm, `SineSpec`) for every combination.
+          dt: float = 1e-3, jobs: int = 1, progress: bool = False,
+          amplitude: float = SINE_AMPLITUDE_MM * MM) -> SweepResult:
+    """Sinusoidal-target runs (`amplitude` [m], default 25 mm, about 25 mm, `SineSpec`)
+    for every combination.
 
     Args:
       loads: hanging loads [N]; freqs: target frequencies [Hz]; controllers: "pi", "pid"
@@ -196,25 +200,28 @@ def sweep(params: Params, loads: Iterable[float] = LOADS_N,
       keep: (load, freq, controller) runs whose time series to return; default: the
         `figure_run_key` run.
     """
-    batch = sweep_batch(params, loads, freqs, controllers, keep=keep, dt=dt)
+    batch = sweep_batch(params, loads, freqs, controllers, keep=keep, dt=dt,
+                        amplitude=amplitude)
     return run_batches([batch], jobs=jobs, progress=progress, desc="sweep")[0]
 
 
 def sweep_batch(params: Params, loads: Iterable[float] = LOADS_N,
                 freqs: Iterable[float] = SWEEP_FREQS_HZ,
                 controllers: Iterable[str] = SWEEP_CONTROLLERS, *,
-                keep: Iterable[SweepKey] | None = None, dt: float = 1e-3) -> Batch:
+                keep: Iterable[SweepKey] | None = None, dt: float = 1e-3,
+                amplitude: float = SINE_AMPLITUDE_MM * MM) -> Batch:
     """The runs of `sweep` as a `Batch` (to share a pool with other studies)."""
     loads, dt = _check_loads(loads), check_dt(dt)
-    freqs = tuple(SineSpec(f).freq for f in freqs)  # validates each
+    freqs = tuple(SineSpec(f, amplitude=amplitude).freq for f in freqs)  # validates each
     controllers = tuple(check_control(c) for c in controllers)
     if not freqs or not controllers:
         raise ParameterError("sweep needs at least one frequency and one controller")
     keep = {figure_run_key(loads, freqs, controllers)} if keep is None else set(keep)
-    tasks = [SineTask(params, load, c, f, dt, (load, f, c) in keep)
+    tasks = [SineTask(params, load, c, f, dt, (load, f, c) in keep, amplitude)
              for load in loads for c in controllers for f in freqs]
 
     def assemble(res: list) -> SweepResult:
         series = {(p.load, p.freq, p.controller): r for p, r in res if r is not None}
-        return SweepResult(points=tuple(p for p, _ in res), series=series)
+        return SweepResult(points=tuple(p for p, _ in res), series=series,
+                           amplitude=amplitude)
     return Batch(tasks, assemble)

@@ -14,7 +14,8 @@ from typing import Mapping
 import numpy as np
 
 from wpam_mj.analysis import loop_area
-from wpam_mj.paper import PO_DOWN_STATIC_MPA, STEP_HOLD_S, TABLE2, TABLE2_SOURCE
+from wpam_mj.paper import (PO_DOWN_STATIC_MPA, SINE_AMPLITUDE_MM, STEP_HOLD_S, TABLE2,
+                           TABLE2_SOURCE)
 from wpam_mj.params import MM, MPA
 from wpam_mj.results import SimResult
 
@@ -181,10 +182,12 @@ SweepKey = tuple[float, float, str]  # (load [N], freq [Hz], controller)
 
 @dataclass(frozen=True)
 class SweepResult:
-    """Points in (load, freq, controller) loop order; `series` holds the kept runs."""
+    """Points in (load, freq, controller) loop order; `series` holds the kept runs;
+    amplitude: of the sinusoidal target [m]."""
 
     points: tuple[SweepPoint, ...]
     series: Mapping[SweepKey, SimResult] = field(default_factory=dict)
+    amplitude: float = SINE_AMPLITUDE_MM * MM
 
     def as_json(self) -> list[dict]:
         return [p.as_json() for p in self.points]

@@ -1,0 +1,213 @@
+"""Linear models (paper §3): the transfer functions of eqs. 13-14, an operating point that
+follows the nonlinear model, and where the simulation agrees with the model and where it
+parts from it (`wpam linear`, `wpam sweep --amplitude`)."""
+
+import dataclasses
+import json
+import math
+
+import control as ct
+import numpy as np
+import pytest
+
+from wpam_mj import linear, linear_study
+from wpam_mj import pneumatics as pn
+from wpam_mj.cli import main
+from wpam_mj.muscle import MuscleModel
+from wpam_mj.params import MM, STANDARD_GRAVITY, preset
+
+X_OP = 25 * MM
+
+
+@pytest.fixture(scope="module")
+def params():
+    return preset("wpam")
+
+
+@pytest.fixture(scope="module")
+def op150(params):
+    return linear.operating_point(params, 150.0, X_OP)
+
+
+def _coefficients(sys):
+    """Numerator and denominator of a SISO transfer function, divided by the leading
+    denominator coefficient, leading zeros dropped."""
+    tf = ct.tf(sys)
+    num, den = np.trim_zeros(tf.num[0][0], "f"), np.trim_zeros(tf.den[0][0], "f")
+    return num / den[0], den / den[0]
+
+
+# ------------------------------------------------------------------ paper §3, eqs. 13-14
+
+
+@pytest.mark.parametrize("control", ["pi", "pid"])
+def test_paper_transfer_functions_match_eqs_13_14(params, op150, control):
+    """Hand-computed for m = 12 kg, c = 300 N s/m, A_o = 2e-3 m^2 and the paper's gains
+    read in MPa/mm: Kp = 1e8 Pa/m, Ki = 8e6 Pa/(m s), Kd = 4e6 Pa s/m."""
+    op = dataclasses.replace(op150, mass=12.0, damping=300.0, po_area=2e-3)
+    loop = linear.paper_model(params, op, control)
+    a_kp, a_ki, a_kd = 2e-3 * 1e8, 2e-3 * 8e6, 2e-3 * 4e6  # A_o Kp, A_o Ki, A_o Kd
+    if control == "pi":
+        num_yr = [a_kp, a_ki]
+        den = [12.0, 300.0, a_kp, a_ki]
+    else:
+        num_yr = [a_kd, a_kp, a_ki]
+        den = [12.0, 300.0 + a_kd, a_kp, a_ki]
+    den = np.array(den) / 12.0
+    num, got_den = _coefficients(loop.g_yr)
+    np.testing.assert_allclose(num, np.array(num_yr) / 12.0, rtol=1e-12, err_msg="G_yr num")
+    np.testing.assert_allclose(got_den, den, rtol=1e-12, err_msg="G_yr den")
+    num, got_den = _coefficients(loop.g_yd)
+    np.testing.assert_allclose(num, [1.0 / 12.0, 0.0], rtol=1e-12, atol=1e-30,
+                               err_msg="G_yd num")
+    np.testing.assert_allclose(got_den, den, rtol=1e-12, err_msg="G_yd den")
+
+
+@pytest.mark.parametrize("model", linear.MODELS)
+@pytest.mark.parametrize("control", linear.CONTROLLERS)
+@pytest.mark.parametrize("load", [50.0, 100.0, 150.0])
+def test_type_1_loop_tracks_and_rejects_at_dc(params, model, control, load):
+    """Integral action: no steady-state error (G_yr(0) = 1) and a constant force moves
+    nothing (G_yd(0) = 0), in both models."""
+    g_yr0, g_yd0 = linear.linear_loop(params, load, X_OP, control, model).dc_gains()
+    assert g_yr0 == pytest.approx(1.0, abs=1e-9), f"G_yr(0) = {g_yr0}"
+    assert abs(g_yd0) < 1e-12, f"G_yd(0) = {g_yd0} m/N"
+
+
+def test_paper_model_is_stable_with_the_paper_gains(params):
+    """The §3 loop with m, c and A_o from the model: stable with a finite phase margin."""
+    for control in linear.CONTROLLERS:
+        lp = linear.linear_loop(params, 100.0, X_OP, control)
+        assert lp.stable, lp.poles()
+        assert 0.0 < lp.margins()["phase_margin_deg"] < 180.0
+
+
+# ------------------------------------------------------------------ operating point
+
+
+def test_operating_point_comes_from_the_nonlinear_model(params, op150):
+    muscle = MuscleModel.from_params(params)
+    assert op150.mass == pytest.approx(150.0 / STANDARD_GRAVITY, rel=1e-9)  # MuJoCo inertia
+    assert op150.damping == params.muscle.damping
+    assert op150.po == params.controller.po_feedforward
+    # the loop rests there: frictionless tension equals the load
+    assert muscle.tension(X_OP, op150.pi, op150.po) == pytest.approx(150.0, rel=1e-9)
+    # A_o predicts the tension change of a 1 kPa step of Po
+    d_tension = muscle.tension(X_OP, op150.pi, op150.po + 1e3) - 150.0
+    assert d_tension == pytest.approx(-op150.po_area * 1e3, rel=1e-6)
+    assert op150.stiffness > 0.0  # the braid's force falls as it shortens: a spring
+
+
+def test_operating_point_follows_the_parameters(params, op150):
+    """A larger end-fitting area adds to A_o one for one; a heavier damper raises c."""
+    changed = params.replace(muscle={"axial_area": params.muscle.axial_area + 1e-4,
+                                     "damping": 2 * params.muscle.damping})
+    op = linear.operating_point(changed, 150.0, X_OP)
+    assert op.po_area - op150.po_area == pytest.approx(1e-4, rel=1e-5)
+    assert op.damping == pytest.approx(2 * op150.damping)
+
+
+def test_chamber_linearisation_matches_the_flow_law(params, op150):
+    """The outer chamber follows its regulator with tau = V / (R T0 g); a 100 Pa step of the
+    set pressure gives the flow the linear slope predicts, to 1e-6."""
+    ch = op150.outer
+    flow = pn.mass_flow(ch.pressure + 100.0, ch.pressure,
+                               params.pneumatics.outer_conductance,
+                               params.pneumatics.critical_ratio)
+    assert flow == pytest.approx(ch.set_slope * 100.0, rel=1e-6)
+    assert ch.volume_slope < 0.0 < op150.inner.volume_slope  # contraction squeezes the outer bag
+    assert 0.0 < ch.time_constant < 1.0
+
+
+def test_extended_model_reduces_to_the_paper_model_with_fast_pneumatics(params):
+    """Instant regulators and a wide line leave the mass-damper loop of §3 (plus the small
+    braid stiffness): the dominant PI poles move by < 5 %."""
+    fast = params.replace(pneumatics={"time_constant": 0.0, "dead_time": 0.0,
+                                      "inner_conductance": 1e-6, "outer_conductance": 1e-6})
+    paper = linear.linear_loop(fast, 150.0, X_OP, "pi", "paper")
+    ext = linear.linear_loop(fast, 150.0, X_OP, "pi", "extended")
+    assert ext.stable
+
+    def dominant(lp):
+        return max((p for p in lp.poles() if p.imag > 0), key=lambda p: p.real)
+    assert abs(dominant(ext) - dominant(paper)) < 0.05 * abs(dominant(paper))
+
+
+def test_extended_model_loses_stability_through_the_outer_chamber(params, op150):
+    """With the line as calibrated the outer chamber's lag takes the phase margin below 0:
+    the model is unstable, and the simulation's Po limit cycle is what holds it."""
+    lp = linear.extended_model(params, op150, "pi")
+    assert not lp.stable
+    assert lp.margins()["phase_margin_deg"] < 0.0
+
+
+# ------------------------------------------------------------------ model vs simulation
+
+
+@pytest.fixture(scope="module")
+def cmp150(params):
+    """150 N, PI, 0.25 Hz at a friction-bound, a small and the paper's amplitude."""
+    (c,) = linear_study.compare(params, (150.0,), amplitudes=(0.5 * MM, 5 * MM, 25 * MM),
+                                freqs=(0.25,), controllers=("pi",))
+    return c
+
+
+def test_simulation_agrees_with_the_linear_model_at_small_amplitude(cmp150):
+    ag = cmp150.agreement(5 * MM, freqs=(0.25,))
+    assert ag["agrees"], ag
+
+
+def test_limit_velocity_parts_them_at_the_paper_amplitude(cmp150):
+    """At 25 mm the simulated lag exceeds the model's by more than the tolerance."""
+    ag = cmp150.agreement(25 * MM, freqs=(0.25,))
+    assert ag["worst_lag_deg"] > linear_study.LAG_TOL_DEG, ag
+
+
+def test_friction_parts_them_at_tiny_amplitude(cmp150):
+    """At 0.5 mm stiction eats part of the stroke: the gain falls by more than 1 dB."""
+    (row,) = [r for r in cmp150.rows() if r["amplitude_mm"] == pytest.approx(0.5)]
+    assert row["paper_diff_db"] < -linear_study.GAIN_TOL_DB, row
+
+
+# ------------------------------------------------------------------ command line
+
+
+def test_wpam_linear_writes_plot_csv_and_json(tmp_path, capsys):
+    code = main(["linear", "--load", "150", "--amplitudes", "5", "--out", str(tmp_path),
+                 "--jobs", "1", "--json"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    doc = json.loads(out)
+    assert doc["operating_point"]["load_n"] == 150.0
+    assert {(m["model"], m["controller"]) for m in doc["models"]} == \
+        {(m, c) for m in linear.MODELS for c in linear.CONTROLLERS}
+    assert all(m["g_yr_dc"] == pytest.approx(1.0) for m in doc["models"])
+    assert len(doc["comparison"]) == 10  # 2 controllers x the paper's 5 frequencies
+    assert (tmp_path / "linear_150N.png").stat().st_size > 0
+    assert (tmp_path / "linear_150N.csv").read_text().count("\n") == 11
+
+
+@pytest.mark.parametrize("argv", [["linear", "--amplitudes", "30"],
+                                  ["linear", "--contraction", "80"],
+                                  ["linear", "--load", "1000", "--contraction", "0.5"],
+                                  ["sweep", "--amplitude", "0"]])
+def test_bad_linear_arguments_exit_2_with_one_line(argv, capsys, tmp_path):
+    code = main([*argv, "--out", str(tmp_path)])
+    _, err = capsys.readouterr()
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert "Traceback" not in err
+
+
+def test_sweep_amplitude_changes_the_run(tmp_path, capsys):
+    """The same point at 5 mm and at 25 mm: the small stroke is not rate-limited."""
+    lags = {}
+    for amp in (5, 25):
+        code = main(["sweep", "--loads", "150", "--freqs", "0.5", "--controllers", "pi",
+                     "--amplitude", str(amp), "--json", "--jobs", "1",
+                     "--out", str(tmp_path / str(amp))])
+        out, err = capsys.readouterr()
+        assert code == 0, err
+        (point,) = json.loads(out)
+        lags[amp] = point["phase_lag_deg"]
+    assert lags[5] < lags[25] - 20.0, lags
+    assert math.isfinite(lags[5])
