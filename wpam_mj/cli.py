@@ -8,6 +8,7 @@ Subcommands (each has --help):
   reproduce  all of the above into one folder with report.md
   calibrate  fit the parameters the paper does not give
   render     offscreen video of a simulated run
+  study      a design-space study from a study file, on local processes or Dask
 
 Units at this edge: loads in N, pressures in MPa, lengths in mm, times in s, frequencies
 in Hz (the library is SI inside). Exit status: 0 success, 1 the run failed (simulation
@@ -190,7 +191,31 @@ def build_parser() -> argparse.ArgumentParser:
                    help="frame size [px] (default: 640x480)")
     p.add_argument("--out", type=Path, metavar="FILE.mp4|FILE.gif",
                    help="video file (default: out/render/<experiment>.mp4)")
+    _add_study_parser(sub)
     return parser
+
+
+def _add_study_parser(sub) -> None:
+    from wpam_mj.executors import SCHEDULER_ENV  # noqa: PLC0415 (keeps the study code together)
+    p = sub.add_parser("study", help="a design-space study: the runs of a study file "
+                       "(grid, list, random or Latin-hypercube sample), one table row each",
+                       description="Run a study file (see examples/ and the README) and "
+                       "write study.csv (+ study.parquet with pyarrow) and plots/.")
+    p.set_defaults(handler=_cmd_study)
+    p.add_argument("spec", type=Path, metavar="SPEC.toml", help="the study file")
+    p.add_argument("--out", type=Path, metavar="DIR",
+                   help="output folder (default: out/study/<SPEC name>)")
+    p.add_argument("--jobs", type=int, default=studies.default_jobs(), metavar="N",
+                   help="local worker processes [count] (default: the number of CPUs, "
+                        f"{studies.default_jobs()}); results do not depend on it")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run on the Dask cluster of this scheduler, e.g. tcp://host:8786 "
+                        f"(default: ${SCHEDULER_ENV} if set, else local processes)")
+    p.add_argument("--resume", action="store_true",
+                   help="keep the runs an interrupted study in --out has finished")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="progress bar with time left on stderr (default: when stderr is a "
+                        "terminal)")
 
 
 # ------------------------------------------------------------------ helpers
@@ -403,6 +428,23 @@ def _cmd_render(args: argparse.Namespace) -> int:
     except RuntimeError as err:
         raise RunFailed(str(err)) from None
     print(f"wrote {path} ({result.time[-1]:.2f} s of simulated time)")
+    return 0
+
+
+def _cmd_study(args: argparse.Namespace) -> int:
+    from wpam_mj import study, study_plots  # noqa: PLC0415 (matplotlib only when needed)
+    from wpam_mj.executors import open_workers  # noqa: PLC0415
+    spec = study.load_spec(args.spec)
+    out = _writable_dir(args.out if args.out is not None
+                        else Path("out") / "study" / args.spec.stem)
+    progress = sys.stderr.isatty() if args.progress is None else args.progress
+    start = time.perf_counter()
+    with open_workers(studies.check_jobs(args.jobs), args.scheduler) as workers:
+        res = study.run_study(spec, out, workers, resume=args.resume, progress=progress)
+    flagged = sum(r["diverged"] or r["infeasible"] for r in res.rows)
+    print(f"{len(res.rows)} runs ({res.ran} run now on {workers.where}, {res.reused} "
+          f"resumed, {flagged} diverged or infeasible) in {time.perf_counter() - start:.1f} s")
+    _wrote([*res.files, *study_plots.save_study_plots(spec, res.rows, out / "plots")])
     return 0
 
 
