@@ -76,14 +76,14 @@ _SECTIONS = {f.name: type(getattr(Params(), f.name)) for f in dataclasses.fields
 TASKS_PER_SLOT = 8
 MAX_TASK_STEPS = 1_000_000
 
-# Run inputs other than model parameters: (default, unit, display scale, experiments).
-_RUN_INPUTS: dict[str, tuple[Any, str, float, tuple[str, ...]]] = {
-    "load": (100.0, "N", 1.0, EXPERIMENTS),
-    "controller": ("pi", "", 1.0, ("step", "sine")),
-    "frequency": (0.5, "Hz", 1.0, ("sine",)),
-    "amplitude": (SineSpec(1.0).amplitude, "m", 1 / MM, ("sine",)),
-    "duration": (STEP_DURATION_S, "s", 1.0, ("step",)),
-    "po_down": (None, "Pa", 1 / MPA, ("static", "table2")),  # None: per experiment
+# Run inputs other than model parameters: (default [SI], unit, experiments that take it).
+_RUN_INPUTS: dict[str, tuple[Any, str, tuple[str, ...]]] = {
+    "load": (100.0, "N", EXPERIMENTS),
+    "controller": ("pi", "", ("step", "sine")),
+    "frequency": (0.5, "Hz", ("sine",)),
+    "amplitude": (SineSpec(1.0).amplitude, "m", ("sine",)),
+    "duration": (STEP_DURATION_S, "s", ("step",)),
+    "po_down": (None, "Pa", ("static", "table2")),  # None: per experiment
 }
 _PO_DOWN_DEFAULT = {"static": 0.0, "table2": PO_DOWN_STATIC_MPA * MPA}
 _DISPLAY_UNITS = {"Pa": ("MPa", 1 / MPA), "m": ("mm", 1 / MM)}  # SI -> display
@@ -148,14 +148,11 @@ def _param_field(name: str) -> dataclasses.Field:
 
 def input_column(name: str) -> Column:
     """The table column of a study input (display units)."""
-    if name in _RUN_INPUTS:
-        unit = _RUN_INPUTS[name][1]
-        scale = _RUN_INPUTS[name][2]
-    else:
-        unit, scale = _param_field(name).metadata["unit"], 1.0
-    shown, factor = _DISPLAY_UNITS.get(unit, (unit, 1.0))
+    unit = _RUN_INPUTS[name][1] if name in _RUN_INPUTS else \
+        _param_field(name).metadata["unit"]
+    shown, scale = _DISPLAY_UNITS.get(unit, (unit, 1.0))
     label = name if shown in ("", "1") else f"{name} [{shown}]"
-    return Column(name, name + _unit_suffix(shown), scale * factor, label)
+    return Column(name, name + _unit_suffix(shown), scale, label)
 
 
 @dataclass(frozen=True)
@@ -183,7 +180,7 @@ class StudySpec:
         remaining run inputs at their defaults."""
         names = dict.fromkeys((*self.varied, *self.fixed))
         names.update(dict.fromkeys(k for k, v in _RUN_INPUTS.items()
-                                   if self.experiment in v[3]))
+                                   if self.experiment in v[2]))
         return tuple(names)
 
     @property
@@ -235,8 +232,8 @@ def _check_value(name: str, value: Any, experiment: str, base: Params) -> Any:
 
 
 def _allowed(name: str, experiment: str) -> None:
-    if name in _RUN_INPUTS and experiment not in _RUN_INPUTS[name][3]:
-        users = ", ".join(_RUN_INPUTS[name][3])
+    if name in _RUN_INPUTS and experiment not in _RUN_INPUTS[name][2]:
+        users = ", ".join(_RUN_INPUTS[name][2])
         raise ParameterError(f"{name} is not an input of the {experiment} experiment "
                              f"(only of {users})")
     if name not in _RUN_INPUTS:
@@ -570,7 +567,7 @@ def run_study(spec: StudySpec, out: str | Path, workers: Workers, *, resume: boo
     """
     out = Path(out)
     base = _params_for(preset(spec.preset), spec.fixed)  # fixed parameters: once
-    defaults = {k: v[0] for k, v in _RUN_INPUTS.items() if spec.experiment in v[3]}
+    defaults = {k: v[0] for k, v in _RUN_INPUTS.items() if spec.experiment in v[2]}
     if "po_down" in defaults:
         defaults["po_down"] = _PO_DOWN_DEFAULT[spec.experiment]
     inputs = [{**run, **{k: v for k, v in spec.fixed.items()},
