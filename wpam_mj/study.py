@@ -86,7 +86,7 @@ _RUN_INPUTS: dict[str, tuple[Any, str, tuple[str, ...]]] = {
     "po_down": (None, "Pa", ("static", "table2")),  # None: per experiment
 }
 _PO_DOWN_DEFAULT = {"static": 0.0, "table2": PO_DOWN_STATIC_MPA * MPA}
-_DISPLAY_UNITS = {"Pa": ("MPa", 1 / MPA), "m": ("mm", 1 / MM)}  # SI -> display
+_DISPLAY_UNITS = {"Pa": ("MPa", MPA), "m": ("mm", MM)}  # display unit, SI per display unit
 
 # Metric columns per experiment: (column, axis label).
 _METRICS = {
@@ -116,15 +116,26 @@ def metric_labels(experiment: str) -> tuple[tuple[str, str], ...]:
 
 @dataclass(frozen=True)
 class Column:
-    """One input column: spec name, table column, SI -> display scale, axis label."""
+    """One input column: spec name, table column, SI per display unit, display unit."""
 
     name: str
     column: str
-    scale: float
-    label: str
+    unit: float
+    shown: str
+
+    @property
+    def label(self) -> str:
+        """Axis label: "controller.po_cap [MPa]"."""
+        return self.name if self.shown in ("", "1") else f"{self.name} [{self.shown}]"
+
+    def describe(self, value: Any) -> str:
+        """Legend text of one value: "load = 50 N"."""
+        text = value if isinstance(value, str) else f"{value:g}"
+        return f"{self.name} = {text}" + ("" if self.shown in ("", "1") else f" {self.shown}")
 
     def display(self, value: Any) -> Any:
-        return value if isinstance(value, str) else value * self.scale
+        # a division, so that round SI values stay round: 8e4 Pa / 1e6 = 0.08 MPa
+        return value if isinstance(value, str) else value / self.unit
 
 
 def _unit_suffix(unit: str) -> str:
@@ -150,9 +161,8 @@ def input_column(name: str) -> Column:
     """The table column of a study input (display units)."""
     unit = _RUN_INPUTS[name][1] if name in _RUN_INPUTS else \
         _param_field(name).metadata["unit"]
-    shown, scale = _DISPLAY_UNITS.get(unit, (unit, 1.0))
-    label = name if shown in ("", "1") else f"{name} [{shown}]"
-    return Column(name, name + _unit_suffix(shown), scale, label)
+    shown, per = _DISPLAY_UNITS.get(unit, (unit, 1.0))
+    return Column(name, name + _unit_suffix(shown), per, shown)
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ def _preset_value(spec: StudySpec, name: str) -> float | None:
     if "." not in name:
         return None
     section, key = name.split(".", 1)
-    return getattr(getattr(preset(spec.preset), section), key) * input_column(name).scale
+    return input_column(name).display(getattr(getattr(preset(spec.preset), section), key))
 
 
 def study_figure(spec: StudySpec, rows: Sequence[Mapping[str, Any]], name: str) -> Figure:
@@ -52,8 +52,7 @@ def study_figure(spec: StudySpec, rows: Sequence[Mapping[str, Any]], name: str) 
         for key in keys:
             mine = [r for r in ok if group is None or r[group.column] == key]
             mine.sort(key=x_of)
-            kw = {"label": f"{group.label} = {key:g}" if group and not isinstance(key, str)
-                  else f"{group.label} = {key}" if group else None}
+            kw = {"label": group.describe(key) if group else None}
             ax.plot([x_of(r) for r in mine], [r[metric] for r in mine],
                     "o" if marker_only else "o-", ms=3 if group is None else 4, **kw)
         ref = _preset_value(spec, name)
