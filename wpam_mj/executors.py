@@ -60,12 +60,12 @@ def _dask_executor(address: str) -> Iterator[Workers]:
     try:
         from distributed import Client  # noqa: PLC0415 (optional dependency)
     except ImportError:
-        raise ParameterError(f"--scheduler {address}: Dask distributed is not installed; "
+        raise ParameterError(f"Dask scheduler {address}: Dask distributed is not installed; "
                              'pip install ".[cluster]"') from None
     try:
         client = Client(address, timeout=CONNECT_TIMEOUT_S)
     except (OSError, ValueError) as err:  # TimeoutError is an OSError
-        raise ParameterError(f"--scheduler {address}: cannot connect to a Dask scheduler "
+        raise ParameterError(f"Dask scheduler {address}: cannot connect "
                              f"({' '.join(str(err).split())})") from None
     try:
         info = client.scheduler_info()

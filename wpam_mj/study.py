@@ -326,8 +326,9 @@ def parse_spec(data: Mapping[str, Any], where: str = "study") -> StudySpec:
 
 def load_spec(path: str | Path) -> StudySpec:
     """Read and validate a study file."""
+    data = load_toml(path)  # its errors name the file
     try:
-        return parse_spec(load_toml(path), str(path))
+        return parse_spec(data, str(path))
     except ParameterError as err:
         msg = str(err)
         raise ParameterError(msg if msg.startswith(str(path)) else f"{path}: {msg}") from None
