@@ -32,7 +32,8 @@ def _run(tmp_path, name, workers, spec=SMALL, **kw):
 
 
 def _bytes(path):
-    return (path / "study.csv").read_bytes(), (path / "study.parquet").read_bytes()
+    """The table files (study.csv, and study.parquet when pyarrow is installed)."""
+    return {p.name: p.read_bytes() for p in path.glob("study.*")}
 
 
 def test_grid_order_and_list_pairs():
@@ -131,6 +132,7 @@ def test_resume_redoes_only_missing_runs_and_ends_with_the_same_table(tmp_path):
     again = _run(tmp_path, "out", workers, resume=True)
     assert (again.ran, again.reused) == (2, 4)
     assert _bytes(tmp_path / "out") == before and again.rows == full.rows
+    assert "study.csv" in before
     changed = {**SMALL, "fixed": {"duration": 3.3}}
     with pytest.raises(ParameterError, match="different study"):
         _run(tmp_path, "out", workers, changed, resume=True)
@@ -168,3 +170,11 @@ def test_cli_study_writes_table_and_plots(tmp_path, capsys):
     assert main(["study", str(spec), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "load = 0.5" in err
+
+
+def test_without_pyarrow_the_table_is_csv_only(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "pyarrow", None)
+    res = _run(tmp_path, "out", Workers(None, 1, "here"), {**SMALL, "vary": {
+        "method": "grid", "values": {"load": [80.0]}}})
+    assert [p.name for p in res.files] == ["study.csv"]
+    assert not (tmp_path / "out" / "study.parquet").exists()
