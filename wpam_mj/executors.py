@@ -68,8 +68,7 @@ def _dask_executor(address: str) -> Iterator[Workers]:
         raise ParameterError(f"Dask scheduler {address}: cannot connect "
                              f"({' '.join(str(err).split())})") from None
     try:
-        info = client.scheduler_info()
-        slots = sum(w.get("nthreads", 1) for w in info.get("workers", {}).values())
+        slots = sum(client.nthreads().values())  # threads of the workers connected now
         with client.get_executor() as executor:
             yield Workers(executor, max(slots, 1), f"Dask at {address}")
     finally:

@@ -199,8 +199,10 @@ class StudySpec:
                 *(m for m, _ in _METRICS[self.experiment]), *_FLAGS, "error")
 
     def digest(self) -> str:
-        """A fingerprint of everything that defines the runs (for --resume)."""
-        text = json.dumps(dataclasses.asdict(self), sort_keys=True, default=list)
+        """A fingerprint of everything that defines the runs (for --resume; the batch
+        size does not change any result)."""
+        text = json.dumps({**dataclasses.asdict(self), "batch_size": None}, sort_keys=True,
+                          default=list)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -218,7 +220,7 @@ def _flatten(table: Mapping[str, Any], where: str) -> dict[str, Any]:
     return out
 
 
-def _check_value(name: str, value: Any, experiment: str, base: Params) -> Any:
+def _check_value(name: str, value: Any, base: Params) -> Any:
     """One input value [SI], checked against its allowed range; returns it as used."""
     if name == "controller":
         if not isinstance(value, str):
@@ -293,17 +295,17 @@ def parse_spec(data: Mapping[str, Any], where: str = "study") -> StudySpec:
                              f"not {method}")
     for k in fixed:
         _allowed(k, experiment)
-        fixed[k] = _check_value(k, fixed[k], experiment, base)
+        fixed[k] = _check_value(k, fixed[k], base)
     for k, vals in values.items():
         _allowed(k, experiment)
         if not isinstance(vals, list) or not vals:
             raise ParameterError(f"{where}: vary.values.{k} must be a non-empty list")
-        values[k] = tuple(_check_value(k, v, experiment, base) for v in vals)
+        values[k] = tuple(_check_value(k, v, base) for v in vals)
     for k, span in ranges.items():
         _allowed(k, experiment)
         if k == "controller" or not isinstance(span, list) or len(span) != 2:
             raise ParameterError(f"{where}: vary.ranges.{k} must be [low, high] numbers")
-        lo, hi = (_check_value(k, v, experiment, base) for v in span)
+        lo, hi = (_check_value(k, v, base) for v in span)
         if not lo < hi:
             raise ParameterError(f"{where}: vary.ranges.{k} = {span}: low must be below high")
         ranges[k] = (lo, hi)
@@ -430,9 +432,10 @@ def run_metrics(experiment: str, params: Params, inputs: Mapping[str, Any],
 class RunBatch:
     """A task of consecutive runs; `run()` returns their table rows (display units)."""
 
-    base: Params
+    base: Params  # the preset with the study's fixed parameters
     experiment: str
     dt: float
+    varied: tuple[str, ...]  # the inputs that differ from run to run
     runs: tuple[tuple[int, Mapping[str, Any]], ...]  # (run number, inputs [SI])
 
     def run(self) -> list[dict[str, Any]]:
@@ -446,8 +449,8 @@ class RunBatch:
         flags = dict.fromkeys(_FLAGS, False)
         error = ""
         try:
-            metrics.update(run_metrics(self.experiment, _params_for(self.base, inputs),
-                                       inputs, self.dt))
+            params = _params_for(self.base, {k: inputs[k] for k in self.varied})
+            metrics.update(run_metrics(self.experiment, params, inputs, self.dt))
         except SimulationDiverged as err:
             flags["diverged"], error = True, str(err)
         except ParameterError as err:
@@ -591,7 +594,7 @@ def run_study(spec: StudySpec, out: str | Path, workers: Workers, *, resume: boo
     done = _finished(parts, kinds)
     todo = [(i, r) for i, r in enumerate(inputs) if i not in done]
     size = batch_size(spec, len(todo), workers.slots)
-    batches = [RunBatch(base, spec.experiment, spec.dt, tuple(todo[s:s + size]))
+    batches = [RunBatch(base, spec.experiment, spec.dt, spec.varied, tuple(todo[s:s + size]))
                for s in range(0, len(todo), size)]
     columns = spec.columns
     with tqdm(total=len(inputs), initial=len(done), desc="study", unit="run",
@@ -608,9 +611,6 @@ def run_study(spec: StudySpec, out: str | Path, workers: Workers, *, resume: boo
         else:
             _run_on(workers, batches, finish)
     rows = _finished(parts, kinds)
-    missing = len(inputs) - len(rows)
-    if missing:
-        raise ParameterError(f"{out}: {missing} runs have no result; run again with --resume")
     table = [rows[i] for i in range(len(inputs))]
     return StudyResult(rows=table, files=_write_tables(out, spec, table),
                        ran=sum(len(b.runs) for b in batches), reused=len(done))
