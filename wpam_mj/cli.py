@@ -196,7 +196,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _add_study_parser(sub) -> None:
-    from wpam_mj.executors import SCHEDULER_ENV  # noqa: PLC0415 (keeps the study code together)
+    from wpam_mj.executors import SCHEDULER_ENV  # noqa: PLC0415 (the study's own modules)
     p = sub.add_parser("study", help="a design-space study: the runs of a study file "
                        "(grid, list, random or Latin-hypercube sample), one table row each",
                        description="Run a study file (see examples/ and the README) and "
@@ -432,7 +432,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
-    from wpam_mj import study, study_plots  # noqa: PLC0415 (matplotlib only when needed)
+    from wpam_mj import study  # noqa: PLC0415 (the study's own modules)
     from wpam_mj.executors import open_workers  # noqa: PLC0415
     spec = study.load_spec(args.spec)
     out = _writable_dir(args.out if args.out is not None
@@ -444,7 +444,8 @@ def _cmd_study(args: argparse.Namespace) -> int:
     flagged = sum(r["diverged"] or r["infeasible"] for r in res.rows)
     print(f"{len(res.rows)} runs ({res.ran} run now on {workers.where}, {res.reused} "
           f"resumed, {flagged} diverged or infeasible) in {time.perf_counter() - start:.1f} s")
-    _wrote([*res.files, *study_plots.save_study_plots(spec, res.rows, out / "plots")])
+    from wpam_mj.study_plots import save_study_plots  # noqa: PLC0415 (matplotlib: slow)
+    _wrote([*res.files, *save_study_plots(spec, res.rows, out / "plots")])
     return 0
 
 

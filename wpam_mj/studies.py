@@ -123,7 +123,7 @@ class TaskPool:
             return futures
         if self._pool is None and self._executor is None:
             self._pool = ProcessPoolExecutor(max_workers=self.jobs)
-        pool = self._executor or self._pool
+        pool = self._pool if self._executor is None else self._executor
         for i in sorted(range(len(tasks)), key=lambda i: -tasks[i].cost):
             futures[i] = fut = pool.submit(_execute, tasks[i])
             fut.add_done_callback(lambda _: self._bar.update())
