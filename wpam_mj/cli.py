@@ -10,6 +10,7 @@ Subcommands (each has --help):
   render     offscreen video of a simulated run
   view       MuJoCo's interactive viewer on the muscle, stepped live (needs a display)
   linear     the paper's §3 linear model beside the simulated frequency response
+  study      a design-space study from a study file, on local processes or Dask
 
 Units at this edge: loads in N, pressures in MPa, lengths in mm, times in s, frequencies
 in Hz (the library is SI inside). Exit status: 0 success, 1 the run failed (simulation
@@ -196,6 +197,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_linear_parser(add("linear", "the paper's §3 linear model (and an extended one) "
                            "at an operating point: poles, margins, DC gains, and its Bode "
                            "plot beside the simulated frequency response", _cmd_linear))
+    _add_study_parser(sub)
     return parser
 
 
@@ -230,6 +232,29 @@ def _add_linear_parser(p: argparse.ArgumentParser) -> None:
                         "comparison rows) on stdout")
     p.add_argument("--out", type=Path, metavar="DIR",
                    help="output folder (default: out/linear under the current folder)")
+
+
+def _add_study_parser(sub) -> None:
+    from wpam_mj.executors import SCHEDULER_ENV  # noqa: PLC0415 (the study's own modules)
+    p = sub.add_parser("study", help="a design-space study: the runs of a study file "
+                       "(grid, list, random or Latin-hypercube sample), one table row each",
+                       description="Run a study file (see examples/ and the README) and "
+                       "write study.csv (+ study.parquet with pyarrow) and plots/.")
+    p.set_defaults(handler=_cmd_study)
+    p.add_argument("spec", type=Path, metavar="SPEC.toml", help="the study file")
+    p.add_argument("--out", type=Path, metavar="DIR",
+                   help="output folder (default: out/study/<SPEC name>)")
+    p.add_argument("--jobs", type=int, default=pool.default_jobs(), metavar="N",
+                   help="local worker processes [count] (default: the number of CPUs, "
+                        f"{pool.default_jobs()}); results do not depend on it")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run on the Dask cluster of this scheduler, e.g. tcp://host:8786 "
+                        f"(default: ${SCHEDULER_ENV} if set, else local processes)")
+    p.add_argument("--resume", action="store_true",
+                   help="keep the runs an interrupted study in --out has finished")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="progress bar with time left on stderr (default: when stderr is a "
+                        "terminal)")
 
 
 # ------------------------------------------------------------------ helpers
@@ -478,6 +503,24 @@ def _cmd_view(args: argparse.Namespace) -> int:
         raise RunFailed(str(err)) from None
     if len(trace.time):
         print(f"viewed {trace.time[-1]:.1f} s of simulated time")
+    return 0
+
+
+def _cmd_study(args: argparse.Namespace) -> int:
+    from wpam_mj import study  # noqa: PLC0415 (the study's own modules)
+    from wpam_mj.executors import open_workers  # noqa: PLC0415
+    spec = study.load_spec(args.spec)
+    out = _writable_dir(args.out if args.out is not None
+                        else Path("out") / "study" / args.spec.stem)
+    progress = sys.stderr.isatty() if args.progress is None else args.progress
+    start = time.perf_counter()
+    with open_workers(pool.check_jobs(args.jobs), args.scheduler) as workers:
+        res = study.run_study(spec, out, workers, resume=args.resume, progress=progress)
+    flagged = sum(r["diverged"] or r["infeasible"] for r in res.rows)
+    print(f"{len(res.rows)} runs ({res.ran} run now on {workers.where}, {res.reused} "
+          f"resumed, {flagged} diverged or infeasible) in {time.perf_counter() - start:.1f} s")
+    from wpam_mj.study_plots import save_study_plots  # noqa: PLC0415 (matplotlib: slow)
+    _wrote([*res.files, *save_study_plots(spec, res.rows, out / "plots")])
     return 0
 
 

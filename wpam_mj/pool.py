@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import os
 import sys
-from concurrent.futures import FIRST_EXCEPTION, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_EXCEPTION, Executor, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -43,10 +43,14 @@ class TaskPool:
     queue behind them, so follow-up work (figures of finished runs) keeps the cores busy
     without a second pool. The first failure cancels every task not yet started and is
     re-raised (by `submit` when jobs = 1, else by `results`). Use as a context manager.
+    `executor`: any concurrent.futures.Executor (e.g. Dask's, `wpam_mj.executors`) to
+    run on instead of a pool of its own, whatever `jobs` is; the caller shuts it down.
     """
 
-    def __init__(self, jobs: int = 1, *, progress: bool = False, desc: str = "runs") -> None:
+    def __init__(self, jobs: int = 1, *, progress: bool = False, desc: str = "runs",
+                 executor: Executor | None = None) -> None:
         self.jobs = check_jobs(jobs)
+        self._executor = executor
         self._pool: ProcessPoolExecutor | None = None
         self._submitted: list[Future] = []
         self._bar = tqdm(total=0, desc=desc, unit="run", file=sys.stderr,
@@ -68,16 +72,17 @@ class TaskPool:
         self._bar.total += len(tasks)
         self._bar.refresh()
         futures: list[Future | None] = [None] * len(tasks)
-        if self.jobs == 1:  # a failure propagates at once: nothing else runs
+        if self.jobs == 1 and self._executor is None:  # a failure propagates at once
             for i, task in enumerate(tasks):
                 futures[i] = Future()
                 futures[i].set_result(task.run())
                 self._bar.update()
             return futures
-        if self._pool is None:
+        if self._pool is None and self._executor is None:
             self._pool = ProcessPoolExecutor(max_workers=self.jobs)
+        pool = self._pool if self._executor is None else self._executor
         for i in sorted(range(len(tasks)), key=lambda i: -tasks[i].cost):
-            futures[i] = fut = self._pool.submit(_execute, tasks[i])
+            futures[i] = fut = pool.submit(_execute, tasks[i])
             fut.add_done_callback(lambda _: self._bar.update())
         self._submitted += futures
         return futures
@@ -98,9 +103,9 @@ class TaskPool:
 
 
 def run_tasks(tasks: Sequence, *, jobs: int = 1, progress: bool = False,
-              desc: str = "runs") -> list:
+              desc: str = "runs", executor: Executor | None = None) -> list:
     """Run `task.run()` for every task (see `TaskPool`); results in task order."""
-    with TaskPool(jobs, progress=progress, desc=desc) as pool:
+    with TaskPool(jobs, progress=progress, desc=desc, executor=executor) as pool:
         return pool.run(tasks)
 
 
@@ -126,8 +131,8 @@ def submit_batches(pool: TaskPool, batches: Sequence[Batch]) -> list[Callable[[]
 
 
 def run_batches(batches: Sequence[Batch], *, jobs: int = 1, progress: bool = False,
-                desc: str = "runs") -> list:
+                desc: str = "runs", executor: Executor | None = None) -> list:
     """Run the tasks of several studies in one pool and return each study's assembled
     response, in the order given."""
-    with TaskPool(jobs, progress=progress, desc=desc) as pool:
+    with TaskPool(jobs, progress=progress, desc=desc, executor=executor) as pool:
         return [response() for response in submit_batches(pool, batches)]
