@@ -48,6 +48,7 @@ import mujoco
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from wpam_mj.display import fmt
 from wpam_mj.geometry import BraidGeometry
 from wpam_mj.model import build_model
 from wpam_mj.params import MM, MPA, ParameterError, Params, check_range
@@ -364,9 +365,9 @@ class _StateBox:
             return
         x0 = y0 = self.pad  # box corner in the frame
         image[y0:y0 + h, x0:x0 + w] = self.base[:h, :w]
-        target = f"{s.x_ref / MM:6.2f} mm" if math.isfinite(s.x_ref) else "    --"
-        values = (f"{s.t:6.2f} s", f"{s.x / MM:6.2f} mm", target, f"{s.pi / MPA:6.3f} MPa",
-                  f"{s.po / MPA:6.3f} MPa")
+        target = f"{fmt(s.x_ref / MM, '6.2f')} mm" if math.isfinite(s.x_ref) else "    --"
+        values = (f"{fmt(s.t, '6.2f')} s", f"{fmt(s.x / MM, '6.2f')} mm", target,
+                  f"{fmt(s.pi / MPA, '6.3f')} MPa", f"{fmt(s.po / MPA, '6.3f')} MPa")
         for i, value in enumerate(values):
             self.text.stamp(image, x0 + self.pad + self.col, y0 + self.pad + i * self.line_h,
                             value, (0, 0, 0))
@@ -422,7 +423,16 @@ def _check_size(size, suffix: str) -> tuple[int, int]:
     return int(width), int(height)
 
 
+def check_fps(fps: float, suffix: str = ".mp4") -> float:
+    """Frames per second for a video ending in `suffix`, within `FPS_RANGE` (the range the
+    messages state is the range applied)."""
+    return check_range("fps", fps, *FPS_RANGE[suffix], "frames/s")
+
+
 def _check_suffix(out: str | Path) -> str:
+    if not isinstance(out, (str, os.PathLike)) or not str(out):
+        raise ParameterError(f"out = {out!r} must be a file name ending in "
+                             + " or ".join(FORMATS))
     suffix = Path(out).suffix.lower()
     if suffix not in FORMATS:
         raise ParameterError(f"out = {str(out)!r} has extension {suffix or '(none)'!r}; "
@@ -437,14 +447,27 @@ def _scene_cameras() -> tuple[str, ...]:
 
 
 def _check_camera(camera: str) -> None:
-    if camera not in _scene_cameras():
+    if not isinstance(camera, str) or camera not in _scene_cameras():
         raise ParameterError(f"camera = {camera!r} is not in the scene; "
                              f"valid cameras: {', '.join(_scene_cameras())}")
 
 
-def _check_result(result: SimResult) -> None:
-    if len(result.time) < 1:
-        raise ParameterError("result has no samples to render")
+def _check_inputs(result: SimResult, params: Params, shadows: bool = False) -> None:
+    """The run to draw: a SimResult (its series share one length, see `SimResult`) whose
+    time increases and whose drawn state (x, Pi, Po) is finite, and its Params."""
+    if not isinstance(result, SimResult):
+        raise ParameterError(f"result = {type(result).__name__} must be a SimResult "
+                             "(e.g. from wpam_mj.experiments.step_run)")
+    if not isinstance(params, Params):
+        raise ParameterError(f"params = {type(params).__name__} must be a Params "
+                             "(e.g. wpam_mj.preset())")
+    if not isinstance(shadows, (bool, np.bool_)):
+        raise ParameterError(f"shadows = {shadows!r} must be True or False")
+    for name in ("time", "x", "pi", "po"):
+        series = getattr(result, name)
+        if not np.all(np.isfinite(series)):
+            raise ParameterError(f"result.{name} has NaN or infinite values at sample "
+                                 f"{int(np.flatnonzero(~np.isfinite(series))[0])}")
     if len(result.time) > 1 and not np.all(np.diff(result.time) > 0):
         raise ParameterError("result.time must be strictly increasing")
 
@@ -459,9 +482,9 @@ def render_frames(result: SimResult, params: Params, *, fps: float = 30,
     scene and GL context and draw every `threads`-th frame; the frames do not depend on
     it. Close the generator (or exhaust it) to free the contexts.
     """
-    fps = check_range("fps", fps, *FPS_RANGE[".mp4"], "frames/s")
+    fps = check_fps(fps)
     size = _check_size(size, "")
-    _check_result(result)
+    _check_inputs(result, params, shadows)
     _check_camera(camera)
     threads = _check_threads(threads)
     samples = list(_samples(result, frame_times(result.time, fps)))
@@ -559,9 +582,9 @@ def render_video(result: SimResult, params: Params, out: str | Path, *, fps: flo
       threads: render threads, see `render_frames`.
     """
     suffix = _check_suffix(out)
-    fps = check_range("fps", fps, *FPS_RANGE[suffix], "frames/s")
+    fps = check_fps(fps, suffix)
     size = _check_size(size, suffix)
-    _check_result(result)
+    _check_inputs(result, params, shadows)
     frames = render_frames(result, params, fps=fps, size=size, camera=camera,
                            shadows=shadows, threads=threads)
     try:
@@ -632,9 +655,9 @@ def still_frame(result: SimResult, params: Params, t: float, out_png: str | Path
 
     Drawn with MuJoCo's default mesh quality (videos use a coarser one for speed).
     """
-    _check_result(result)
+    _check_inputs(result, params, shadows)
     t = check_range("t", t, float(result.time[0]), float(result.time[-1]), "s")
-    if Path(out_png).suffix.lower() != ".png":
+    if not isinstance(out_png, (str, os.PathLike)) or Path(out_png).suffix.lower() != ".png":
         raise ParameterError(f"out_png = {str(out_png)!r} must end in .png")
     size = _check_size(size, "")
     scene = _Scene(result, params, size, camera, shadows, fast=False)
