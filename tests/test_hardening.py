@@ -25,6 +25,7 @@ from wpam_mj.display import fmt
 from wpam_mj.env import SEED_RANGE, make_env
 from wpam_mj.experiments import SineSpec, step_run
 from wpam_mj.geometry import BraidGeometry
+from wpam_mj.model import check_dt
 from wpam_mj.params import (MAX_TOML_BYTES, MM, MPA, Braid, ParameterError, apply_overrides,
                             load_toml, preset)
 from wpam_mj.pneumatics import outer_bag_volume
@@ -219,7 +220,21 @@ def test_good_seeds_are_accepted(seed) -> None:
     make_env(PARAMS, seed=seed)
 
 
-# ------------------------------------------------------------------ 16, 20: render inputs
+# ------------------------------------------------------------------ 16, 20: stated ranges
+
+@pytest.mark.parametrize("dt", [0.003, 0.0007, 0.004])
+def test_dt_inside_the_range_but_not_dividing_the_record_period_names_both(dt) -> None:
+    with pytest.raises(ParameterError, match=r"--dt = .* must divide the 0\.01 s recording "
+                                             r"period.*\[1e-05, 0\.005\] s"):
+        check_dt(dt, divides=0.01, name="--dt")
+
+
+@pytest.mark.parametrize("dt", [0.005, 0.0025, 0.002, 0.001, 0.0005, 1e-5])
+def test_dt_dividing_the_record_period_is_accepted(dt) -> None:
+    assert check_dt(dt, divides=0.01) == dt
+    assert step_run(PARAMS, 100.0, "open", levels_mm=(0,), hold=0.05, dt=dt).time[-1] > 0
+
+
 
 @pytest.mark.parametrize("suffix", [".mp4", ".gif"])
 def test_fps_range_stated_is_the_range_applied(suffix) -> None:
