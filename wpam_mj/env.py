@@ -42,6 +42,9 @@ Gaussian fall-off to 0.1 at 2 mm outside that band. Discount 1; episodes end at
 target and load are drawn uniformly from `target_range` [m] and `load_range` [N] with the
 task's seeded `numpy.random.RandomState` (or fixed with `target=` / `load=`); the load
 mass is load / g.
+A divergence (negative absolute chamber pressure, non-finite state, MuJoCo warning) raises
+`dm_control.rl.control.PhysicsError`; from then on `step` refuses, with the same cause,
+until `reset()`: the state it would continue from has no meaning.
 """
 
 from __future__ import annotations
@@ -271,7 +274,8 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
       time_limit: episode length [s].
       control_timestep: time between actions [s], a whole multiple of `dt`.
       dt: physics step [s].
-      seed: seed of the task's RandomState (targets, loads).
+      seed: seed of the task's RandomState (targets, loads): None or an integer in
+        [0, 2**32 - 1].
       target: fix the target contraction [m] instead of drawing it.
       load: fix the load [N] instead of drawing it.
       target_range: (low, high) [m] for random targets.
