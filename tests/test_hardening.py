@@ -334,6 +334,25 @@ def test_two_runs_into_one_folder_can_be_told_apart(tmp_path) -> None:
     assert manifest.png_run_id(tmp_path / "step.png") == second
 
 
+@pytest.mark.parametrize("name", ["run.mp4", "run.gif", "still.png"])
+def test_videos_and_stills_record_the_run_id(name, tmp_path) -> None:
+    run = manifest.run_id("render", PARAMS, {"load_n": 100.0})
+    path = tmp_path / name
+    if name == "still.png":
+        render.still_frame(_sim_result(n=5), PARAMS, 0.0, path, size=(64, 48), run_id=run)
+        assert manifest.png_run_id(path) == run
+    else:
+        render.render_video(_sim_result(n=5), PARAMS, path, fps=10, size=(64, 48),
+                            threads=1, run_id=run)
+        assert manifest.video_comment(run).encode() in path.read_bytes()
+
+
+@pytest.mark.parametrize("run", ["", "a b", "x" * 65, None, "id;rm"])
+def test_bad_run_ids_are_refused(run) -> None:
+    with pytest.raises(ParameterError, match="run_id"):
+        manifest.png_metadata(run)
+
+
 def test_manifest_refuses_files_outside_its_folder(tmp_path) -> None:
     outside = _sim_result().to_csv(tmp_path / "elsewhere.csv")
     with pytest.raises(ParameterError, match="not inside the output folder"):

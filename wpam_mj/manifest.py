@@ -11,8 +11,9 @@ The CSVs hold data only (one header line, then numbers), so the run's metadata l
 The run id is a digest of what defines the results (version, command, settings,
 parameters) and not of the time or the worker count, so a rerun writes the same bytes and
 the same manifest. Each file records the run id: a PNG in its metadata (text chunk
-``wpam_mj run_id``, see `png_metadata`), a CSV through the SHA-256 the manifest keeps of
-it (a data column or a comment line would break plain CSV readers). `check_files` tells
+``wpam_mj run_id``, see `png_metadata`), a video in its comment (`video_comment`), a CSV
+through the SHA-256 the manifest keeps of it (a data column or a comment line would break
+plain CSV readers). `check_files` tells
 which files still are the ones a manifest describes: two runs writing into one folder at
 the same time leave two manifests, and every file matches exactly one of them.
 """
@@ -23,6 +24,7 @@ import hashlib
 import json
 import os
 import platform
+import re
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -34,7 +36,7 @@ from wpam_mj import __version__
 from wpam_mj.params import Params, ParameterError
 from wpam_mj.results import write_text_atomic
 
-PNG_RUN_ID_KEY = "wpam_mj run_id"  # PNG text chunk keyword (Latin-1, <= 79 characters)
+RUN_ID_KEY = "wpam_mj run_id"  # PNG text keyword; "<key> <id>" in video comments
 _ID_LENGTH = 16  # hex digits of SHA-256: 64 bits, no collisions among a user's runs
 
 
@@ -117,9 +119,21 @@ def check_files(path: str | Path) -> dict[str, str]:
     return status
 
 
+def check_run_id(run: str) -> str:
+    """A run id as `run_id` makes them (letters, digits, '_', '-'; at most 64)."""
+    if not isinstance(run, str) or not re.fullmatch(r"[\w-]{1,64}", run, re.ASCII):
+        raise ParameterError(f"run_id = {run!r} must be 1-64 letters, digits, '_' or '-'")
+    return run
+
+
 def png_metadata(run: str) -> dict[str, str]:
     """PNG text chunks recording the run id: ``fig.savefig(path, metadata=...)``."""
-    return {PNG_RUN_ID_KEY: run}
+    return {RUN_ID_KEY: check_run_id(run)}
+
+
+def video_comment(run: str) -> str:
+    """The comment an MP4 or GIF of the run carries."""
+    return f"{RUN_ID_KEY} {check_run_id(run)}"
 
 
 def png_run_id(path: str | Path) -> str | None:
@@ -127,7 +141,7 @@ def png_run_id(path: str | Path) -> str | None:
     from PIL import Image  # noqa: PLC0415 (only for reading figures)
 
     with Image.open(path) as image:
-        return getattr(image, "text", {}).get(PNG_RUN_ID_KEY)
+        return getattr(image, "text", {}).get(RUN_ID_KEY)
 
 
 def _params_dict(params: Params) -> dict[str, Any]:

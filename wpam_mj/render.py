@@ -46,10 +46,11 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
-from PIL import Image, ImageDraw, ImageFont
+from PIL import Image, ImageDraw, ImageFont, PngImagePlugin
 
 from wpam_mj.display import fmt
 from wpam_mj.geometry import BraidGeometry
+from wpam_mj.manifest import png_metadata, video_comment
 from wpam_mj.model import build_model
 from wpam_mj.params import MM, MPA, ParameterError, Params, check_range
 from wpam_mj.paths import SCENE_XML
@@ -568,7 +569,8 @@ def _threaded_frames(new_scene, samples: list[_Sample], threads: int,
 
 def render_video(result: SimResult, params: Params, out: str | Path, *, fps: float = 30,
                  size: tuple[int, int] = (640, 480), camera: str = "front",
-                 shadows: bool = False, threads: int | None = None) -> Path:
+                 shadows: bool = False, threads: int | None = None,
+                 run_id: str | None = None) -> Path:
     """Write a video of a simulated run; returns the path written.
 
     Args:
@@ -580,22 +582,25 @@ def render_video(result: SimResult, params: Params, out: str | Path, *, fps: flo
       camera: a camera of models/wpam/scene.xml ("front", "side").
       shadows: draw shadows (about 4x slower in software rendering).
       threads: render threads, see `render_frames`.
+      run_id: the run's id (`wpam_mj.manifest.run_id`), written into the file's comment.
     """
     suffix = _check_suffix(out)
     fps = check_fps(fps, suffix)
     size = _check_size(size, suffix)
     _check_inputs(result, params, shadows)
+    comment = None if run_id is None else video_comment(run_id)
     frames = render_frames(result, params, fps=fps, size=size, camera=camera,
                            shadows=shadows, threads=threads)
     try:
         if suffix == ".mp4":
-            return write_atomic(out, lambda p: _write_mp4(p, frames, fps))
-        return write_atomic(out, lambda p: _write_gif(p, frames, fps))
+            return write_atomic(out, lambda p: _write_mp4(p, frames, fps, comment))
+        return write_atomic(out, lambda p: _write_gif(p, frames, fps, comment))
     finally:
         frames.close()
 
 
-def _write_mp4(path: Path, frames: Iterator[np.ndarray], fps: float) -> None:
+def _write_mp4(path: Path, frames: Iterator[np.ndarray], fps: float,
+               comment: str | None) -> None:
     import imageio.v2 as imageio  # only when writing video
 
     # macro_block_size=2: keep the exact size (even dimensions are checked above).
@@ -604,7 +609,9 @@ def _write_mp4(path: Path, frames: Iterator[np.ndarray], fps: float) -> None:
     with imageio.get_writer(path, format="FFMPEG", mode="I", fps=fps, codec="libx264",
                             pixelformat="yuv420p", quality=7, macro_block_size=2,
                             ffmpeg_log_level="error",
-                            output_params=["-preset", _X264_PRESET]) as writer:
+                            output_params=["-preset", _X264_PRESET, *(
+                                [] if comment is None else ["-metadata", f"comment={comment}"])]
+                            ) as writer:
         _pipelined(frames, writer.append_data)
 
 
@@ -639,23 +646,29 @@ def _pipelined(frames: Iterator[np.ndarray], consume, depth: int = 4) -> None:
         raise errors[0]
 
 
-def _write_gif(path: Path, frames: Iterator[np.ndarray], fps: float) -> None:
+def _write_gif(path: Path, frames: Iterator[np.ndarray], fps: float,
+               comment: str | None) -> None:
     images = [Image.fromarray(f).convert("P", palette=Image.Palette.ADAPTIVE, colors=255)
               for f in frames]
     # GIF delays are in 1/100 s; Pillow merges identical consecutive frames, which the
     # changing time stamp in the overlay prevents.
     images[0].save(path, format="GIF", save_all=True, append_images=images[1:],
-                   duration=round(1000.0 / fps), loop=0)
+                   duration=round(1000.0 / fps), loop=0,
+                   **({} if comment is None else {"comment": comment}))
 
 
 def still_frame(result: SimResult, params: Params, t: float, out_png: str | Path, *,
                 size: tuple[int, int] = (640, 480), camera: str = "front",
-                shadows: bool = False) -> Path:
+                shadows: bool = False, run_id: str | None = None) -> Path:
     """Write one PNG of the run at time `t` [s] (e.g. the README picture).
 
     Drawn with MuJoCo's default mesh quality (videos use a coarser one for speed).
+    `run_id` (`wpam_mj.manifest.run_id`) goes into the PNG's metadata.
     """
     _check_inputs(result, params, shadows)
+    info = PngImagePlugin.PngInfo()
+    for key, value in ({} if run_id is None else png_metadata(run_id)).items():
+        info.add_text(key, value)
     t = check_range("t", t, float(result.time[0]), float(result.time[-1]), "s")
     if not isinstance(out_png, (str, os.PathLike)) or Path(out_png).suffix.lower() != ".png":
         raise ParameterError(f"out_png = {str(out_png)!r} must end in .png")
@@ -665,4 +678,5 @@ def still_frame(result: SimResult, params: Params, t: float, out_png: str | Path
         image = scene.frame(next(_samples(result, np.array([t]))))
     finally:
         scene.close()
-    return write_atomic(out_png, lambda p: Image.fromarray(image).save(p, format="PNG"))
+    return write_atomic(out_png, lambda p: Image.fromarray(image).save(p, format="PNG",
+                                                                      pnginfo=info))
