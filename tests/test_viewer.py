@@ -165,14 +165,17 @@ VIEWER_SCRIPT = textwrap.dedent("""
     import wpam_mj
     from wpam_mj import viewer
 
+    from PIL import Image, ImageStat
+
     display, shot = sys.argv[1], sys.argv[2]
-    taken = []
+    next_shot = [1.5]  # s; retaken a second later while the window is still blank
 
     def script(t, handle):
-        if t >= 1.5 and not taken:
+        if next_shot and t >= next_shot[0]:
             subprocess.run(f"xwd -root -display {display} -silent | convert xwd:- {shot}",
                            shell=True, check=True)
-            taken.append(t)
+            drawn = max(ImageStat.Stat(Image.open(shot).convert("RGB")).stddev) > 20
+            next_shot[:] = [] if drawn or t > 8.0 else [t + 1.0]
         pert, load = handle.perturb, handle.m.body("load").id
         if 5.0 <= t < 6.0 and not pert.active:
             pert.select, pert.localpos[:] = load, 0.0

@@ -47,6 +47,9 @@ Gaussian fall-off to 0.1 at 2 mm outside that band. Discount 1; episodes end at
 target and load are drawn uniformly from `target_range` [m] and `load_range` [N] with the
 task's seeded `numpy.random.RandomState` (or fixed with `target=` / `load=`), then for
 "sine" the frequency; the load mass is load / g.
+A divergence (negative absolute chamber pressure, non-finite state, MuJoCo warning) raises
+`dm_control.rl.control.PhysicsError`; from then on `step` refuses, with the same cause,
+until `reset()`: the state it would continue from has no meaning.
 """
 
 from __future__ import annotations
@@ -108,15 +111,17 @@ class MusclePhysics(engine.Physics):
         self._load_body = m.body("load").id
         self.pi_cmd = self.po_cmd = 0.0
         self.plant = Plant(self.muscle, self.constants)
+        self.diverged: str | None = None
 
     def reset(self, keyframe_id=None) -> None:
         """Reset MuJoCo's state and the pneumatics (chambers vented, regulators at 0)."""
         super().reset(keyframe_id)
         self.plant = Plant(self.muscle, self.constants)
         self.pi_cmd = self.po_cmd = 0.0
+        self.diverged = None
 
     _STATE = ("params", "muscle", "constants", "_idx",
-              "_load_body", "pi_cmd", "po_cmd")
+              "_load_body", "pi_cmd", "po_cmd", "diverged")
 
     def copy(self, share_model: bool = False) -> MusclePhysics:
         """A copy with its own MuJoCo data and pneumatic state."""
@@ -157,15 +162,22 @@ class MusclePhysics(engine.Physics):
         `mj_step1` so that positions, sensors and rendering match the new state (as
         dm_control's own step).
         """
+        if self.diverged is not None:  # the state is meaningless until reset
+            raise control.PhysicsError(f"the muscle diverged ({self.diverged}); call reset() "
+                                       "before stepping again")
         m, d, idx = self.model.ptr, self.data.ptr, self._idx
-        with self.check_invalid_state():
-            for _ in range(nstep):
-                try:
-                    self.plant.actuate(m, d, idx, float(d.qpos[idx.qpos]),
-                                       float(d.qvel[idx.dof]), self.pi_cmd, self.po_cmd)
-                except SimulationDiverged as err:
-                    raise control.PhysicsError(f"at t = {d.time:.4f} s: {err}") from err
-            mujoco.mj_step1(m, d)
+        try:
+            with self.check_invalid_state():
+                for _ in range(nstep):
+                    try:
+                        self.plant.actuate(m, d, idx, float(d.qpos[idx.qpos]),
+                                           float(d.qvel[idx.dof]), self.pi_cmd, self.po_cmd)
+                    except SimulationDiverged as err:
+                        raise control.PhysicsError(f"at t = {d.time:.4f} s: {err}") from err
+                mujoco.mj_step1(m, d)
+        except control.PhysicsError as err:
+            self.diverged = str(err)
+            raise
 
 
 class TrackingTask(control.Task):
@@ -202,7 +214,7 @@ class TrackingTask(control.Task):
         self._flat = flat_observation
         self._muscle = MuscleModel.from_params(params)
         if not isinstance(random, np.random.RandomState):
-            random = np.random.RandomState(random)
+            random = np.random.RandomState(check_seed(random))
         self._random = random
         self.target = self._fixed_target if target is not None else 0.0
         self._pi_ff = 0.0
@@ -298,7 +310,8 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
       time_limit: episode length [s].
       control_timestep: time between actions [s], a whole multiple of `dt`.
       dt: physics step [s].
-      seed: seed of the task's RandomState (targets, loads).
+      seed: seed of the task's RandomState (targets, loads): None or an integer in
+        [0, 2**32 - 1].
       target: fix the target contraction [m] instead of drawing it.
       load: fix the load [N] instead of drawing it.
       target_range: (low, high) [m] for random targets.
@@ -325,6 +338,20 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
                         sine_freq=sine_freq, sine_freq_range=sine_freq_range)
     return control.Environment(physics, task, time_limit=time_limit, n_sub_steps=n_sub,
                                flat_observation=flat_observation)
+
+
+SEED_RANGE = (0, 2**32 - 1)  # numpy.random.RandomState's seed range
+
+
+def check_seed(seed: int | None) -> int | None:
+    """A RandomState seed: None (fresh entropy) or an integer in `SEED_RANGE`."""
+    if seed is None:
+        return None
+    lo, hi = SEED_RANGE
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) \
+            or not lo <= seed <= hi:
+        raise ParameterError(f"seed = {seed!r} must be None or an integer in [{lo}, {hi}]")
+    return int(seed)
 
 
 def _check_interval(name: str, interval, lo: float, hi: float,

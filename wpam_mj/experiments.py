@@ -103,6 +103,9 @@ def step_run(params: Params, load: float, control: str, *, levels_mm=STEP_LEVELS
              hold: float = STEP_HOLD_S, dt: float = 1e-3, engine: str = "auto") -> SimResult:
     """Staircase target (paper §4.1): open loop or PI/PID on Po."""
     load, dt, control = check_load(load), check_dt(dt), check_control(control)
+    hold = check_range("hold", hold, 0.0, 3600.0, "s", lo_open=True)
+    if len(levels_mm) < 1:
+        raise ParameterError("levels_mm is empty: a step run needs at least one target")
     n, t = _steps(len(levels_mm) * hold - dt, dt)
     x_ref = step_targets(t, levels_mm, hold)
     return simulate(params, load, drive_for_targets(params, load, x_ref, control), dt=dt,
@@ -123,6 +126,10 @@ class SineSpec:
         check_range("freq", self.freq, 0.0, 20.0, "Hz", lo_open=True)
         check_range("amplitude", self.amplitude / MM, 0.0, 100.0, "mm", lo_open=True)
         check_range("mean", self.mean / MM, 0.0, 100.0, "mm")
+        for name, lo in (("settle_cycles", 0), ("cycles", 1)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < lo:
+                raise ParameterError(f"{name} = {value!r} must be an integer >= {lo}")
 
     @property
     def duration(self) -> float:

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wpam_mj.params import Braid, ParameterError
+from wpam_mj.params import Braid
 
 
 @dataclass(frozen=True)
@@ -39,18 +39,10 @@ class BraidGeometry:
     def from_params(cls, braid: Braid) -> "BraidGeometry":
         b = braid.natural_length / math.cos(braid.braid_angle)
         n = b * math.sin(braid.braid_angle) / (math.pi * braid.natural_diameter)
-        # D = D_max  <=>  b^2 - L^2 = (n pi D_max)^2
+        # D = D_max  <=>  b^2 - L^2 = (n pi D_max)^2; `Braid` guarantees the bag fills
+        # before the locking angle, so this length is real and S > 0 up to it.
         radial = n * math.pi * braid.max_diameter
-        if radial >= b:
-            raise ParameterError(
-                f"braid.braid_angle = {math.degrees(braid.braid_angle):.1f} deg cannot reach "
-                f"the max diameter {braid.max_diameter} m; allowed: sin(angle) < "
-                f"{braid.natural_diameter / braid.max_diameter:.3f}")
         length_at_stop = math.sqrt(b * b - radial * radial)
-        if 3.0 * length_at_stop ** 2 <= b * b:
-            raise ParameterError(
-                f"braid.braid_angle = {math.degrees(braid.braid_angle):.1f} deg passes the "
-                "54.7 deg locking angle before the bag is full; use a smaller angle")
         return cls(braid.natural_length, b, n, braid.natural_length - length_at_stop)
 
     def length(self, x: float) -> float:

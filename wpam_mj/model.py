@@ -8,7 +8,7 @@ from pathlib import Path
 import mujoco
 
 from wpam_mj.geometry import BraidGeometry
-from wpam_mj.params import STANDARD_GRAVITY, Params, check_range
+from wpam_mj.params import STANDARD_GRAVITY, ParameterError, Params, check_range
 from wpam_mj.paths import MODEL_XML
 
 LOAD_RANGE_N = (1.0, 2000.0)  # N: what a hanging mass on this rig can sensibly be
@@ -20,9 +20,19 @@ def check_load(load: float) -> float:
     return check_range("load", load, *LOAD_RANGE_N, "N")
 
 
-def check_dt(dt: float) -> float:
-    """Validate a physics time step [s]."""
-    return check_range("dt", dt, *DT_RANGE_S, "s")
+def check_dt(dt: float, *, divides: float | None = None, name: str = "dt") -> float:
+    """Validate a physics time step [s]; with `divides` [s] (a recording period) it must
+    also be a whole fraction of it, so that the stated range is the range applied."""
+    dt = check_range(name, dt, *DT_RANGE_S, "s")
+    if divides is not None:
+        steps = round(divides / dt)
+        if steps < 1 or abs(steps * dt - divides) > 1e-9 * divides:
+            lo, hi = DT_RANGE_S
+            fits = [divides / k for k in (1, 2, 4, 5, 10, 20) if lo <= divides / k <= hi]
+            raise ParameterError(
+                f"{name} = {dt:g} s must divide the {divides:g} s recording period into whole "
+                f"steps, within [{lo:g}, {hi:g}] s (e.g. {', '.join(f'{f:g}' for f in fits)})")
+    return dt
 
 
 @dataclass(frozen=True)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -55,16 +56,27 @@ def check_range(name: str, value: float, lo: float, hi: float, unit: str = "", *
     return v
 
 
+def _is_number(value: Any) -> bool:
+    """A real number that is not a bool: TOML strings ("0.1") and booleans are refused,
+    although float() would accept them."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
 class _Validated:
-    """Mixin: range-check every float field from its metadata after construction."""
+    """Mixin: type- and range-check every float field from its metadata after construction."""
 
     def __post_init__(self) -> None:
         for f in dataclasses.fields(self):  # type: ignore[arg-type]
             md = f.metadata
             if "lo" in md:
-                check_range(f"{type(self).__name__.lower()}.{f.name}", getattr(self, f.name),
-                            md["lo"], md["hi"], md["unit"], lo_open=md["lo_open"])
-                object.__setattr__(self, f.name, float(getattr(self, f.name)))
+                name, value = f"{type(self).__name__.lower()}.{f.name}", getattr(self, f.name)
+                if not _is_number(value):
+                    bracket = "(" if md["lo_open"] else "["
+                    raise ParameterError(
+                        f"{name} = {value!r} is a {type(value).__name__}; expected a number "
+                        f"in {bracket}{md['lo']:g}, {md['hi']:g}] {md['unit']}")
+                check_range(name, value, md["lo"], md["hi"], md["unit"], lo_open=md["lo_open"])
+                object.__setattr__(self, f.name, float(value))
 
 
 @dataclass(frozen=True)
@@ -87,6 +99,24 @@ class Braid(_Validated):
         if self.outer_bag_diameter <= self.max_diameter:
             raise ParameterError(f"braid.outer_bag_diameter = {self.outer_bag_diameter} m must"
                                  f" exceed braid.max_diameter = {self.max_diameter} m")
+        if self.outer_bag_length < self.natural_length:
+            raise ParameterError(f"braid.outer_bag_length = {self.outer_bag_length} m must be "
+                                 f"at least braid.natural_length = {self.natural_length} m "
+                                 "(the outer bag spans the muscle's end fittings)")
+        # Pantograph (wpam_mj.geometry): D = b sin(theta) / (n pi) with b and n fixed, so
+        # sin(theta) grows in proportion to D. The bag must fill to max_diameter before the
+        # threads reach the locking angle atan(sqrt 2) = 54.7 deg, where the effective area
+        # dV/dx = (3 L^2 - b^2) / (4 pi n^2) falls to zero (Chou & Hannaford 1996):
+        # sin(theta) max_diameter / natural_diameter < sin(54.7 deg) = sqrt(2/3).
+        limit = math.asin(min(1.0, math.sqrt(2.0 / 3.0) * self.natural_diameter
+                              / self.max_diameter))
+        if self.braid_angle >= limit:
+            raise ParameterError(
+                f"braid.braid_angle = {self.braid_angle:g} rad "
+                f"({math.degrees(self.braid_angle):.1f} deg) reaches the 54.7 deg locking "
+                f"angle before the bag fills to braid.max_diameter = {self.max_diameter} m; "
+                f"allowed: below {limit:.4f} rad ({math.degrees(limit):.1f} deg) for "
+                f"braid.natural_diameter = {self.natural_diameter} m")
 
 
 @dataclass(frozen=True)
@@ -156,10 +186,40 @@ class Params:
     preset: str = "wpam"
 
     def __post_init__(self) -> None:
+        for name, cls in _SECTIONS.items():
+            if not isinstance(getattr(self, name), cls):
+                raise ParameterError(f"params.{name} = {getattr(self, name)!r} must be a "
+                                     f"{cls.__name__}")
         pn, c = self.pneumatics, self.controller
         check_range("controller.po_cap", c.po_cap / MPA, pn.p_min / MPA, pn.p_max / MPA, "MPa")
         check_range("controller.po_feedforward", c.po_feedforward / MPA, pn.p_min / MPA,
                     c.po_cap / MPA, "MPa")
+        self._check_outer_chamber()
+
+    def _check_outer_chamber(self) -> None:
+        """The outer chamber keeps a positive volume over the whole stroke.
+
+        V_o(x) = V_bag + V_tube - V(x) - A_ax x (`wpam_mj.pneumatics`); V(x) grows with x
+        (dV/dx = S > 0 below the locking angle, checked by `Braid`), so V_o is smallest at
+        the hard stop x_max. A non-positive V_o is no pressure model at all (the run would
+        only report a divergence).
+        """
+        from wpam_mj.geometry import BraidGeometry  # noqa: PLC0415 (imports this module)
+        from wpam_mj.pneumatics import outer_bag_volume  # noqa: PLC0415
+
+        b = self.braid
+        geom = BraidGeometry.from_params(b)
+        x_max = geom.max_contraction
+        bag = outer_bag_volume(b.outer_bag_length, b.outer_bag_diameter)
+        free = bag + self.pneumatics.tube_volume - geom.volume(x_max) \
+            - self.muscle.axial_area * x_max
+        if free <= 0.0:
+            raise ParameterError(
+                f"outer chamber volume at full contraction ({x_max / MM:.1f} mm) is "
+                f"{free:.3g} m^3: the bag ({b.outer_bag_length} m x {b.outer_bag_diameter} m,"
+                f" {bag:.3g} m^3) plus pneumatics.tube_volume cannot hold the inflated muscle "
+                f"and muscle.axial_area = {self.muscle.axial_area:g} m^2 times the stroke; "
+                "use a larger bag or a smaller axial area")
 
     def replace(self, **sections: Mapping[str, float]) -> "Params":
         """Copy with some fields changed: ``p.replace(muscle={"friction_coeff": 0})``."""
@@ -192,15 +252,28 @@ def apply_overrides(params: Params, overrides: Mapping[str, Any]) -> Params:
     return dataclasses.replace(params, **new)
 
 
+MAX_TOML_BYTES = 1_000_000  # a parameter file is a few hundred bytes; refuse /dev/zero
+
+
 def load_toml(path: str | Path) -> dict[str, Any]:
-    """Read a parameter TOML file (sections as in `Params`, SI values)."""
+    """Read a parameter TOML file (sections as in `Params`, SI values, UTF-8, <= 1 MB)."""
     try:
         with open(path, "rb") as fh:
-            return tomllib.load(fh)
+            data = fh.read(MAX_TOML_BYTES + 1)  # bounded: devices and huge files stop here
+    except OSError as err:
+        raise ParameterError(f"cannot read parameter file {path}: "
+                             f"{err.strerror or err}") from None
+    if len(data) > MAX_TOML_BYTES:
+        raise ParameterError(f"parameter file {path} is larger than the allowed "
+                             f"{MAX_TOML_BYTES / 1e6:g} MB")
+    try:
+        return tomllib.loads(data.decode("utf-8"))
+    except UnicodeDecodeError as err:
+        line = data[:err.start].count(b"\n") + 1
+        raise ParameterError(f"parameter file {path} is not UTF-8 text: byte "
+                             f"0x{data[err.start]:02x} on line {line}") from None
     except tomllib.TOMLDecodeError as err:
         raise ParameterError(f"malformed TOML in {path}: {err}") from None
-    except OSError as err:
-        raise ParameterError(f"cannot read parameter file {path}: {err.strerror}") from None
 
 
 CALIBRATION_FILE = MODELS_DIR / "wpam" / "calibrated.toml"
@@ -219,11 +292,15 @@ def preset(name: str = "wpam", *, calibration: str | Path | None = CALIBRATION_F
     """Parameters of a named muscle type, with the calibrated values applied.
 
     The RLAM and McKibben presets share the W-PAM's calibrated braid and regulators.
+    `calibration`: the shipped `CALIBRATION_FILE` (used when present: before the first
+    `wpam calibrate` the built-in values apply), another TOML file (which must exist),
+    or None (the built-in values).
     """
     if name not in PRESETS:
         raise ParameterError(f"unknown preset {name!r}; valid presets: {', '.join(PRESETS)}")
     params = Params(preset=name)
-    if calibration is not None and Path(calibration).exists():
+    if calibration is not None and (Path(calibration) != CALIBRATION_FILE
+                                    or CALIBRATION_FILE.exists()):
         params = apply_overrides(params, load_toml(calibration))
     if name == "mckibben":
         params = apply_overrides(params, _MCKIBBEN)

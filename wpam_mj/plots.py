@@ -15,6 +15,7 @@ from matplotlib.figure import Figure
 
 from wpam_mj.control import pi_feedforward
 from wpam_mj.experiments import step_targets
+from wpam_mj.manifest import png_metadata
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM, MPA, Params
 from wpam_mj.results import SimResult, write_atomic
@@ -28,9 +29,12 @@ _CONTROL_STYLE = {"open": ":", "pi": "-", "pid": "--"}
 _PRESET_COLOURS = {"wpam": "tab:blue", "rlam": "tab:red", "mckibben": "tab:green"}
 
 
-def save_figure(fig: Figure, path: str | Path) -> Path:
-    """Save `fig` as PNG at `path`, whole or not at all."""
-    return write_atomic(path, lambda p: fig.savefig(p, format="png", dpi=DPI))
+def save_figure(fig: Figure, path: str | Path, run_id: str | None = None) -> Path:
+    """Save `fig` as PNG at `path`, whole or not at all, recording `run_id` (the run's id
+    in its manifest, `wpam_mj.manifest`) in the PNG's metadata when given."""
+    metadata = None if run_id is None else png_metadata(run_id)
+    return write_atomic(path, lambda p: fig.savefig(p, format="png", dpi=DPI,
+                                                    metadata=metadata))
 
 
 def _colour(i: int) -> str:

@@ -46,10 +46,12 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
-from PIL import Image, ImageDraw, ImageFont
+from PIL import Image, ImageDraw, ImageFont, PngImagePlugin
 
 from wpam_mj import paper
+from wpam_mj.display import fmt
 from wpam_mj.geometry import BraidGeometry
+from wpam_mj.manifest import png_metadata, video_comment
 from wpam_mj.model import build_model
 from wpam_mj.params import MM, MPA, ParameterError, Params, check_range
 from wpam_mj.paths import SCENE_XML
@@ -365,9 +367,9 @@ class _StateBox:
             return
         x0 = y0 = self.pad  # box corner in the frame
         image[y0:y0 + h, x0:x0 + w] = self.base[:h, :w]
-        target = f"{s.x_ref / MM:6.2f} mm" if math.isfinite(s.x_ref) else "    --"
-        values = (f"{s.t:6.2f} s", f"{s.x / MM:6.2f} mm", target, f"{s.pi / MPA:6.3f} MPa",
-                  f"{s.po / MPA:6.3f} MPa")
+        target = f"{fmt(s.x_ref / MM, '6.2f')} mm" if math.isfinite(s.x_ref) else "    --"
+        values = (f"{fmt(s.t, '6.2f')} s", f"{fmt(s.x / MM, '6.2f')} mm", target,
+                  f"{fmt(s.pi / MPA, '6.3f')} MPa", f"{fmt(s.po / MPA, '6.3f')} MPa")
         for i, value in enumerate(values):
             self.text.stamp(image, x0 + self.pad + self.col, y0 + self.pad + i * self.line_h,
                             value, (0, 0, 0))
@@ -423,7 +425,16 @@ def _check_size(size, suffix: str) -> tuple[int, int]:
     return int(width), int(height)
 
 
+def check_fps(fps: float, suffix: str = ".mp4") -> float:
+    """Frames per second for a video ending in `suffix`, within `FPS_RANGE` (the range the
+    messages state is the range applied)."""
+    return check_range("fps", fps, *FPS_RANGE[suffix], "frames/s")
+
+
 def _check_suffix(out: str | Path) -> str:
+    if not isinstance(out, (str, os.PathLike)) or not str(out):
+        raise ParameterError(f"out = {out!r} must be a file name ending in "
+                             + " or ".join(FORMATS))
     suffix = Path(out).suffix.lower()
     if suffix not in FORMATS:
         raise ParameterError(f"out = {str(out)!r} has extension {suffix or '(none)'!r}; "
@@ -438,14 +449,27 @@ def _scene_cameras() -> tuple[str, ...]:
 
 
 def _check_camera(camera: str) -> None:
-    if camera not in _scene_cameras():
+    if not isinstance(camera, str) or camera not in _scene_cameras():
         raise ParameterError(f"camera = {camera!r} is not in the scene; "
                              f"valid cameras: {', '.join(_scene_cameras())}")
 
 
-def _check_result(result: SimResult) -> None:
-    if len(result.time) < 1:
-        raise ParameterError("result has no samples to render")
+def _check_inputs(result: SimResult, params: Params, shadows: bool = False) -> None:
+    """The run to draw: a SimResult (its series share one length, see `SimResult`) whose
+    time increases and whose drawn state (x, Pi, Po) is finite, and its Params."""
+    if not isinstance(result, SimResult):
+        raise ParameterError(f"result = {type(result).__name__} must be a SimResult "
+                             "(e.g. from wpam_mj.experiments.step_run)")
+    if not isinstance(params, Params):
+        raise ParameterError(f"params = {type(params).__name__} must be a Params "
+                             "(e.g. wpam_mj.preset())")
+    if not isinstance(shadows, (bool, np.bool_)):
+        raise ParameterError(f"shadows = {shadows!r} must be True or False")
+    for name in ("time", "x", "pi", "po"):
+        series = getattr(result, name)
+        if not np.all(np.isfinite(series)):
+            raise ParameterError(f"result.{name} has NaN or infinite values at sample "
+                                 f"{int(np.flatnonzero(~np.isfinite(series))[0])}")
     if len(result.time) > 1 and not np.all(np.diff(result.time) > 0):
         raise ParameterError("result.time must be strictly increasing")
 
@@ -460,9 +484,9 @@ def render_frames(result: SimResult, params: Params, *, fps: float = 30,
     scene and GL context and draw every `threads`-th frame; the frames do not depend on
     it. Close the generator (or exhaust it) to free the contexts.
     """
-    fps = check_range("fps", fps, *FPS_RANGE[".mp4"], "frames/s")
+    fps = check_fps(fps)
     size = _check_size(size, "")
-    _check_result(result)
+    _check_inputs(result, params, shadows)
     _check_camera(camera)
     threads = _check_threads(threads)
     samples = list(_samples(result, frame_times(result.time, fps)))
@@ -546,7 +570,8 @@ def _threaded_frames(new_scene, samples: list[_Sample], threads: int,
 
 def render_video(result: SimResult, params: Params, out: str | Path, *, fps: float = 30,
                  size: tuple[int, int] = (640, 480), camera: str = "front",
-                 shadows: bool = False, threads: int | None = None) -> Path:
+                 shadows: bool = False, threads: int | None = None,
+                 run_id: str | None = None) -> Path:
     """Write a video of a simulated run; returns the path written.
 
     Args:
@@ -558,22 +583,25 @@ def render_video(result: SimResult, params: Params, out: str | Path, *, fps: flo
       camera: a camera of models/wpam/scene.xml ("front", "side").
       shadows: draw shadows (about 4x slower in software rendering).
       threads: render threads, see `render_frames`.
+      run_id: the run's id (`wpam_mj.manifest.run_id`), written into the file's comment.
     """
     suffix = _check_suffix(out)
-    fps = check_range("fps", fps, *FPS_RANGE[suffix], "frames/s")
+    fps = check_fps(fps, suffix)
     size = _check_size(size, suffix)
-    _check_result(result)
+    _check_inputs(result, params, shadows)
+    comment = None if run_id is None else video_comment(run_id)
     frames = render_frames(result, params, fps=fps, size=size, camera=camera,
                            shadows=shadows, threads=threads)
     try:
         if suffix == ".mp4":
-            return write_atomic(out, lambda p: _write_mp4(p, frames, fps))
-        return write_atomic(out, lambda p: _write_gif(p, frames, fps))
+            return write_atomic(out, lambda p: _write_mp4(p, frames, fps, comment))
+        return write_atomic(out, lambda p: _write_gif(p, frames, fps, comment))
     finally:
         frames.close()
 
 
-def _write_mp4(path: Path, frames: Iterator[np.ndarray], fps: float) -> None:
+def _write_mp4(path: Path, frames: Iterator[np.ndarray], fps: float,
+               comment: str | None) -> None:
     import imageio.v2 as imageio  # only when writing video
 
     # macro_block_size=2: keep the exact size (even dimensions are checked above).
@@ -582,7 +610,9 @@ def _write_mp4(path: Path, frames: Iterator[np.ndarray], fps: float) -> None:
     with imageio.get_writer(path, format="FFMPEG", mode="I", fps=fps, codec="libx264",
                             pixelformat="yuv420p", quality=7, macro_block_size=2,
                             ffmpeg_log_level="error",
-                            output_params=["-preset", _X264_PRESET]) as writer:
+                            output_params=["-preset", _X264_PRESET, *(
+                                [] if comment is None else ["-metadata", f"comment={comment}"])]
+                            ) as writer:
         _pipelined(frames, writer.append_data)
 
 
@@ -617,25 +647,31 @@ def _pipelined(frames: Iterator[np.ndarray], consume, depth: int = 4) -> None:
         raise errors[0]
 
 
-def _write_gif(path: Path, frames: Iterator[np.ndarray], fps: float) -> None:
+def _write_gif(path: Path, frames: Iterator[np.ndarray], fps: float,
+               comment: str | None) -> None:
     images = [Image.fromarray(f).convert("P", palette=Image.Palette.ADAPTIVE, colors=255)
               for f in frames]
     # GIF delays are in 1/100 s; Pillow merges identical consecutive frames, which the
     # changing time stamp in the overlay prevents.
     images[0].save(path, format="GIF", save_all=True, append_images=images[1:],
-                   duration=round(1000.0 / fps), loop=0)
+                   duration=round(1000.0 / fps), loop=0,
+                   **({} if comment is None else {"comment": comment}))
 
 
 def still_frame(result: SimResult, params: Params, t: float, out_png: str | Path, *,
                 size: tuple[int, int] = (640, 480), camera: str = "front",
-                shadows: bool = False) -> Path:
+                shadows: bool = False, run_id: str | None = None) -> Path:
     """Write one PNG of the run at time `t` [s] (e.g. the README picture).
 
     Drawn with MuJoCo's default mesh quality (videos use a coarser one for speed).
+    `run_id` (`wpam_mj.manifest.run_id`) goes into the PNG's metadata.
     """
-    _check_result(result)
+    _check_inputs(result, params, shadows)
+    info = PngImagePlugin.PngInfo()
+    for key, value in ({} if run_id is None else png_metadata(run_id)).items():
+        info.add_text(key, value)
     t = check_range("t", t, float(result.time[0]), float(result.time[-1]), "s")
-    if Path(out_png).suffix.lower() != ".png":
+    if not isinstance(out_png, (str, os.PathLike)) or Path(out_png).suffix.lower() != ".png":
         raise ParameterError(f"out_png = {str(out_png)!r} must end in .png")
     size = _check_size(size, "")
     scene = _Scene(result.load, params, size, camera, shadows, fast=False)
@@ -643,7 +679,8 @@ def still_frame(result: SimResult, params: Params, t: float, out_png: str | Path
         image = scene.frame(next(_samples(result, np.array([t]))))
     finally:
         scene.close()
-    return write_atomic(out_png, lambda p: Image.fromarray(image).save(p, format="PNG"))
+    return write_atomic(out_png, lambda p: Image.fromarray(image).save(p, format="PNG",
+                                                                      pnginfo=info))
 
 
 class StateFrames:

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import glob
 import io
 import os
+import re
 import tempfile
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -11,14 +13,22 @@ from typing import Callable
 
 import numpy as np
 
-from wpam_mj.params import MM, MPA
+from wpam_mj.params import MM, MPA, ParameterError
 
 
 def write_atomic(path: str | Path, write: Callable[[Path], None]) -> Path:
-    """Write a file whole or not at all: `write(tmp)` then rename over `path`."""
+    """Write a file whole or not at all: `write(tmp)` then rename over `path`.
+
+    The temporary file sits beside `path` as ``.<name>.wpam<pid>-<random><suffix>``. A
+    process killed before the rename (SIGKILL, or a helper such as ffmpeg finishing the
+    file after its parent died) leaves it behind under that hidden name, never under
+    `path`; the next write of `path` removes such files whose process has gone.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=path.suffix)
+    _remove_stale_temporaries(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.wpam{os.getpid()}-",
+                               suffix=path.suffix)
     os.close(fd)
     umask = os.umask(0)
     os.umask(umask)
@@ -30,6 +40,28 @@ def write_atomic(path: str | Path, write: Callable[[Path], None]) -> Path:
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+def _remove_stale_temporaries(path: Path) -> None:
+    """Delete write_atomic's leftovers for `path` whose writing process no longer exists.
+
+    A live process's file is kept: a concurrent writer of the same path is not disturbed.
+    """
+    pattern = re.compile(rf"\.{re.escape(path.name)}\.wpam(\d+)-\w+{re.escape(path.suffix)}")
+    for candidate in path.parent.glob(f".{glob.escape(path.name)}.wpam*"):
+        match = pattern.fullmatch(candidate.name)
+        if match and not _process_exists(int(match.group(1))):
+            candidate.unlink(missing_ok=True)
+
+
+def _process_exists(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)  # signal 0: existence check only
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):  # another user's process / not a pid
+        return True
+    return True
 
 
 def write_text_atomic(path: str | Path, text: str) -> Path:
@@ -83,14 +115,35 @@ class SimResult:
     control: str
     preset: str
 
+    def __post_init__(self) -> None:
+        n = len(np.atleast_1d(self.time))
+        for f in fields(self):
+            if f.type != "np.ndarray":
+                continue
+            arr = np.asarray(getattr(self, f.name), dtype=float)
+            if arr.shape != (n,):
+                raise ParameterError(f"SimResult.{f.name} has shape {arr.shape}; every series "
+                                     f"must have the shape of time, ({n},)")
+            object.__setattr__(self, f.name, arr)
+        if n == 0:
+            raise ParameterError("SimResult has no samples (a run of zero duration)")
+
     def arrays(self) -> dict[str, np.ndarray]:
         return {f.name: getattr(self, f.name) for f in fields(self)
                 if isinstance(getattr(self, f.name), np.ndarray)}
 
+    def metadata(self) -> dict[str, float | int | str]:
+        """What the CSV does not hold, for the run's manifest (`wpam_mj.manifest`)."""
+        return {"load_n": self.load, "dt_s": self.dt, "control": self.control,
+                "preset": self.preset, "samples": len(self.time)}
+
     def to_csv_text(self) -> str:
+        """One header line of column names (unit in the name), then one row per sample.
+
+        No comment lines, so ``np.genfromtxt(f, delimiter=",", names=True)`` and
+        ``pandas.read_csv(f)`` read it as it is; `metadata` goes into the manifest.
+        """
         buf = io.StringIO()
-        buf.write(f"# load_n={self.load:g} dt_s={self.dt:g} control={self.control} "
-                  f"preset={self.preset}\n")
         buf.write(",".join(c for _, c, _ in _COLUMNS) + "\n")
         table = np.column_stack([getattr(self, f) * s for f, _, s in _COLUMNS])
         # one %-format per block of rows: as np.savetxt(fmt="%.6g") writes, ~2x faster
