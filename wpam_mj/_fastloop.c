@@ -61,14 +61,14 @@
   X(VOLUME_DENOM, volume_denom)      /* 4.0 * math.pi * turns ** 2 [1] */          \
   X(DIAMETER_DENOM, diameter_denom)  /* turns * math.pi [1] */                     \
   /* PoFeedback (wpam_mj/control.py); zeros for the open loop */                  \
-  X(KP, kp)                          /* [MPa/mm] */                                \
-  X(KI, ki)                          /* [MPa/(mm s)] */                            \
-  X(KD, kd)                          /* [MPa s/mm]; 0 unless PID */                \
+  X(KP, kp)                          /* [u/mm] */                                  \
+  X(KI, ki)                          /* [u/(mm s)] */                              \
+  X(KD, kd)                          /* [u s/mm]; 0 unless PID */                  \
   X(TF, tf)                          /* derivative filter time constant [s] */     \
   X(PO_LO, po_lo)                    /* p_min [Pa] */                              \
   X(PO_HI, po_hi)                    /* po_cap [Pa] */                             \
   X(MM, mm)                          /* m per mm */                                \
-  X(MPA, mpa)                        /* Pa per MPa */                              \
+  X(PA_PER_UNIT, pa_per_unit)        /* Po command [Pa] per controller unit u */  \
   X(INTEGRAL0, integral0)            /* initial integral [mm s] (bumpless start) */ \
   /* where the loop reads and writes MuJoCo (looked up by name in Python) */       \
   X(QPOS_ADR, qpos_adr)              /* qpos address of the contraction joint */   \
@@ -141,8 +141,8 @@ static double muscle_rubber_force(const double* k, double x) {
 
 static double muscle_tension(const double* k, double x, double pi, double po) {
   double dp = pi > po ? pi - po : 0.0;
-  return (k[K_OUTPUT_COEFF] * dp * geom_area(k, x) - k[K_AXIAL_AREA] * po
-          - muscle_rubber_force(k, x));
+  return (k[K_OUTPUT_COEFF] * (dp * geom_area(k, x) - muscle_rubber_force(k, x))
+          - k[K_AXIAL_AREA] * po);
 }
 
 static double muscle_friction(const double* k, double x, double pi, double po) {
@@ -186,7 +186,7 @@ static double feedback_update(const double* k, Feedback* f, double x, double x_r
   double integral, u;
   f->derivative = (k[K_TF] * f->derivative + (e - e_prev)) / (k[K_TF] + k[K_DT]);
   integral = f->integral + e * k[K_DT];
-  u = (k[K_KP] * e + k[K_KI] * integral + k[K_KD] * f->derivative) * k[K_MPA];
+  u = (k[K_KP] * e + k[K_KI] * integral + k[K_KD] * f->derivative) * k[K_PA_PER_UNIT];
   if (u > k[K_PO_HI]) {
     u = k[K_PO_HI];
     if (e < 0.0) f->integral = integral;

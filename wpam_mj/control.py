@@ -2,15 +2,20 @@
 `PoController` (open loop, PI, PID; the registry `CONTROLLERS`).
 
 Paper §3-4: Pi is set by the mechanical equilibrium model for the target x_r and load F
-(eqs. 5-6 without friction), Po by feedback on the position error. Our feedforward
-assumes a mid-range Po (`Controller.po_feedforward`), so with less Po the muscle is
-over-contracted (the paper's "excessive contraction state", §4.1) and the feedback has
-authority both ways within [p_min, po_cap].
+(eqs. 5-6), Po by feedback on the position error. The feedforward is the equilibrium
+at a nominal Po (`Controller.po_feedforward`) on a branch between the frictionless one
+and the contracting one of eq. 5 (`Controller.feedforward_friction` = 0 .. 1): with
+friction counted, the muscle sits over-contracted (the paper's "excessive contraction
+state", §4.1) by an amount that grows with the load, so the Po the feedback settles at
+rises with the load (paper Fig. 15).
 
-Gain units (the paper does not state them; we read them in the paper's display units):
+Gain units. The paper gives Kp = 0.1, Ki = 0.008, Kd = 0.004 without units. We keep its
+numbers, with the error in mm and time in s, and read the controller's output u in a
+unit that `Controller.command_scale` [MPa per u] turns into the Po command:
     e = x - x_r  [mm]   (over-contraction positive: more Po extends the muscle)
-    Po = Kp e + Ki int(e dt) + Kd de/dt  [MPa],  t in s
-so Kp = 0.1 MPa/mm, Ki = 0.008 MPa/(mm s), Kd = 0.004 MPa s/mm. The derivative acts on
+    u = Kp e + Ki int(e dt) + Kd de/dt,   Po = command_scale u  [MPa]
+command_scale = 1 reads the gains as MPa/mm; 0.1 as volts on the ITV2031's 0-5 V input
+(0.5 MPa / 5 V); 0.05 on its 0-10 V input (docs/physics.md compares them). The derivative acts on
 the error through a first-order filter s / (T_f s + 1) (backward Euler), and the integral
 stops while the output is saturated in the direction the error pushes it (conditional
 integration anti-windup; Astrom & Hagglund, Advanced PID Control, 2006, §3.5).
@@ -36,17 +41,19 @@ def pi_feedforward(muscle: MuscleModel, params: Params, x_ref: np.ndarray, load:
                    po: float) -> np.ndarray:
     """Pi command [Pa] that holds each x_ref [m] under `load` [N] at Po = `po` [Pa].
 
-    Frictionless mechanical equilibrium (paper eqs. 5-6 with mu = 0), clamped to the
-    regulator range.
+    The mechanical equilibrium model (paper eqs. 5-6) on the branch weighted by
+    `Controller.feedforward_friction` (0: frictionless; 1: contracting, eq. 5), clamped
+    to the regulator range.
     """
     pn = params.pneumatics
-    pi = muscle.equilibrium_pressure(np.asarray(x_ref, dtype=float), load, po)
+    pi = muscle.equilibrium_pressure(np.asarray(x_ref, dtype=float), load, po,
+                                     params.controller.feedforward_friction)
     return np.clip(pi, pn.p_min, pn.p_max)
 
 
-def initial_integral(output: float, ki: float) -> float:
+def initial_integral(output: float, ki: float, pa_per_unit: float) -> float:
     """Integral [mm s] whose Ki term alone outputs `output` [Pa]; 0 when ki = 0."""
-    return output / MPA / ki if ki > 0.0 else 0.0
+    return output / pa_per_unit / ki if ki > 0.0 else 0.0
 
 
 class PoController:
@@ -107,6 +114,7 @@ class PoFeedback(PoController):
         self.kp, self.ki = c.kp, c.ki
         self.kd = c.kd if self.derivative_term else 0.0
         self.tf = c.derivative_filter
+        self.pa_per_unit = c.command_scale * MPA  # Po command [Pa] per controller unit
         self.dt = dt
         self.lo, self.hi = params.pneumatics.p_min, c.po_cap
         self.initial_output = initial_output
@@ -118,7 +126,7 @@ class PoFeedback(PoController):
         return cls(params, dt, initial_output=params.controller.po_feedforward)
 
     def reset(self) -> None:
-        self.integral = initial_integral(self.initial_output, self.ki)  # mm s
+        self.integral = initial_integral(self.initial_output, self.ki, self.pa_per_unit)
         self.derivative = 0.0  # mm/s
         self.e_prev = None
 
@@ -128,7 +136,7 @@ class PoFeedback(PoController):
         e_prev = e if self.e_prev is None else self.e_prev
         self.derivative = (self.tf * self.derivative + (e - e_prev)) / (self.tf + self.dt)
         integral = self.integral + e * self.dt
-        u = (self.kp * e + self.ki * integral + self.kd * self.derivative) * MPA
+        u = (self.kp * e + self.ki * integral + self.kd * self.derivative) * self.pa_per_unit
         if u > self.hi:
             u = self.hi
             if e < 0.0:

@@ -34,7 +34,7 @@ import numpy as np
 from wpam_mj import pneumatics as pn
 from wpam_mj.control import CONTROLLERS, PoController, PoFeedback
 from wpam_mj.model import MuscleIndex
-from wpam_mj.params import MM, MPA
+from wpam_mj.params import MM
 from wpam_mj.loop_contract import (REC_FIELDS, REC_ROWS, RunConstants, contraction_diverged,
                                    pressure_diverged)
 
@@ -59,7 +59,7 @@ _CONSTS = (
     # BraidGeometry
     "natural_length", "thread_sq", "volume_denom", "diameter_denom",
     # PoFeedback (zeros for the open loop)
-    "kp", "ki", "kd", "tf", "po_lo", "po_hi", "mm", "mpa", "integral0",
+    "kp", "ki", "kd", "tf", "po_lo", "po_hi", "mm", "pa_per_unit", "integral0",
     # MuJoCo addresses
     "qpos_adr", "dof_adr", "actuator_id", "tendon_id",
 )
@@ -90,10 +90,10 @@ def compiled_controllers() -> tuple[str, ...]:
 def _controller_constants(controller: PoController) -> dict[str, float]:
     """The PoFeedback constants of the layout (zeros for a controller without them)."""
     if not isinstance(controller, PoFeedback):
-        return dict.fromkeys(("kp", "ki", "kd", "tf", "po_lo", "po_hi", "mm", "mpa",
+        return dict.fromkeys(("kp", "ki", "kd", "tf", "po_lo", "po_hi", "mm", "pa_per_unit",
                               "integral0"), 0.0)
     c = controller
-    return dict(kp=c.kp, ki=c.ki, kd=c.kd, tf=c.tf, po_lo=c.lo, po_hi=c.hi, mm=MM, mpa=MPA,
+    return dict(kp=c.kp, ki=c.ki, kd=c.kd, tf=c.tf, po_lo=c.lo, po_hi=c.hi, mm=MM, pa_per_unit=c.pa_per_unit,
                 integral0=c.integral)
 
 
