@@ -4,9 +4,10 @@ come from the same margins."""
 
 import pytest
 
-from wpam_mj import paper, report
+from wpam_mj import paper
 from wpam_mj.params import MPA, preset
-from wpam_mj.studies import SweepPoint, SweepResult
+from wpam_mj.study_results import SweepPoint, SweepResult
+from wpam_mj.summaries import checks_text
 
 CAP = paper.PO_CAP_MPA * MPA
 
@@ -26,8 +27,8 @@ def _papers_picture():
 
 
 def test_sweep_checks_pass_on_the_papers_picture():
-    checks = report.sweep_checks(_papers_picture(), CAP)
-    assert [c.passed for c in checks] == [True] * 5, report.checks_text(checks)
+    checks = paper.sweep_checks(_papers_picture(), CAP)
+    assert [c.passed for c in checks] == [True] * 5, checks_text(checks)
     assert all(m.margin >= 0.0 for c in checks for m in c.margins)
 
 
@@ -35,13 +36,13 @@ def test_sweep_checks_fail_where_the_paper_does_not_hold():
     sw = _sweep(gain=lambda load, f, c: (1.0 + f) * (1.0 + load / 1000),  # rises, load-dependent
                 lag=lambda load, f, c: 40 * f - load / 100 + (2.0 if c == "pid" else 0.0),
                 po_max=0.05 * MPA)
-    checks = report.sweep_checks(sw, CAP)
-    assert [c.passed for c in checks] == [False] * 5, report.checks_text(checks)
+    checks = paper.sweep_checks(sw, CAP)
+    assert [c.passed for c in checks] == [False] * 5, checks_text(checks)
 
 
 def test_sweep_checks_need_their_data():
     sw = SweepResult(points=(SweepPoint(100.0, 0.5, "pi", 0.9, 30.0, 0.07 * MPA),))
-    assert [c.passed for c in report.sweep_checks(sw, CAP)] == [None] * 5
+    assert [c.passed for c in paper.sweep_checks(sw, CAP)] == [None] * 5
 
 
 def test_a_failing_margin_names_its_load_and_frequency():
@@ -52,7 +53,7 @@ def test_a_failing_margin_names_its_load_and_frequency():
         return base + (5.0 if (load, f, c) == (100.0, 0.2, "pid") else 0.0)
 
     sw = _sweep(gain=lambda load, f, c: 1.0 / (1.0 + f), lag=lag)
-    (lag_load,) = [c for c in report.sweep_checks(sw, CAP) if "lower load" in c.finding]
+    (lag_load,) = [c for c in paper.sweep_checks(sw, CAP) if "lower load" in c.finding]
     bad = [(m.load, m.freq, m.controller) for m in lag_load.margins if m.margin < 0.0]
     assert bad == [(150.0, 0.2, "pid")]  # 150 N is now below the 100 N lag
     assert lag_load.passed is False and "PID 0.2 Hz" in lag_load.detail
@@ -61,11 +62,11 @@ def test_a_failing_margin_names_its_load_and_frequency():
 def test_calibration_residuals_are_the_margins():
     """Zero where every finding holds with headroom; the Po-cap residual grows as the
     regulator's Po falls short of the cap, in units of a tenth of the cap."""
-    assert not paper.residuals(report.sweep_checks(_papers_picture(), CAP)).any()
+    assert not paper.residuals(paper.sweep_checks(_papers_picture(), CAP)).any()
     short = _sweep(gain=lambda load, f, c: 1.0 / (1.0 + f),
                    lag=lambda load, f, c: 40 * f + (load / 20 if f < 0.5 else 0)
                    - (2.0 if c == "pid" else 0.0), po_max=0.5 * CAP)
-    (cap,) = [c for c in report.sweep_checks(short, CAP) if "cap" in c.finding]
+    (cap,) = [c for c in paper.sweep_checks(short, CAP) if "cap" in c.finding]
     limit = (1.0 - paper.PO_CAP_RTOL) * CAP
     assert paper.residuals([cap]) == pytest.approx(
         [paper.CALIBRATION_HEADROOM + (limit - 0.5 * CAP) / (0.1 * CAP)])

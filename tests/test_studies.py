@@ -8,6 +8,7 @@ import pytest
 
 from wpam_mj import paper, plots, studies
 from wpam_mj.analysis import loop_area
+from wpam_mj.pool import TaskPool, run_tasks
 from wpam_mj.params import MPA, ParameterError, preset
 
 
@@ -73,7 +74,7 @@ def test_worker_errors_reach_the_caller(params):
     bad = studies.StaticTask(params, -1.0, 0.0, 1e-3)  # skips the up-front validation
     good = studies.StaticTask(params, 100.0, 0.0, 1e-3)
     with pytest.raises(ParameterError, match="load"):
-        studies.run_tasks([good, bad], jobs=2)
+        run_tasks([good, bad], jobs=2)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -94,7 +95,7 @@ class _Square:
 
 @pytest.mark.parametrize("jobs", [1, 2])
 def test_task_pool_keeps_order_and_takes_follow_up_work(jobs):
-    with studies.TaskPool(jobs) as pool:
+    with TaskPool(jobs) as pool:
         first = pool.submit([_Square(v) for v in range(7)])
         assert pool.results(first) == [v * v for v in range(7)]
         later = pool.submit([_Square(v) for v in (9, 8)])  # same pool, after results
@@ -104,10 +105,10 @@ def test_task_pool_keeps_order_and_takes_follow_up_work(jobs):
 
 def test_task_pool_failure_reaches_the_caller():
     with pytest.raises(ValueError, match="negative value -4"):
-        with studies.TaskPool(2) as pool:
+        with TaskPool(2) as pool:
             pool.results(pool.submit([_Square(v) for v in (1, 2, -4, 3)]))
     with pytest.raises(ValueError, match="negative value -4"):
-        with studies.TaskPool(1) as pool:  # serial: raised at once, nothing after it runs
+        with TaskPool(1) as pool:  # serial: raised at once, nothing after it runs
             pool.submit([_Square(-4), _Square(5)])
 
 
@@ -119,7 +120,7 @@ def test_inputs_are_checked_before_running(params):
     with pytest.raises(ParameterError, match="po_down"):
         studies.static_study(params, (100.0,), 0.7 * MPA)
     with pytest.raises(ParameterError, match="jobs"):
-        studies.run_tasks([], jobs=0)
+        run_tasks([], jobs=0)
 
 
 def test_figure_run_key():

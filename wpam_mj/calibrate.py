@@ -31,7 +31,8 @@ from wpam_mj.experiments import STATIC_TOP_MM, static_top_pressure
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import (CALIBRATION_FILE, MM, MPA, Params, ParameterError, preset)
 from wpam_mj.results import write_text_atomic
-from wpam_mj.studies import Batch, StaticTask, StepTask, run_batches, run_tasks, sweep_batch
+from wpam_mj.pool import Batch, run_batches, run_tasks
+from wpam_mj.studies import StaticTask, StepTask, sweep_batch
 
 PO_DOWN = paper.PO_DOWN_STATIC_MPA * MPA  # paper Fig. 9
 

@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import math
 import os
 import sys
 import tempfile
@@ -27,17 +26,13 @@ import time
 from pathlib import Path
 from typing import Sequence
 
-from wpam_mj import __version__, paper, studies
+from wpam_mj import __version__, paper, pool, studies
 from wpam_mj.control import CONTROLS, check_control
-from wpam_mj.experiments import SineSpec, check_po, sine_run, static_loop, step_run
+from wpam_mj.experiments import EXPERIMENTS, SineSpec, check_po, simulate_for_render
 from wpam_mj.model import check_dt, check_load
-from wpam_mj.paper import STEP_HOLD_S, STEP_LEVELS_MM
 from wpam_mj.params import (CALIBRATION_FILE, MPA, PRESETS, ParameterError, Params, apply_overrides,
                             check_range, load_toml, preset)
-from wpam_mj.results import SimResult
 from wpam_mj.simulate import SimulationDiverged
-
-EXPERIMENTS = ("step", "sweep", "static")  # for `wpam render`
 
 
 class UsageError(Exception):
@@ -96,9 +91,9 @@ def _common() -> argparse.ArgumentParser:
     g.add_argument("--config", type=Path, metavar="FILE.toml",
                    help="parameter overrides: TOML with sections braid, muscle, "
                         "pneumatics, controller; SI values (m, Pa, N, s)")
-    g.add_argument("--jobs", type=int, default=studies.default_jobs(), metavar="N",
+    g.add_argument("--jobs", type=int, default=pool.default_jobs(), metavar="N",
                    help="parallel worker processes [count] (default: the number of CPUs, "
-                        f"{studies.default_jobs()}); results do not depend on it")
+                        f"{pool.default_jobs()}); results do not depend on it")
     g.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bars on stderr (default: when stderr is a terminal)")
     return common
@@ -221,7 +216,7 @@ def _params(args: argparse.Namespace, name: str | None = None) -> Params:
 def _run_options(args: argparse.Namespace) -> _Run:
     params = _params(args)
     dt = check_dt(args.dt)
-    jobs = studies.check_jobs(args.jobs)
+    jobs = pool.check_jobs(args.jobs)
     progress = sys.stderr.isatty() if args.progress is None else args.progress
     return _Run(params, dt, jobs, progress)
 
@@ -250,10 +245,10 @@ def _out_file(path: Path) -> Path:
 
 
 def _output_modules():
-    """`plots` and `report` (matplotlib): imported only by commands that write figures,
-    so that --help and argument errors stay quick."""
-    from wpam_mj import plots, report  # noqa: PLC0415
-    return plots, report
+    """`summaries` and `writers` (matplotlib): imported only by commands that write
+    figures, so that --help and argument errors stay quick."""
+    from wpam_mj import summaries, writers  # noqa: PLC0415
+    return summaries, writers
 
 
 def _loads(values: Sequence[float]) -> tuple[float, ...]:
@@ -273,7 +268,7 @@ def _wrote(paths: Sequence[Path]) -> None:
 
 
 def _cmd_static(args: argparse.Namespace) -> int:
-    plots, report = _output_modules()
+    _, writers = _output_modules()
     run = _run_options(args)
     loads = _loads(paper.LOADS_N if args.load is None else (args.load,))
     po_down = check_po("--po-down", args.po_down * MPA, run.params)
@@ -282,10 +277,7 @@ def _cmd_static(args: argparse.Namespace) -> int:
     out = _out_dir(args)
     loops = studies.compare_presets(plist, loads, po_down, dt=run.dt, jobs=run.jobs,
                                     progress=run.progress)
-    written = [lp.result.to_csv(out / report.static_csv_name(lp)) for lp in loops]
-    po = "" if po_down == 0.0 else f"_po{args.po_down:g}MPa"
-    stem = "static_presets" if args.compare_presets else f"static_{args.preset}"
-    written.append(plots.save_figure(plots.static_figure(loops), out / f"{stem}{po}.png"))
+    written = writers.write_static_outputs(out, loops, compare_presets=args.compare_presets)
     print(f"loop area of x against measured Pi (Po = {args.po_down:g} MPa while Pi falls):")
     for lp in loops:
         print(f"  {lp.preset:>8} {lp.load:>6g} N: {lp.area_mpa_mm:.4g} MPa mm")
@@ -294,40 +286,36 @@ def _cmd_static(args: argparse.Namespace) -> int:
 
 
 def _cmd_step(args: argparse.Namespace) -> int:
-    plots, report = _output_modules()
+    summaries, writers = _output_modules()
     run = _run_options(args)
     load = check_load(args.load)
     control = check_control(args.control)
     out = _out_dir(args)
     (res,) = studies.step_study(run.params, [(load, control)], dt=run.dt, jobs=1,
                                 progress=run.progress)
-    name = report.step_csv_name(res)
-    written = [res.result.to_csv(out / name),
-               plots.save_figure(plots.step_figure([res.result]),
-                                 out / name.replace(".csv", ".png"))]
-    print(report.step_text(res))
+    written = writers.write_step_outputs(out, res)
+    print(summaries.step_text(res))
     _wrote(written)
     return 0
 
 
 def _cmd_table2(args: argparse.Namespace) -> int:
-    plots, report = _output_modules()
+    summaries, writers = _output_modules()
     run = _run_options(args)
     out = _out_dir(args)
     t2 = studies.table2(run.params, dt=run.dt, jobs=run.jobs, progress=run.progress)
-    written = [*report.write_table2(out, t2),
-               plots.save_figure(plots.table2_figure(t2), out / "table2.png")]
+    written = writers.write_table2_outputs(out, t2)
     if args.json:
         _print_json(t2.as_json())
     else:
-        print(report.table2_text(t2))
-        print(report.checks_text(report.table2_checks(t2)))
+        print(summaries.table2_text(t2))
+        print(summaries.checks_text(paper.table2_checks(t2)))
         _wrote(written)
     return 0
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    plots, report = _output_modules()
+    summaries, writers = _output_modules()
     run = _run_options(args)
     loads = _loads(args.loads)
     freqs = tuple(SineSpec(f).freq for f in args.freqs)
@@ -338,34 +326,29 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     key = studies.figure_run_key(loads, freqs, controllers)
     sw = studies.sweep(run.params, loads, freqs, controllers, keep=[key], dt=run.dt,
                        jobs=run.jobs, progress=run.progress)
-    load, freq, ctrl = key
-    written = [
-        *report.write_sweep(out, sw),
-        plots.save_figure(plots.sweep_figure(sw), out / "sweep_gain_phase.png"),
-        sw.series[key].to_csv(out / report.sine_csv_name(key)),
-        plots.save_figure(plots.sine_figure(sw.series[key], freq, run.params.controller.po_cap),
-                          out / report.sine_csv_name(key).replace(".csv", ".png")),
-    ]
+    po_cap = run.params.controller.po_cap
+    written = writers.write_sweep_outputs(out, sw, key, po_cap)
     if args.json:
         _print_json(sw.as_json())
     else:
-        print(report.sweep_text(sw))
-        print(report.checks_text(report.sweep_checks(sw, run.params.controller.po_cap)))
+        print(summaries.sweep_text(sw))
+        print(summaries.checks_text(paper.sweep_checks(sw, po_cap)))
         _wrote(written)
     return 0
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
-    _, report = _output_modules()
+    summaries, _ = _output_modules()
+    from wpam_mj.reproduce import reproduce  # noqa: PLC0415 (matplotlib: slow import)
     run = _run_options(args)
     compare = [run.params if n == args.preset else _params(args, n)
                for n in ("mckibben", "rlam", "wpam")]
     out = _out_dir(args)
     start = time.perf_counter()
-    rep = report.reproduce(out, run.params, dt=run.dt, jobs=run.jobs, progress=run.progress,
-                           compare=compare)
-    print(report.table2_text(rep.table2))
-    print(report.checks_text(rep.checks))
+    rep = reproduce(out, run.params, dt=run.dt, jobs=run.jobs, progress=run.progress,
+                    compare=compare)
+    print(summaries.table2_text(rep.table2))
+    print(summaries.checks_text(rep.checks))
     print(f"wrote {rep.report} ({time.perf_counter() - start:.1f} s)")
     return 0
 
@@ -404,31 +387,6 @@ def _cmd_render(args: argparse.Namespace) -> int:
         raise RunFailed(str(err)) from None
     print(f"wrote {path} ({result.time[-1]:.2f} s of simulated time)")
     return 0
-
-
-def simulate_for_render(params: Params, load: float, experiment: str, control: str,
-                        spec: SineSpec, duration: float | None, dt: float) -> SimResult:
-    """Run `experiment` for at least `duration` [s] (when it can be shortened) and
-    truncate the result to `duration` (None: the whole run)."""
-    if experiment == "step":
-        levels = STEP_LEVELS_MM if duration is None else \
-            STEP_LEVELS_MM[:max(1, math.ceil(duration / STEP_HOLD_S))]
-        result = step_run(params, load, control, levels_mm=levels, dt=dt)
-    elif experiment == "sweep":
-        if duration is not None:  # as many cycles as the video shows, from rest
-            spec = dataclasses.replace(spec, settle_cycles=0,
-                                       cycles=max(1, math.ceil(duration * spec.freq)))
-        result = sine_run(params, load, control, spec, dt=dt)
-    elif experiment == "static":
-        result = static_loop(params, load, dt=dt)
-    else:
-        raise ParameterError(f"unknown experiment {experiment!r}; valid: "
-                             + ", ".join(EXPERIMENTS))
-    if duration is not None:
-        keep = result.time <= duration + 1e-9
-        result = dataclasses.replace(result, **{k: v[keep]
-                                                for k, v in result.arrays().items()})
-    return result
 
 
 # ------------------------------------------------------------------ entry point

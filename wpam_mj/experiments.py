@@ -5,6 +5,7 @@
   * `step_run`      target 0 -> 50 mm in 10-mm steps of 10 s, then back to 0, open loop or
                     Po feedback (§4.1, Figs. 12-15).
   * `sine_run`      sinusoidal target, 25 mm amplitude about a 25 mm mean (§4.2, Figs. 17-19).
+  * `simulate_for_render`  one of them cut to a video's length (`wpam render`).
 
 Targets and pressures are SI; the defaults carry the paper's values in its units
 (`wpam_mj.paper`).
@@ -12,6 +13,7 @@ Targets and pressures are SI; the defaults carry the paper's values in its units
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -21,10 +23,11 @@ from wpam_mj.control import CONTROLLERS, check_control, pi_feedforward
 from wpam_mj.model import check_dt, check_load
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.paper import SINE_AMPLITUDE_MM, STEP_HOLD_S, STEP_LEVELS_MM
-from wpam_mj.params import MM, MPA, Params, check_range
+from wpam_mj.params import MM, MPA, ParameterError, Params, check_range
 from wpam_mj.results import SimResult
 from wpam_mj.simulate import Drive, simulate
 
+EXPERIMENTS = ("step", "sweep", "static")  # what `simulate_for_render` can run
 SINE_MEAN_MM = 25.0  # our choice: the target spans 0-50 mm, the range of the step runs
 STATIC_TOP_MM = 50.0  # our choice: ramp until the contracting branch reaches this
 STATIC_RAMP_S = 60.0  # our choice: "slow" (near quasi-static), each direction
@@ -137,3 +140,28 @@ def sine_run(params: Params, load: float, control: str, spec: SineSpec, *,
     x_ref = spec.target(t)
     return simulate(params, load, drive_for_targets(params, load, x_ref, control), dt=dt,
                     control=control, engine=engine)
+
+
+def simulate_for_render(params: Params, load: float, experiment: str, control: str,
+                        spec: SineSpec, duration: float | None, dt: float) -> SimResult:
+    """Run `experiment` for at least `duration` [s] (when it can be shortened) and
+    truncate the result to `duration` (None: the whole run)."""
+    if experiment == "step":
+        levels = STEP_LEVELS_MM if duration is None else \
+            STEP_LEVELS_MM[:max(1, math.ceil(duration / STEP_HOLD_S))]
+        result = step_run(params, load, control, levels_mm=levels, dt=dt)
+    elif experiment == "sweep":
+        if duration is not None:  # as many cycles as the video shows, from rest
+            spec = dataclasses.replace(spec, settle_cycles=0,
+                                       cycles=max(1, math.ceil(duration * spec.freq)))
+        result = sine_run(params, load, control, spec, dt=dt)
+    elif experiment == "static":
+        result = static_loop(params, load, dt=dt)
+    else:
+        raise ParameterError(f"unknown experiment {experiment!r}; valid: "
+                             + ", ".join(EXPERIMENTS))
+    if duration is not None:
+        keep = result.time <= duration + 1e-9
+        result = dataclasses.replace(result, **{k: v[keep]
+                                                for k, v in result.arrays().items()})
+    return result

@@ -13,6 +13,7 @@ what the paper says or how closely we must match it.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
@@ -133,7 +134,7 @@ def residuals(checks: Sequence[Check]) -> np.ndarray:
                      for c in checks for m in c.margins])
 
 
-# ---- §4.2, the frequency response (on a `wpam_mj.studies.SweepResult`)
+# ---- §4.2, the frequency response (on a `wpam_mj.study_results.SweepResult`)
 
 
 def _falls_and_grows(sw, po_cap):
@@ -268,7 +269,7 @@ SWEEP_FINDINGS = (
 )
 
 
-# ---- Table 2 (on a `wpam_mj.studies.Table2Result`)
+# ---- Table 2 (on a `wpam_mj.study_results.Table2Result`)
 
 
 def _po_row_errors(t2) -> dict[float, float]:
@@ -305,3 +306,13 @@ TABLE2_FINDINGS = (
     Finding(f"Table 2 feedback row < {FEEDBACK_MAX} and increasing with load",
             _feedback_row, _feedback_row_detail, ""),
 )
+
+
+def sweep_checks(sw, po_cap: float) -> list[Check]:
+    """The §4.2 findings on a `wpam_mj.study_results.SweepResult` (po_cap [Pa])."""
+    return check_all(SWEEP_FINDINGS, sw, po_cap)
+
+
+def table2_checks(t2) -> list[Check]:
+    """The Table 2 targets on a `wpam_mj.study_results.Table2Result`."""
+    return check_all(TABLE2_FINDINGS, t2, math.nan)

@@ -1,4 +1,4 @@
-"""Figures of the paper's experiments from the `wpam_mj.studies` response objects.
+"""Figures of the paper's experiments from the `wpam_mj.study_results` response objects.
 
 Every function returns a `matplotlib.figure.Figure` built without pyplot (no global
 state, no display needed; PNG output goes through the Agg renderer). `save_figure`
@@ -19,7 +19,7 @@ from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM, MPA, Params
 from wpam_mj.results import SimResult, write_atomic
 from wpam_mj.paper import TABLE2
-from wpam_mj.studies import StaticLoop, StepRun, SweepResult, Table2Result
+from wpam_mj.study_results import StaticLoop, StepRun, SweepResult, Table2Result
 
 DPI = 100
 _LOAD_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple",

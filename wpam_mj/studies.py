@@ -6,189 +6,31 @@
   * `table2`           everything Table 2 needs, normalized as in the paper.
   * `sweep`            sinusoidal targets over loads, frequencies and controllers (Figs. 17-19).
 
-Independent runs are small picklable task objects; a `TaskPool` (or `run_tasks`) runs
-them serially (jobs = 1) or in a `ProcessPoolExecutor`, with results in task order. Every
-run is deterministic, so the results do not depend on `jobs`. Workers send back reduced
-results and only the time series that a figure needs.
-
-SI inside (m, Pa, N, s; frequency in Hz as in `SineSpec`); loop areas are in Pa m (the
-normalized Table 2 values are unit-free). No plotting here: the `.plot()` methods of
-the response objects call `wpam_mj.plots`.
+Each run is a small picklable task object, run by `wpam_mj.pool` serially or in a
+process pool; workers send back reduced results (`wpam_mj.study_results`) and only the
+time series that a figure needs. `*_batch` gives a study's tasks to share one pool.
 """
 
 from __future__ import annotations
 
-import math
-import os
-import sys
-from concurrent.futures import FIRST_EXCEPTION, Future, ProcessPoolExecutor, wait
-from dataclasses import dataclass, field
-from typing import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Iterable, Sequence
 
 import numpy as np
-from tqdm import tqdm
 
 from wpam_mj.analysis import frequency_response, loop_area, steady_state_means
-from wpam_mj.experiments import STATIC_RAMP_S, SineSpec, check_po, sine_run, static_loop, step_run
 from wpam_mj.control import check_control
+from wpam_mj.experiments import STATIC_RAMP_S, SineSpec, check_po, sine_run, static_loop, step_run
 from wpam_mj.model import check_dt, check_load
 from wpam_mj.paper import (FIG18_FREQ_HZ, FIG18_LOAD_N, LOADS_N, PO_DOWN_STATIC_MPA,
-                           STEP_HOLD_S, STEP_LEVELS_MM, SWEEP_CONTROLLERS, SWEEP_FREQS_HZ,
-                           TABLE2, TABLE2_SOURCE)
+                           STEP_HOLD_S, STEP_LEVELS_MM, SWEEP_CONTROLLERS, SWEEP_FREQS_HZ)
 from wpam_mj.params import MM, MPA, Params, ParameterError
+from wpam_mj.pool import Batch, run_batches, run_tasks
 from wpam_mj.results import SimResult
+from wpam_mj.study_results import (LOOP_METHOD, StaticLoop, StepRun, SweepKey, SweepPoint,
+                                   SweepResult, Table2Result)
 
 PLATEAU_SETTLE_S = 5.0  # our choice: average the last half of each 10 s plateau (Fig. 16)
-LOOP_METHOD = "branches"  # one loop-area method for every Table 2 cell
-
-
-def load_key(load: float) -> str:
-    """JSON/CSV key of a load [N]: "50", "100", "112.5"."""
-    return f"{load:g}"
-
-
-def check_jobs(jobs: int) -> int:
-    """Process-pool size: an integer >= 1."""
-    if isinstance(jobs, bool) or not isinstance(jobs, (int, np.integer)) or jobs < 1:
-        raise ParameterError(f"jobs = {jobs!r} must be an integer >= 1")
-    return int(jobs)
-
-
-def default_jobs() -> int:
-    return os.cpu_count() or 1
-
-
-# ------------------------------------------------------------------ running tasks
-
-
-def _execute(task):
-    """Worker entry point (module level, so the pool can pickle it)."""
-    return task.run()
-
-
-class TaskPool:
-    """Runs task objects (`.run()`, `.cost`) in this process or in one process pool.
-
-    jobs = 1 runs each task as it is submitted; jobs > 1 starts a pool (default start
-    method) and queues each submitted group longest first. Tasks submitted after others
-    queue behind them, so follow-up work (figures of finished runs) keeps the cores busy
-    without a second pool. The first failure cancels every task not yet started and is
-    re-raised (by `submit` when jobs = 1, else by `results`). Use as a context manager.
-    """
-
-    def __init__(self, jobs: int = 1, *, progress: bool = False, desc: str = "runs") -> None:
-        self.jobs = check_jobs(jobs)
-        self._pool: ProcessPoolExecutor | None = None
-        self._submitted: list[Future] = []
-        self._bar = tqdm(total=0, desc=desc, unit="run", file=sys.stderr,
-                         disable=not progress, leave=False)
-
-    def __enter__(self) -> TaskPool:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        for fut in self._submitted:
-            fut.cancel()
-        if self._pool is not None:
-            self._pool.shutdown(wait=True)
-        self._bar.close()
-
-    def submit(self, tasks: Sequence) -> list[Future]:
-        """Futures of `task.run()` for each task, in task order."""
-        tasks = list(tasks)
-        self._bar.total += len(tasks)
-        self._bar.refresh()
-        futures: list[Future | None] = [None] * len(tasks)
-        if self.jobs == 1:  # a failure propagates at once: nothing else runs
-            for i, task in enumerate(tasks):
-                futures[i] = Future()
-                futures[i].set_result(task.run())
-                self._bar.update()
-            return futures
-        if self._pool is None:
-            self._pool = ProcessPoolExecutor(max_workers=self.jobs)
-        for i in sorted(range(len(tasks)), key=lambda i: -tasks[i].cost):
-            futures[i] = fut = self._pool.submit(_execute, tasks[i])
-            fut.add_done_callback(lambda _: self._bar.update())
-        self._submitted += futures
-        return futures
-
-    def results(self, futures: Sequence[Future]) -> list:
-        """The results of `futures` (from `submit`), in order; raises the first failure."""
-        done, _ = wait(futures, return_when=FIRST_EXCEPTION)
-        for fut in done:
-            if fut.exception() is not None:
-                for other in self._submitted:
-                    other.cancel()
-                raise fut.exception()
-        return [fut.result() for fut in futures]
-
-    def run(self, tasks: Sequence) -> list:
-        """`submit` then `results`."""
-        return self.results(self.submit(tasks))
-
-
-def run_tasks(tasks: Sequence, *, jobs: int = 1, progress: bool = False,
-              desc: str = "runs") -> list:
-    """Run `task.run()` for every task (see `TaskPool`); results in task order."""
-    with TaskPool(jobs, progress=progress, desc=desc) as pool:
-        return pool.run(tasks)
-
-
-@dataclass(frozen=True)
-class Batch:
-    """Tasks of one study and the function that turns their results into its response."""
-
-    tasks: Sequence
-    assemble: Callable[[list], object]
-
-
-def submit_batches(pool: TaskPool, batches: Sequence[Batch]) -> list[Callable[[], object]]:
-    """Submit the tasks of several studies at once (longest first across all of them, so
-    they balance each other on few cores); returns one callable per study that waits for
-    its runs and returns its assembled response."""
-    futures = pool.submit([t for b in batches for t in b.tasks])
-    out, start = [], 0
-    for b in batches:
-        mine = futures[start:start + len(b.tasks)]
-        out.append(lambda b=b, mine=mine: b.assemble(pool.results(mine)))
-        start += len(b.tasks)
-    return out
-
-
-def run_batches(batches: Sequence[Batch], *, jobs: int = 1, progress: bool = False,
-                desc: str = "runs") -> list:
-    """Run the tasks of several studies in one pool and return each study's assembled
-    response, in the order given."""
-    with TaskPool(jobs, progress=progress, desc=desc) as pool:
-        return [response() for response in submit_batches(pool, batches)]
-
-
-# ------------------------------------------------------------------ static loops
-
-
-@dataclass(frozen=True)
-class StaticLoop:
-    """One open-loop Pi ramp up then down (paper Figs. 3, 8, 9).
-
-    load [N]; po_down: Po while Pi falls [Pa]; preset: muscle type;
-    area: loop area of the measured (Pi, x) trace [Pa m]; result: the run.
-    """
-
-    load: float
-    po_down: float
-    preset: str
-    area: float
-    result: SimResult
-
-    @property
-    def area_mpa_mm(self) -> float:
-        return self.area / (MPA * MM)
-
-    def plot(self):
-        """x against Pi with direction arrows (`wpam_mj.plots.static_figure`)."""
-        from wpam_mj import plots  # noqa: PLC0415 (matplotlib only when plotting)
-        return plots.static_figure([self])
 
 
 @dataclass(frozen=True)
@@ -232,54 +74,11 @@ def compare_presets(params_list: Sequence[Params], loads: Iterable[float] = (100
     return run_tasks(tasks, jobs=jobs, progress=progress, desc="static")
 
 
-# ------------------------------------------------------------------ step runs
-
-
 def plateau_segments(levels_mm: Sequence[float] = STEP_LEVELS_MM,
                      hold: float = STEP_HOLD_S) -> np.ndarray:
     """Plateau spans [s], shape (len(levels), 2), of the staircase target."""
     starts = np.arange(len(levels_mm)) * hold
     return np.column_stack([starts, starts + hold])
-
-
-@dataclass(frozen=True)
-class StepRun:
-    """A staircase run (paper Figs. 12-15) and its settled plateau means (Fig. 16).
-
-    Plateau arrays have shape (n_plateaus,), averaged over the last `settle` seconds of
-    each plateau: target [m], x [m], measured chamber Pi and Po [Pa].
-    """
-
-    load: float
-    control: str
-    preset: str
-    settle: float
-    target: np.ndarray
-    x_mean: np.ndarray
-    pi_mean: np.ndarray
-    po_mean: np.ndarray
-    result: SimResult
-
-    @property
-    def area(self) -> float:
-        """Loop area of the plateau means (Pi, x), up branch then down branch [Pa m]."""
-        return loop_area(self.pi_mean, self.x_mean, method=LOOP_METHOD)
-
-    @property
-    def error(self) -> np.ndarray:
-        """Settled error x - target per plateau [m]."""
-        return self.x_mean - self.target
-
-    def worst_error(self, settle: float = 3.0) -> float:
-        """Largest |x - x_r| over the last `settle` s of every plateau [m]."""
-        r = self.result
-        settled = (r.time % STEP_HOLD_S) >= STEP_HOLD_S - settle
-        return float(np.max(np.abs(r.x - r.x_ref)[settled]))
-
-    def plot(self):
-        """Figure of x, target, Pi and Po against time (`wpam_mj.plots.step_figure`)."""
-        from wpam_mj import plots  # noqa: PLC0415 (matplotlib only when plotting)
-        return plots.step_figure([self.result])
 
 
 @dataclass(frozen=True)
@@ -315,70 +114,6 @@ def step_study(params: Params, runs: Iterable[tuple[float, str]], *, dt: float =
     return run_tasks(tasks, jobs=jobs, progress=progress, desc="step")
 
 
-# ------------------------------------------------------------------ Table 2
-
-
-@dataclass(frozen=True)
-class Table2Result:
-    """Hysteresis-loop areas behind the paper's Table 2, per load.
-
-    open_loops: open loop, Po = 0 (Fig. 8); po_loops: open loop, Po = `po_down` while Pi
-    falls (Fig. 9); feedback_runs: PI staircase runs (Figs. 14-16). Normalized values
-    divide each area by the open-loop, Po = 0 area of the same load.
-    """
-
-    loads: tuple[float, ...]
-    po_down: float
-    open_loops: tuple[StaticLoop, ...]
-    po_loops: tuple[StaticLoop, ...]
-    feedback_runs: tuple[StepRun, ...]
-
-    @property
-    def open_po(self) -> dict[float, float]:
-        return {o.load: p.area / o.area for o, p in zip(self.open_loops, self.po_loops)}
-
-    @property
-    def feedback(self) -> dict[float, float]:
-        return {o.load: f.area / o.area for o, f in zip(self.open_loops, self.feedback_runs)}
-
-    def paper(self) -> dict[str, dict[float, float]]:
-        """The paper's rows for the loads of this study that the paper has."""
-        return {row: {load: v[load] for load in self.loads if load in v}
-                for row, v in TABLE2.items()}
-
-    def as_json(self) -> dict:
-        """{"open_po": {"50": a, ...}, "feedback": {...}, "paper": {...}}."""
-        paper: dict = {row: {load_key(k): v for k, v in vals.items()}
-                       for row, vals in self.paper().items()}
-        paper["po_down_mpa"] = PO_DOWN_STATIC_MPA
-        paper["source"] = TABLE2_SOURCE
-        return {"open_po": {load_key(k): v for k, v in self.open_po.items()},
-                "feedback": {load_key(k): v for k, v in self.feedback.items()},
-                "paper": paper}
-
-    def plot(self):
-        """Bar chart of the normalized areas beside the paper's (`plots.table2_figure`)."""
-        from wpam_mj import plots  # noqa: PLC0415 (matplotlib only when plotting)
-        return plots.table2_figure(self)
-
-    def rows(self) -> list[dict]:
-        """One dict per load: raw areas [MPa mm] and normalized values, ours and paper's."""
-        paper = self.paper()
-        out = []
-        for o, p, f in zip(self.open_loops, self.po_loops, self.feedback_runs):
-            out.append({
-                "load_n": o.load,
-                "open_area_mpa_mm": o.area_mpa_mm,
-                "open_po_area_mpa_mm": p.area_mpa_mm,
-                "feedback_area_mpa_mm": f.area / (MPA * MM),
-                "open_po": p.area / o.area,
-                "feedback": f.area / o.area,
-                "paper_open_po": paper["open_po"].get(o.load, math.nan),
-                "paper_feedback": paper["feedback"].get(o.load, math.nan),
-            })
-        return out
-
-
 def table2(params: Params, *, loads: Iterable[float] = LOADS_N,
            po_down: float = PO_DOWN_STATIC_MPA * MPA, dt: float = 1e-3, jobs: int = 1,
            progress: bool = False) -> Table2Result:
@@ -409,34 +144,6 @@ def table2_batch(params: Params, *, loads: Iterable[float] = LOADS_N,
     return Batch(tasks, assemble)
 
 
-# ------------------------------------------------------------------ frequency sweep
-
-
-@dataclass(frozen=True)
-class SweepPoint:
-    """Response to a sinusoidal target at one (load, frequency, controller).
-
-    load [N]; freq [Hz]; gain [1]; phase_lag_deg [deg], positive = lag; po_max: highest
-    Po read by the regulator's own gauge over the analysed cycles [Pa] (what the paper
-    plots, §2.3); po_chamber_max: highest Po inside the outer chamber, behind the line
-    restriction [Pa]; po_cmd_max: highest Po command (capped at po_cap) [Pa].
-    """
-
-    load: float
-    freq: float
-    controller: str
-    gain: float
-    phase_lag_deg: float
-    po_max: float
-    po_chamber_max: float = float("nan")
-    po_cmd_max: float = float("nan")
-
-    def as_json(self) -> dict:
-        return {"load_n": self.load, "freq_hz": self.freq, "controller": self.controller,
-                "gain": self.gain, "phase_lag_deg": self.phase_lag_deg,
-                "po_max_mpa": self.po_max / MPA}
-
-
 @dataclass(frozen=True)
 class SineTask:
     params: Params
@@ -465,48 +172,6 @@ class SineTask:
                            po_chamber_max=float(r.po[window].max()),
                            po_cmd_max=float(r.po_cmd[window].max()))
         return point, (r if self.keep else None)
-
-
-SweepKey = tuple[float, float, str]  # (load [N], freq [Hz], controller)
-
-
-@dataclass(frozen=True)
-class SweepResult:
-    """Points in (load, freq, controller) loop order; `series` holds the kept runs."""
-
-    points: tuple[SweepPoint, ...]
-    series: Mapping[SweepKey, SimResult] = field(default_factory=dict)
-
-    def as_json(self) -> list[dict]:
-        return [p.as_json() for p in self.points]
-
-    def point(self, load: float, freq: float, controller: str) -> SweepPoint | None:
-        for p in self.points:
-            if p.load == load and p.freq == freq and p.controller == controller:
-                return p
-        return None
-
-    def curve(self, load: float, controller: str) -> list[SweepPoint]:
-        """The points of one (load, controller), by increasing frequency."""
-        return sorted((p for p in self.points if p.load == load and
-                       p.controller == controller), key=lambda p: p.freq)
-
-    def plot(self):
-        """Gain and phase lag against frequency (`wpam_mj.plots.sweep_figure`)."""
-        from wpam_mj import plots  # noqa: PLC0415 (matplotlib only when plotting)
-        return plots.sweep_figure(self)
-
-    @property
-    def loads(self) -> list[float]:
-        return sorted({p.load for p in self.points})
-
-    @property
-    def freqs(self) -> list[float]:
-        return sorted({p.freq for p in self.points})
-
-    @property
-    def controllers(self) -> list[str]:
-        return list(dict.fromkeys(p.controller for p in self.points))
 
 
 def figure_run_key(loads: Sequence[float], freqs: Sequence[float],
@@ -553,4 +218,3 @@ def sweep_batch(params: Params, loads: Iterable[float] = LOADS_N,
         series = {(p.load, p.freq, p.controller): r for p, r in res if r is not None}
         return SweepResult(points=tuple(p for p, _ in res), series=series)
     return Batch(tasks, assemble)
-

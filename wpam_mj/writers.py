@@ -1,0 +1,111 @@
+"""Output files of the studies: their names and the CSV/JSON summaries, each written
+whole or not at all (`wpam_mj.results.write_text_atomic`), and the figure-and-CSV sets
+the single-study commands write."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+from pathlib import Path
+from typing import Sequence
+
+from wpam_mj import plots
+from wpam_mj.paper import Check
+from wpam_mj.results import write_text_atomic
+from wpam_mj.study_results import StaticLoop, StepRun, SweepKey, SweepResult, Table2Result
+from wpam_mj.summaries import mpa_label
+
+
+def static_csv_name(loop: StaticLoop) -> str:
+    po = "" if loop.po_down == 0.0 else f"_po{mpa_label(loop.po_down)}MPa"
+    return f"static_{loop.preset}_{loop.load:g}N{po}.csv"
+
+
+def step_csv_name(run: StepRun) -> str:
+    return f"step_{run.preset}_{run.load:g}N_{run.control}.csv"
+
+
+def sine_csv_name(key: tuple[float, float, str]) -> str:
+    load, freq, ctrl = key
+    return f"sine_{load:g}N_{freq:g}Hz_{ctrl}.csv"
+
+
+def _csv(rows: Sequence[Sequence]) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    for row in rows:
+        w.writerow([f"{v:.6g}" if isinstance(v, float) else v for v in row])
+    return buf.getvalue()
+
+
+def table2_csv_text(t2: Table2Result) -> str:
+    rows = t2.rows()
+    return _csv([list(rows[0])] + [list(r.values()) for r in rows])
+
+
+def write_table2(out: Path, t2: Table2Result) -> list[Path]:
+    """table2.json and table2.csv in `out`."""
+    return [write_text_atomic(out / "table2.json", json.dumps(t2.as_json(), indent=2) + "\n"),
+            write_text_atomic(out / "table2.csv", table2_csv_text(t2))]
+
+
+SWEEP_COLUMNS = ("load_n", "freq_hz", "controller", "gain", "phase_lag_deg", "po_max_mpa")
+
+
+def sweep_csv_text(sw: SweepResult) -> str:
+    return _csv([SWEEP_COLUMNS] + [[p.as_json()[k] for k in SWEEP_COLUMNS]
+                                   for p in sw.points])
+
+
+def write_sweep(out: Path, sw: SweepResult) -> list[Path]:
+    """sweep.json and sweep.csv in `out`."""
+    return [write_text_atomic(out / "sweep.json", json.dumps(sw.as_json(), indent=2) + "\n"),
+            write_text_atomic(out / "sweep.csv", sweep_csv_text(sw))]
+
+
+def write_checks(out: Path, checks: Sequence[Check]) -> Path:
+    """checks.json in `out`: finding, passed (true/false/null) and detail of each check."""
+    return write_text_atomic(out / "checks.json", json.dumps(
+        [{"finding": c.finding, "passed": c.passed, "detail": c.detail} for c in checks],
+        indent=2) + "\n")
+
+
+# ---- what the single-study commands write (figures through wpam_mj.plots)
+
+
+def write_static_outputs(out: Path, loops: Sequence[StaticLoop], *,
+                         compare_presets: bool = False) -> list[Path]:
+    """One CSV per loop and one figure of all of them (`wpam static`)."""
+    written = [lp.result.to_csv(out / static_csv_name(lp)) for lp in loops]
+    po_down = loops[0].po_down
+    po = "" if po_down == 0.0 else f"_po{mpa_label(po_down)}MPa"
+    stem = "static_presets" if compare_presets else f"static_{loops[0].preset}"
+    written.append(plots.save_figure(plots.static_figure(loops), out / f"{stem}{po}.png"))
+    return written
+
+
+def write_step_outputs(out: Path, run: StepRun) -> list[Path]:
+    """The run's CSV and its figure (`wpam step`)."""
+    name = step_csv_name(run)
+    return [run.result.to_csv(out / name),
+            plots.save_figure(plots.step_figure([run.result]),
+                              out / name.replace(".csv", ".png"))]
+
+
+def write_table2_outputs(out: Path, t2: Table2Result) -> list[Path]:
+    """table2.json, table2.csv and table2.png (`wpam table2`)."""
+    return [*write_table2(out, t2),
+            plots.save_figure(plots.table2_figure(t2), out / "table2.png")]
+
+
+def write_sweep_outputs(out: Path, sw: SweepResult, key: SweepKey,
+                        po_cap: float) -> list[Path]:
+    """sweep.json/.csv, the gain-phase figure, and the CSV and figure of the kept run
+    `key` (`wpam sweep`); po_cap [Pa] is drawn in the Po panel."""
+    series = sw.series[key]
+    return [*write_sweep(out, sw),
+            plots.save_figure(plots.sweep_figure(sw), out / "sweep_gain_phase.png"),
+            series.to_csv(out / sine_csv_name(key)),
+            plots.save_figure(plots.sine_figure(series, key[1], po_cap),
+                              out / sine_csv_name(key).replace(".csv", ".png"))]
