@@ -85,7 +85,7 @@
 
 /* The controllers this file implements: names of wpam_mj.control.CONTROLLERS. Python
    runs any other controller in its own loop (`wpam_mj.fastloop.compiled_controllers`). */
-#define WPAM_CONTROLLERS(F) F(OPEN, open) F(PI, pi) F(PID, pid)
+#define WPAM_CONTROLLERS(F) F(OPEN, open) F(PI, pi) F(PID, pid) F(PI_FF, pi_ff)
 
 #define AS_CONST_ENUM(NAME, name) K_##NAME,
 #define AS_CONTROLLER_ENUM(NAME, name) CTRL_##NAME,
@@ -171,7 +171,8 @@ static double mass_flow(const double* k, double p_source, double p_chamber, doub
 }
 
 /* ---- controllers (wpam_mj/control.py): OpenLoop passes the drive's Po through;
-   PIControl and PIDControl are PoFeedback, PI with kd = 0 ---- */
+   PIControl and PIDControl are PoFeedback, PI with kd = 0; PIFlowFeedforward is PI plus
+   the drive's Po command as feedforward (po_ff; 0.0 for the others) ---- */
 
 typedef struct {
   double integral;    /* mm s */
@@ -180,13 +181,15 @@ typedef struct {
   int has_prev;       /* 0 until the first update (Python: e_prev is None) */
 } Feedback;
 
-static double feedback_update(const double* k, Feedback* f, double x, double x_ref) {
+static double feedback_update(const double* k, Feedback* f, double x, double x_ref,
+                              double po_ff) {
   double e = (x - x_ref) / k[K_MM];
   double e_prev = f->has_prev ? f->e_prev : e;
   double integral, u;
   f->derivative = (k[K_TF] * f->derivative + (e - e_prev)) / (k[K_TF] + k[K_DT]);
   integral = f->integral + e * k[K_DT];
-  u = (k[K_KP] * e + k[K_KI] * integral + k[K_KD] * f->derivative) * k[K_PA_PER_UNIT];
+  u = (k[K_KP] * e + k[K_KI] * integral + k[K_KD] * f->derivative) * k[K_PA_PER_UNIT]
+      + po_ff;
   if (u > k[K_PO_HI]) {
     u = k[K_PO_HI];
     if (e < 0.0) f->integral = integral;
@@ -316,7 +319,8 @@ int wpam_run(mjModel* m, mjData* d, const double* consts, int n, const double* p
     po_gauge = plant.chamber_o.pressure - k[K_ATMOSPHERE];
     pi_c = pi_cmd[step];
     xr = x_ref[step];
-    po_c = controller == CTRL_OPEN ? po_cmd[step] : feedback_update(k, &pid, x, xr);
+    po_c = controller == CTRL_OPEN ? po_cmd[step]
+         : feedback_update(k, &pid, x, xr, controller == CTRL_PI_FF ? po_cmd[step] : 0.0);
     if (plant_advance(k, &plant, x, v, pi_c, po_c, &tension, &friction)) {
       fail_info[0] = FAIL_PRESSURE;
       fail_info[1] = plant.chamber_i.pressure;

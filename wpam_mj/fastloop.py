@@ -93,8 +93,8 @@ def _controller_constants(controller: PoController) -> dict[str, float]:
         return dict.fromkeys(("kp", "ki", "kd", "tf", "po_lo", "po_hi", "mm", "pa_per_unit",
                               "integral0"), 0.0)
     c = controller
-    return dict(kp=c.kp, ki=c.ki, kd=c.kd, tf=c.tf, po_lo=c.lo, po_hi=c.hi, mm=MM, pa_per_unit=c.pa_per_unit,
-                integral0=c.integral)
+    return dict(kp=c.kp, ki=c.ki, kd=c.kd, tf=c.tf, po_lo=c.lo, po_hi=c.hi, mm=MM,
+                pa_per_unit=c.pa_per_unit, integral0=c.integral)
 
 
 def pack_constants(model, muscle, controller: PoController, k: RunConstants) -> np.ndarray:

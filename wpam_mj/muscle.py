@@ -16,8 +16,9 @@ work on the load agree up to Kf. Eq. 1 applies Kf to the rubber term as well
 Po (§2.2, last paragraph): a bag squeezed flat (Pi < Po) pulls nothing. A_ax Po is Po
 acting on the end fittings inside the outer bag: by virtual work it is the outer
 chamber's volume loss per unit contraction beyond S (see `wpam_mj.pneumatics`), at most
-the bag's cross-section pi D_bag^2 / 4. F_f0 is a pressure-independent friction floor. Friction opposes motion (eqs. 1-2); its stiction is enforced by MuJoCo's
-tendon frictionloss with the no-slip solver (`wpam_mj.model`).
+the bag's cross-section pi D_bag^2 / 4. F_f0 is a pressure-independent friction floor.
+Friction opposes motion (eqs. 1-2); its stiction is enforced by MuJoCo's tendon
+frictionloss with the no-slip solver (`wpam_mj.model`).
 
 The static equilibria follow eqs. 5-6: at rest on the branch of motion direction s
 (+1 contracting, -1 extending, 0 frictionless), T - s Ff = F_load, i.e.
