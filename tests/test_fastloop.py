@@ -20,11 +20,12 @@ import pytest
 
 from wpam_mj import Drive, SimulationDiverged, fastloop, preset
 from wpam_mj.simulate import simulate
-from wpam_mj.control import CONTROLLERS, CONTROLS, PIControl, make_controller, pi_feedforward
+from wpam_mj.control import CONTROLLERS, CONTROLS, PIControl, make_controller
+from wpam_mj.experiments import drive_for_targets
 from wpam_mj.loop_contract import REC_FIELDS, RunConstants
 from wpam_mj.model import build_model
 from wpam_mj.muscle import MuscleModel
-from wpam_mj.params import MPA, PRESETS
+from wpam_mj.params import MPA, PRESETS, ParameterError
 
 # Skipped only where the loop cannot be built by design; with a compiler, a build failure
 # fails these tests (test_compiled_loop_builds says why).
@@ -65,30 +66,24 @@ def assert_engines_identical(params, drive, **kwargs) -> None:
                         f"max |c - python| = {np.nanmax(diff):.3g}")
 
 
-def feedback_drive(params, x_ref: np.ndarray) -> Drive:
-    muscle = MuscleModel.from_params(params)
-    pi = pi_feedforward(muscle, params, x_ref, LOAD, params.controller.po_feedforward)
-    return Drive(pi_cmd=pi, po_cmd=np.zeros_like(x_ref), x_ref=x_ref)
-
-
-def open_loop_drive() -> Drive:
-    """Pi ramp up then down, Po = 0.04 MPa on the way down (the paper's Fig. 9)."""
+def open_loop_drive(po_down: float = 0.04 * MPA) -> Drive:
+    """Pi ramp up then down, Po = `po_down` on the way down (the paper's Fig. 9)."""
     n = int(3.0 / DT)
     t = np.arange(n) * DT
     up = t < 1.5
     pi = np.where(up, t / 1.5, (3.0 - t) / 1.5) * 0.4 * MPA
-    po = np.where(up, 0.0, 0.04 * MPA)
+    po = np.where(up, 0.0, po_down)
     return Drive(pi_cmd=pi, po_cmd=po, x_ref=np.full(n, np.nan))
 
 
-def tracking_drive(params) -> Drive:
+def tracking_drive(params, control: str = "pi") -> Drive:
     """Target 10 mm, a 20 mm step at 1 s (Figs. 12-13), then a 0.5 Hz sine about 25 mm
     from 2 s (Fig. 17): saturation, anti-windup and the derivative filter all act."""
     n = int(3.5 / DT)
     t = np.arange(n) * DT
     x_ref = np.where(t < 1.0, 0.01, np.where(t < 2.0, 0.03,
                                              0.025 + 0.015 * np.sin(np.pi * (t - 2.0))))
-    return feedback_drive(params, x_ref)
+    return drive_for_targets(params, LOAD, x_ref, control, DT)
 
 
 @pytest.mark.parametrize("dead_time", DEAD_TIMES)
@@ -98,7 +93,15 @@ def test_engines_identical(name, control, dead_time):
     """Every preset x every control mode x dead time: every array, every step recorded.
     A controller without a compiled twin must run in the Python loop under "auto"."""
     params = _params(name, dead_time)
-    drive = tracking_drive(params) if CONTROLLERS[control].feedback else open_loop_drive()
+    feedback = CONTROLLERS[control].feedback
+    if not params.outer_chamber:  # the bare RLAM: Po stays 0, no Po feedback
+        if feedback:
+            with pytest.raises(ParameterError, match="no outer chamber"):
+                simulate(params, LOAD, tracking_drive(params, control), control=control)
+            return
+        drive = open_loop_drive(po_down=0.0)
+    else:
+        drive = tracking_drive(params, control) if feedback else open_loop_drive()
     if control in fastloop.compiled_controllers():
         assert_engines_identical(params, drive, control=control, record_dt=DT)
     else:
@@ -193,7 +196,7 @@ def test_unknown_controller_runs_in_python_with_a_notice(monkeypatch, capfd):
     assert "slow_pi" not in fastloop.compiled_controllers()
     params = preset("wpam")
     x_ref = np.full(500, 0.02)
-    drive = feedback_drive(params, x_ref)
+    drive = drive_for_targets(params, LOAD, x_ref, "pi", DT)
     auto = simulate(params, LOAD, drive, control="slow_pi")
     simulate(params, LOAD, drive, control="slow_pi")  # announced once per process
     notice = capfd.readouterr().err.strip().splitlines()

@@ -61,14 +61,14 @@
   X(VOLUME_DENOM, volume_denom)      /* 4.0 * math.pi * turns ** 2 [1] */          \
   X(DIAMETER_DENOM, diameter_denom)  /* turns * math.pi [1] */                     \
   /* PoFeedback (wpam_mj/control.py); zeros for the open loop */                  \
-  X(KP, kp)                          /* [MPa/mm] */                                \
-  X(KI, ki)                          /* [MPa/(mm s)] */                            \
-  X(KD, kd)                          /* [MPa s/mm]; 0 unless PID */                \
+  X(KP, kp)                          /* [u/mm] */                                  \
+  X(KI, ki)                          /* [u/(mm s)] */                              \
+  X(KD, kd)                          /* [u s/mm]; 0 unless PID */                  \
   X(TF, tf)                          /* derivative filter time constant [s] */     \
   X(PO_LO, po_lo)                    /* p_min [Pa] */                              \
   X(PO_HI, po_hi)                    /* po_cap [Pa] */                             \
   X(MM, mm)                          /* m per mm */                                \
-  X(MPA, mpa)                        /* Pa per MPa */                              \
+  X(PA_PER_UNIT, pa_per_unit)        /* Po command [Pa] per controller unit u */  \
   X(INTEGRAL0, integral0)            /* initial integral [mm s] (bumpless start) */ \
   /* MuscleIndex: where the loop reads and writes MuJoCo (looked up by name) */     \
   X(QPOS, qpos)                      /* qpos address of the contraction joint */   \
@@ -85,7 +85,7 @@
 
 /* The controllers this file implements: names of wpam_mj.control.CONTROLLERS. Python
    runs any other controller in its own loop (`wpam_mj.fastloop.compiled_controllers`). */
-#define WPAM_CONTROLLERS(F) F(OPEN, open) F(PI, pi) F(PID, pid)
+#define WPAM_CONTROLLERS(F) F(OPEN, open) F(PI, pi) F(PID, pid) F(PI_FF, pi_ff)
 
 #define AS_CONST_ENUM(NAME, name) K_##NAME,
 #define AS_CONTROLLER_ENUM(NAME, name) CTRL_##NAME,
@@ -144,8 +144,8 @@ static double muscle_rubber_force(const double* k, double x) {
 
 static double muscle_tension(const double* k, double x, double pi, double po) {
   double dp = pi > po ? pi - po : 0.0;
-  return (k[K_OUTPUT_COEFF] * dp * geom_area(k, x) - k[K_AXIAL_AREA] * po
-          - muscle_rubber_force(k, x));
+  return (k[K_OUTPUT_COEFF] * (dp * geom_area(k, x) - muscle_rubber_force(k, x))
+          - k[K_AXIAL_AREA] * po);
 }
 
 static double muscle_friction(const double* k, double x, double pi, double po) {
@@ -174,7 +174,8 @@ static double mass_flow(const double* k, double p_source, double p_chamber, doub
 }
 
 /* ---- controllers (wpam_mj/control.py): OpenLoop passes the drive's Po through;
-   PIControl and PIDControl are PoFeedback, PI with kd = 0 ---- */
+   PIControl and PIDControl are PoFeedback, PI with kd = 0; PIFlowFeedforward is PI plus
+   the drive's Po command as feedforward (po_ff; 0.0 for the others) ---- */
 
 typedef struct {
   double integral;    /* mm s */
@@ -183,13 +184,15 @@ typedef struct {
   int has_prev;       /* 0 until the first update (Python: e_prev is None) */
 } Feedback;
 
-static double feedback_update(const double* k, Feedback* f, double x, double x_ref) {
+static double feedback_update(const double* k, Feedback* f, double x, double x_ref,
+                              double po_ff) {
   double e = (x - x_ref) / k[K_MM];
   double e_prev = f->has_prev ? f->e_prev : e;
   double integral, u;
   f->derivative = (k[K_TF] * f->derivative + (e - e_prev)) / (k[K_TF] + k[K_DT]);
   integral = f->integral + e * k[K_DT];
-  u = (k[K_KP] * e + k[K_KI] * integral + k[K_KD] * f->derivative) * k[K_MPA];
+  u = (k[K_KP] * e + k[K_KI] * integral + k[K_KD] * f->derivative) * k[K_PA_PER_UNIT]
+      + po_ff;
   if (u > k[K_PO_HI]) {
     u = k[K_PO_HI];
     if (e < 0.0) f->integral = integral;
@@ -319,7 +322,8 @@ int wpam_run(mjModel* m, mjData* d, const double* consts, int n, const double* p
     po_gauge = plant.chamber_o.pressure - k[K_ATMOSPHERE];
     pi_c = pi_cmd[step];
     xr = x_ref[step];
-    po_c = controller == CTRL_OPEN ? po_cmd[step] : feedback_update(k, &pid, x, xr);
+    po_c = controller == CTRL_OPEN ? po_cmd[step]
+         : feedback_update(k, &pid, x, xr, controller == CTRL_PI_FF ? po_cmd[step] : 0.0);
     if (plant_advance(k, &plant, x, v, pi_c, po_c, &tension, &friction)) {
       fail_info[0] = FAIL_PRESSURE;
       fail_info[1] = plant.chamber_i.pressure;

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wpam_mj.control import CONTROLLERS, check_control, pi_feedforward
+from wpam_mj.control import CONTROLLERS, check_control
 from wpam_mj.model import check_dt, check_load
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.paper import SINE_AMPLITUDE_MM, STEP_HOLD_S, STEP_LEVELS_MM
@@ -85,18 +85,18 @@ def step_targets(t: np.ndarray, levels_mm=STEP_LEVELS_MM, hold: float = STEP_HOL
     return np.asarray(levels_mm, dtype=float)[idx] * MM
 
 
-def drive_for_targets(params: Params, load: float, x_ref: np.ndarray, control: str) -> Drive:
-    """Pi from the mechanical equilibrium model for x_ref; Po fed back (or 0 in open loop).
+def drive_for_targets(params: Params, load: float, x_ref: np.ndarray, control: str,
+                      dt: float) -> Drive:
+    """The controller's feedforward for the target x_ref [m] sampled every dt [s]
+    (`PoController.feedforward`): for the paper's controllers, Pi from the mechanical
+    equilibrium model, Po fed back (or 0 in open loop).
 
     Feedback runs assume Po = po_feedforward (with less Po the muscle over-contracts,
     paper §4.1) and start with the feedback holding that Po (`wpam_mj.control`); the
     open-loop run assumes Po = 0, the only Po it has (paper Fig. 12).
     """
-    muscle = MuscleModel.from_params(params)
-    feedback = CONTROLLERS[check_control(control)].feedback
-    po_ff = params.controller.po_feedforward if feedback else 0.0
-    pi_cmd = pi_feedforward(muscle, params, x_ref, load, po_ff)
-    return Drive(pi_cmd=pi_cmd, po_cmd=np.zeros(len(x_ref)), x_ref=x_ref)
+    pi_cmd, po_cmd = CONTROLLERS[check_control(control)].feedforward(params, load, x_ref, dt)
+    return Drive(pi_cmd=pi_cmd, po_cmd=po_cmd, x_ref=x_ref)
 
 
 def step_run(params: Params, load: float, control: str, *, levels_mm=STEP_LEVELS_MM,
@@ -108,7 +108,7 @@ def step_run(params: Params, load: float, control: str, *, levels_mm=STEP_LEVELS
         raise ParameterError("levels_mm is empty: a step run needs at least one target")
     n, t = _steps(len(levels_mm) * hold - dt, dt)
     x_ref = step_targets(t, levels_mm, hold)
-    return simulate(params, load, drive_for_targets(params, load, x_ref, control), dt=dt,
+    return simulate(params, load, drive_for_targets(params, load, x_ref, control, dt), dt=dt,
                     control=control, engine=engine)
 
 
@@ -145,7 +145,7 @@ def sine_run(params: Params, load: float, control: str, spec: SineSpec, *,
     load, dt, control = check_load(load), check_dt(dt), check_control(control)
     n, t = _steps(spec.duration, dt)
     x_ref = spec.target(t)
-    return simulate(params, load, drive_for_targets(params, load, x_ref, control), dt=dt,
+    return simulate(params, load, drive_for_targets(params, load, x_ref, control, dt), dt=dt,
                     control=control, engine=engine)
 
 

@@ -37,7 +37,7 @@ from wpam_mj import pneumatics as pn
 from wpam_mj.control import CONTROLLERS, PoController, PoFeedback
 from wpam_mj.model import MuscleIndex
 from wpam_mj.muscle import MuscleModel
-from wpam_mj.params import MM, MPA
+from wpam_mj.params import MM
 from wpam_mj.loop_contract import (REC_FIELDS, REC_ROWS, RunConstants, contraction_diverged,
                                    pressure_diverged)
 
@@ -76,7 +76,7 @@ _DERIVED: dict[str, Callable[[MuscleModel, PoController], float]] = {
     "tf": _feedback("tf"), "po_lo": _feedback("lo"), "po_hi": _feedback("hi"),
     "integral0": _feedback("integral"),
     "mm": lambda muscle, ctl: MM,
-    "mpa": lambda muscle, ctl: MPA,
+    "pa_per_unit": _feedback("pa_per_unit"),
 }
 
 

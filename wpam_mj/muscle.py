@@ -3,19 +3,26 @@
 All pressures are gauge pressures in Pa (the paper's P - Pa), forces in N, x in m,
 contraction positive. With the pressure difference across the inner bag dP = Pi - Po:
 
-    T(x)  = Kf max(dP, 0) S(x) - A_ax Po - Fco(x)      tension on the load   (eqs. 1-3)
+    T(x)  = Kf (max(dP, 0) S(x) - Fco(x)) - A_ax Po   tension on the load   (eqs. 1-3)
     Ff(x) = mu max(dP, 0) S(x) + F_f0                  dry-friction level    (eq. 4)
     Fco   = pi K_R (D(x) - D0)                         rubber term           (eq. 7)
 
-Kf max(dP,0) S is the pantograph force of eq. 3 with Pa replaced by Po (§2.2, last
-paragraph): a bag squeezed flat (Pi < Po) pulls nothing. A_ax Po is Po acting on the end
-fittings inside the outer bag: by virtual work it is the outer chamber's volume loss per
-unit contraction beyond S (see `wpam_mj.pneumatics`). F_f0 is a pressure-independent
-friction floor. Friction opposes motion (eqs. 1-2); its stiction is enforced by MuJoCo's
-tendon frictionloss with the no-slip solver (`wpam_mj.model`).
+S = dV/dx is the inner bag's volume change per unit contraction, so dP S is the ideal
+(virtual-work) tension of the pressure difference, and Kf in [0.5, 1] is the efficiency
+a real braided muscle delivers of it (end effects, sleeve thickness; Chou & Hannaford
+1996; Tondu & Lopez 2000): the same S moves the air, so the work the air does and the
+work on the load agree up to Kf. Eq. 1 applies Kf to the rubber term as well
+(F_out = Kf (F_ex - F_co) - F_f). dP is eq. 3's pressure difference with Pa replaced by
+Po (§2.2, last paragraph): a bag squeezed flat (Pi < Po) pulls nothing. A_ax Po is Po
+acting on the end fittings inside the outer bag: by virtual work it is the outer
+chamber's volume loss per unit contraction beyond S (see `wpam_mj.pneumatics`), at most
+the bag's cross-section pi D_bag^2 / 4. F_f0 is a pressure-independent friction floor.
+Friction opposes motion (eqs. 1-2); its stiction is enforced by MuJoCo's tendon
+frictionloss with the no-slip solver (`wpam_mj.model`).
 
 The static equilibria follow eqs. 5-6: at rest on the branch of motion direction s
-(+1 contracting, -1 extending, 0 frictionless), T - s Ff = F_load.
+(+1 contracting, -1 extending, 0 frictionless), T - s Ff = F_load, i.e.
+    Pi = Po + (F_load + Kf Fco + A_ax Po + s F_f0) / ((Kf - s mu) S).
 """
 
 from __future__ import annotations
@@ -55,8 +62,8 @@ class MuscleModel:
     def tension(self, x: float, pi: float, po: float) -> float:
         """Frictionless tension on the load [N], contraction positive."""
         dp = pi - po if pi > po else 0.0
-        return (self.output_coeff * dp * self.geometry.area(x) - self.axial_area * po
-                - self.rubber_force(x))
+        return (self.output_coeff * (dp * self.geometry.area(x) - self.rubber_force(x))
+                - self.axial_area * po)
 
     def friction(self, x: float, pi: float, po: float) -> float:
         """Dry-friction level Ff >= 0 [N] (paper eq. 4 plus a constant part)."""
@@ -64,16 +71,17 @@ class MuscleModel:
         return self.friction_coeff * dp * self.geometry.area(x) + self.friction_const
 
     def equilibrium_pressure(self, x: float, load: float, po: float,
-                             direction: int = 0) -> float:
+                             direction: float = 0.0) -> float:
         """Pi [Pa] that holds contraction x under `load` [N] at external pressure `po`.
 
         direction = +1: on the contracting branch (paper eq. 5, Pi_C); -1: extending
-        (eq. 6, Pi_E); 0: frictionless (the mechanical equilibrium model).
+        (eq. 6, Pi_E); 0: frictionless; values between weight the friction band.
         Works elementwise on arrays of x; inf where the braid cannot hold the load.
         """
         s = float(direction)
         gain = (self.output_coeff - s * self.friction_coeff) * self.geometry.area(x)
-        rhs = np.maximum(load + self.axial_area * po + self.rubber_force(x)
+        rhs = np.maximum(load + self.axial_area * po
+                         + self.output_coeff * self.rubber_force(x)
                          + s * self.friction_const, 0.0)
         safe_gain = np.where(gain > 0.0, gain, 1.0)
         pi = np.where(gain > 0.0, po + rhs / safe_gain, np.inf)

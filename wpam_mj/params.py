@@ -35,9 +35,12 @@ class ParameterError(ValueError):
 
 
 def _p(default: float, unit: str, lo: float, hi: float, source: str, *,
-       lo_open: bool = False) -> Any:
+       lo_open: bool = False, plausible: tuple[float, float] | None = None) -> Any:
+    """A parameter field: [lo, hi] is what the code accepts (other muscles and rigs);
+    `plausible` is the physically credible range for the paper's W-PAM, with its source in
+    `source`, and the bounds of `wpam calibrate` (None: not fitted)."""
     return field(default=default, metadata=dict(unit=unit, lo=lo, hi=hi, source=source,
-                                                lo_open=lo_open))
+                                                lo_open=lo_open, plausible=plausible))
 
 
 def check_range(name: str, value: float, lo: float, hi: float, unit: str = "", *,
@@ -87,7 +90,10 @@ class Braid(_Validated):
     natural_diameter: float = _p(0.022, "m", 0.003, 0.2, "paper §2.3")
     max_diameter: float = _p(0.042, "m", 0.004, 0.4, "paper §2.3 (bag at maximum inflation)")
     braid_angle: float = _p(0.3477, "rad", math.radians(5), math.radians(50),
-                            "calibrated (thread angle to the axis at natural length)")
+                            "calibrated: thread angle to the axis at natural length; the "
+                            "50 mm step target must lie inside the stroke (>= 18 deg) and the "
+                            "bag must fill before the 54.7 deg locking angle (<= 25.3 deg)",
+                            plausible=(math.radians(18.0), math.radians(25.0)))
     outer_bag_length: float = _p(0.420, "m", 0.05, 3.0, "paper §2.3")
     outer_bag_diameter: float = _p(0.060, "m", 0.005, 0.5, "paper §2.3")
 
@@ -123,14 +129,27 @@ class Braid(_Validated):
 class Muscle(_Validated):
     """Force terms of the tension model (`wpam_mj.muscle`)."""
 
-    output_coeff: float = _p(0.127, "1", 0.01, 2.0, "calibrated (paper Kf, Table 1)", lo_open=True)
-    friction_coeff: float = _p(0.01226, "1", 0.0, 1.0, "calibrated (paper mu, eq. 4)")
-    friction_const: float = _p(5.78, "N", 0.0, 500.0, "calibrated (pressure-independent part)")
-    axial_area: float = _p(5.41e-4, "m^2", 0.0, 0.05,
-                           "calibrated (Po on the end fittings; order of the outer annulus)")
+    output_coeff: float = _p(0.8, "1", 0.0, 1.0,
+                             "calibrated: paper Kf (Table 1) as the efficiency of the "
+                             "virtual-work force dP dV/dx; braided muscles deliver 0.5-1 of "
+                             "it (Chou & Hannaford 1996; Tondu & Lopez 2000); > 1 would "
+                             "create work", lo_open=True, plausible=(0.5, 1.0))
+    friction_coeff: float = _p(0.2, "1", 0.0, 1.0,
+                               "calibrated: paper mu (eq. 4), friction per unit of the "
+                               "pressure force dP S; polymer film on a polyester braid "
+                               "(Coulomb coefficients 0.1-0.5)", plausible=(0.0, 0.5))
+    friction_const: float = _p(5.0, "N", 0.0, 500.0,
+                               "calibrated: pressure-independent friction (sleeve and bag "
+                               "folds at rest)", plausible=(0.0, 30.0))
+    axial_area: float = _p(5e-4, "m^2", 0.0, 0.05,
+                           "calibrated: area on which Po pushes the end fittings apart; at "
+                           "most the outer bag's cross-section pi (0.06 m)^2 / 4",
+                           plausible=(0.0, 2.8e-3))
     rubber_stiffness: float = _p(0.0, "N/m", 0.0, 1e6,
                                  "paper eq. 7 K_R; 0 for a non-stretchable bag (RLAM)")
-    damping: float = _p(200.0, "N s/m", 0.0, 1e5, "calibrated (viscous losses of the slide)")
+    damping: float = _p(20.0, "N s/m", 0.0, 1e5,
+                        "estimate: viscous losses of the linear guide and the hanging mass "
+                        "(tens of N s/m at most); not fitted", plausible=(0.0, 50.0))
 
 
 @dataclass(frozen=True)
@@ -139,16 +158,24 @@ class Pneumatics(_Validated):
 
     p_min: float = _p(0.005 * MPA, "Pa", 0.0, 1.0 * MPA, "ITV2031 range, paper §2.3")
     p_max: float = _p(0.5 * MPA, "Pa", 0.0, 1.0 * MPA, "ITV2031 range, paper §2.3")
-    time_constant: float = _p(0.003, "s", 0.0, 5.0,
-                              "chosen: small enough for the paper gains (models/README.md)")
-    dead_time: float = _p(0.001, "s", 0.0, 1.0,
-                          "chosen: small enough for the paper gains (models/README.md)")
+    time_constant: float = _p(0.083, "s", 0.0, 5.0,
+                              "ITV-series first-order lag identified from echo-step data "
+                              "(porcaro_2026, scripts/itv_models.py: 83 ms)",
+                              plausible=(0.05, 0.1))
+    dead_time: float = _p(0.02, "s", 0.0, 1.0,
+                          "ITV-series dead time identified from echo-step data "
+                          "(porcaro_2026: 20-21 ms pilot models, 45 ms rounded)",
+                          plausible=(0.02, 0.045))
     inner_conductance: float = _p(6e-9, "m^3/(s Pa)", 0.0, 1e-6,
-                                  "calibrated (ISO 6358 C, Pi valve + tubing)", lo_open=True)
-    outer_conductance: float = _p(6e-9, "m^3/(s Pa)", 0.0, 1e-6,
-                                  "calibrated (ISO 6358 C, Po valve + tubing)", lo_open=True)
+                                  "calibrated: ISO 6358 C of valve + tube + fitting port; at "
+                                  "most the ITV2031's 1500 L/min at 0.7 MPa abs (3.6e-8), at "
+                                  "least a 1.1 mm orifice (1e-9)", lo_open=True,
+                                  plausible=(1e-9, 3.6e-8))
+    outer_conductance: float = _p(2e-9, "m^3/(s Pa)", 0.0, 1e-6,
+                                  "calibrated: as inner_conductance, for the Po line into the "
+                                  "outer bag", lo_open=True, plausible=(1e-9, 3.6e-8))
     critical_ratio: float = _p(0.5, "1", 0.0, 0.99, "ISO 6358 b, typical valve value")
-    tube_volume: float = _p(2e-5, "m^3", 0.0, 0.01, "estimate (2 m of 4 mm bore tube)")
+    tube_volume: float = _p(2.5e-5, "m^3", 0.0, 0.01, "estimate (2 m of 4 mm bore tube)")
     atmosphere: float = _p(101325.0, "Pa", 5e4, 2e5, "standard atmosphere")
 
     def __post_init__(self) -> None:
@@ -162,17 +189,26 @@ class Pneumatics(_Validated):
 class Controller(_Validated):
     """PI/PID on Po and the equilibrium-model feedforward on Pi (`wpam_mj.control`).
 
-    Gains are the paper's §4 values read in the paper's own display units: error
-    e = x - x_r in mm, output Po in MPa, time in s; u = Kp e + Ki int(e) dt + Kd de/dt.
+    Gains are the paper's §4 numbers: error e = x - x_r in mm, time in s, output
+    u = Kp e + Ki int(e) dt + Kd de/dt in a controller unit u that `command_scale` turns
+    into the Po command [MPa] (the paper does not state the unit; `wpam_mj.control`).
     """
 
-    kp: float = _p(paper.KP, "MPa/mm", 0.0, 1e3, "paper §4.1")
-    ki: float = _p(paper.KI, "MPa/(mm s)", 0.0, 1e3, "paper §4.1")
-    kd: float = _p(paper.KD, "MPa s/mm", 0.0, 1e3, "paper §4.2 (used in PID mode only)")
+    kp: float = _p(paper.KP, "u/mm", 0.0, 1e3, "paper §4.1")
+    ki: float = _p(paper.KI, "u/(mm s)", 0.0, 1e3, "paper §4.1")
+    kd: float = _p(paper.KD, "u s/mm", 0.0, 1e3, "paper §4.2 (used in PID mode only)")
+    command_scale: float = _p(0.1, "MPa/u", 0.0, 10.0,
+                              "our reading of the paper's unitless gains: u in volts on the "
+                              "ITV2031's 0-5 V input (0.5 MPa / 5 V); docs/physics.md "
+                              "compares the readings", lo_open=True)
     derivative_filter: float = _p(0.02, "s", 0.0, 10.0, "our choice (first-order D filter)")
     po_cap: float = _p(paper.PO_CAP_MPA * MPA, "Pa", 0.0, 1.0 * MPA, "paper §4.2 (bag durability)")
     po_feedforward: float = _p(0.04 * MPA, "Pa", 0.0, 1.0 * MPA,
-                               "our choice: mid-range Po assumed by the Pi feedforward")
+                               "our choice: the Po the Pi feedforward assumes")
+    feedforward_friction: float = _p(0.0, "1", 0.0, 1.0,
+                                     "our reading of §4.1: the share of the friction band "
+                                     "the Pi feedforward adds (0 frictionless, 1 the "
+                                     "contracting branch of eq. 5)")
 
 
 @dataclass(frozen=True)
@@ -190,7 +226,12 @@ class Params:
             if not isinstance(getattr(self, name), cls):
                 raise ParameterError(f"params.{name} = {getattr(self, name)!r} must be a "
                                      f"{cls.__name__}")
-        pn, c = self.pneumatics, self.controller
+        pn, c, b = self.pneumatics, self.controller, self.braid
+        bag_section = math.pi * b.outer_bag_diameter ** 2 / 4.0
+        if self.muscle.axial_area > bag_section:
+            raise ParameterError(
+                f"muscle.axial_area = {self.muscle.axial_area:g} m^2 exceeds the outer bag's "
+                f"cross-section {bag_section:.4g} m^2 (braid.outer_bag_diameter)")
         check_range("controller.po_cap", c.po_cap / MPA, pn.p_min / MPA, pn.p_max / MPA, "MPa")
         check_range("controller.po_feedforward", c.po_feedforward / MPA, pn.p_min / MPA,
                     c.po_cap / MPA, "MPa")
@@ -220,6 +261,11 @@ class Params:
                 f" {bag:.3g} m^3) plus pneumatics.tube_volume cannot hold the inflated muscle "
                 f"and muscle.axial_area = {self.muscle.axial_area:g} m^2 times the stroke; "
                 "use a larger bag or a smaller axial area")
+
+    @property
+    def outer_chamber(self) -> bool:
+        """False for the bare RLAM: nothing around the inner bag for Po to fill."""
+        return self.preset != "rlam"
 
     def replace(self, **sections: Mapping[str, float]) -> "Params":
         """Copy with some fields changed: ``p.replace(muscle={"friction_coeff": 0})``."""
@@ -311,10 +357,26 @@ def preset(name: str = "wpam", *, calibration: str | Path | None = CALIBRATION_F
 
 def describe(params: Params) -> list[tuple[str, float, str, str]]:
     """Rows (name, value, unit, source) for reports and the README table."""
+    return [(name, value, unit, source)
+            for name, value, unit, _, source in describe_with_ranges(params)]
+
+
+def describe_with_ranges(params: Params) -> list[tuple[str, float, str, tuple | None, str]]:
+    """Rows (name, value, unit, plausible range or None, source)."""
     rows = []
     for s in _SECTIONS:
         obj = getattr(params, s)
         for f in dataclasses.fields(obj):
-            rows.append((f"{s}.{f.name}", getattr(obj, f.name), f.metadata["unit"],
-                         f.metadata["source"]))
+            md = f.metadata
+            rows.append((f"{s}.{f.name}", getattr(obj, f.name), md["unit"], md["plausible"],
+                         md["source"]))
     return rows
+
+
+def plausible_range(name: str) -> tuple[float, float]:
+    """The plausible range of the parameter "section.field" (ParameterError if none)."""
+    section, _, key = name.partition(".")
+    fields = {f.name: f for f in dataclasses.fields(_SECTIONS.get(section, Params))}
+    if key not in fields or fields[key].metadata.get("plausible") is None:
+        raise ParameterError(f"{name} has no plausible range (not a fitted parameter)")
+    return fields[key].metadata["plausible"]

@@ -14,7 +14,7 @@ import mujoco
 from wpam_mj.loop_contract import RunConstants, SimulationDiverged, pressure_diverged
 from wpam_mj.model import MuscleIndex
 from wpam_mj.muscle import MuscleModel
-from wpam_mj.pneumatics import Chamber, Regulator
+from wpam_mj.pneumatics import Chamber, Regulator, chamber_volumes
 
 
 class Plant:
@@ -55,10 +55,9 @@ class Plant:
         # chamber volumes and dV/dx (wpam_mj.pneumatics)
         area = geom.area(x)
         vol = geom.volume(x)
-        p_i = self.chamber_i.step(set_i + pa, vol + k.tube_volume, area, v, k.dt)
-        p_o = self.chamber_o.step(set_o + pa,
-                                  k.bag_volume + k.tube_volume - vol - muscle.axial_area * x,
-                                  -(area + muscle.axial_area), v, k.dt)
+        v_i, v_o = chamber_volumes(vol, x, muscle.axial_area, k.bag_volume, k.tube_volume)
+        p_i = self.chamber_i.step(set_i + pa, v_i, area, v, k.dt)
+        p_o = self.chamber_o.step(set_o + pa, v_o, -(area + muscle.axial_area), v, k.dt)
         if not (p_i > 0.0 and p_o > 0.0):
             raise SimulationDiverged(pressure_diverged(p_i, p_o))
         return tension, friction

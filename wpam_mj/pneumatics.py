@@ -32,6 +32,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 R_AIR = 287.05  # J/(kg K), specific gas constant of dry air
 T_0 = 293.15  # K, ISO 8778 reference (ANR) temperature
 RHO_0 = 1.185  # kg/m^3, ISO 8778 reference density (ANR)
@@ -59,6 +61,39 @@ def mass_flow(p_source: float, p_chamber: float, conductance: float, b: float) -
     if p_source >= p_chamber:
         return conductance * RHO_0 * p_source * iso6358_psi(p_chamber / p_source, b)
     return -conductance * RHO_0 * p_chamber * iso6358_psi(p_source / p_chamber, b)
+
+
+def mass_flow_array(p_source: np.ndarray, p_chamber: np.ndarray, conductance: float,
+                    b: float) -> np.ndarray:
+    """`mass_flow` elementwise on arrays (for feedforward design, not the step loop)."""
+    up = np.maximum(p_source, p_chamber)
+    r = np.minimum(p_source, p_chamber) / up
+    q = (np.minimum(r, R_LAMINAR) - b) / (1.0 - b)
+    psi = np.where(r <= b, 1.0, np.sqrt(np.maximum(1.0 - q * q, 0.0)))
+    psi = np.where(r > R_LAMINAR, psi * (1.0 - r) / (1.0 - R_LAMINAR), psi)
+    return np.sign(p_source - p_chamber) * conductance * RHO_0 * up * psi
+
+
+def source_pressure(m_dot: np.ndarray, p_chamber: np.ndarray, conductance: float,
+                    b: float, p_limit: float) -> np.ndarray:
+    """Source pressure [Pa abs] that drives `m_dot` [kg/s] into a chamber at `p_chamber`
+    [Pa abs] through the restriction: the inverse of `mass_flow`, which is monotone in the
+    source pressure; found by bisection on [0, p_limit] (saturating at the ends)."""
+    m_dot, p_chamber = np.broadcast_arrays(np.asarray(m_dot, float), np.asarray(p_chamber, float))
+    lo, hi = np.zeros_like(m_dot), np.full_like(m_dot, p_limit)
+    for _ in range(60):  # 2^-60 of the bracket: below the float spacing of Pa values
+        mid = 0.5 * (lo + hi)
+        short = mass_flow_array(mid, p_chamber, conductance, b) < m_dot
+        lo, hi = np.where(short, mid, lo), np.where(short, hi, mid)
+    return 0.5 * (lo + hi)
+
+
+def chamber_volumes(bag_inner: float, x: float, axial_area: float, bag_volume: float,
+                    tube_volume: float) -> tuple[float, float]:
+    """(V_i, V_o) [m^3]: the inner bag's volume `bag_inner` plus its tube, and the outer
+    bag's enclosed `bag_volume` less the inner bag and A_ax x, plus its tube (module doc).
+    Floats or arrays."""
+    return bag_inner + tube_volume, bag_volume + tube_volume - bag_inner - axial_area * x
 
 
 def outer_bag_volume(length: float, diameter: float) -> float:

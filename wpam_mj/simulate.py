@@ -81,6 +81,9 @@ def simulate(params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
     _check_commands(drive, params, dt, feedback=controller.feedback)
     if controller.feedback and not np.all(np.isfinite(drive.x_ref)):
         raise ParameterError("feedback control needs a finite target x_ref at every step")
+    if not params.outer_chamber and (controller.feedback or np.any(drive.po_cmd > 0.0)):
+        raise ParameterError(f"the {params.preset} preset has no outer chamber: Po must stay "
+                             "0 (open loop with --po-down 0)")
     model = build_model(params, load, dt)
     data = mujoco.MjData(model)
     muscle = MuscleModel.from_params(params)
