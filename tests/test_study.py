@@ -94,7 +94,7 @@ def test_diverged_and_infeasible_runs_are_flagged_rows(tmp_path):
             "vary": {"method": "list", "values": {
                 "pneumatics.inner_conductance": [1e-6, 3.851e-9, 3.851e-9],
                 "pneumatics.tube_volume": [1e-7, 2e-5, 2e-5],
-                "controller.po_cap": [8e4, 3e4, 8e4]}}}
+                "controller.po_cap": [8e4, 8e3, 8e4]}}}  # 8 kPa < po_feedforward
     rows = _run(tmp_path, "out", Workers(None, 1, "here"), spec).rows
     assert [(r["diverged"], r["infeasible"]) for r in rows] == \
         [(True, False), (False, True), (False, False)]
