@@ -90,7 +90,7 @@ def test_feedback_row_needs_the_heavy_load_well_above_the_middle_one():
     from types import SimpleNamespace  # noqa: PLC0415
 
     (finding,) = [f for f in paper.TABLE2_FINDINGS if "feedback" in f.text]
-    for f150, holds in ((0.009, True), (0.006, False)):
+    for f150, holds in ((0.0095, True), (0.006, False)):
         t2 = SimpleNamespace(loads=paper.LOADS_N, feedback={50.0: 0.001, 100.0: 0.003,
                                                             150.0: f150})
         margins = finding.margins(t2, CAP)
