@@ -204,11 +204,13 @@ class Controller(_Validated):
     derivative_filter: float = _p(0.02, "s", 0.0, 10.0, "our choice (first-order D filter)")
     po_cap: float = _p(paper.PO_CAP_MPA * MPA, "Pa", 0.0, 1.0 * MPA, "paper §4.2 (bag durability)")
     po_feedforward: float = _p(0.04 * MPA, "Pa", 0.0, 1.0 * MPA,
-                               "our choice: the Po the Pi feedforward assumes")
+                               "calibrated protocol reading (the paper does not state it): "
+                               "the Po the Pi feedforward assumes, between the regulator "
+                               "minimum and below the cap", plausible=(0.005 * MPA, 0.06 * MPA))
     feedforward_friction: float = _p(0.0, "1", 0.0, 1.0,
-                                     "our reading of §4.1: the share of the friction band "
-                                     "the Pi feedforward adds (0 frictionless, 1 the "
-                                     "contracting branch of eq. 5)")
+                                     "calibrated protocol reading of §4.1: the share of the "
+                                     "friction band the Pi feedforward adds (0 frictionless, "
+                                     "1 the contracting branch of eq. 5)", plausible=(0.0, 1.0))
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,125 @@
+"""Measure every target of the credible-plant revision on the shipped parameters.
+
+Prints one table (figure, measured, target, pass/fail) and writes it as JSON and Markdown:
+Table 2 with 60 s and 240 s ramps (the paper does not state its ramp), the step runs'
+settled plateau error and peak-to-peak (PI and PID, 50/100/150 N), the §4.2 findings of
+the sweep (`wpam_mj.paper`), time-step convergence of every reported figure, and the
+plausible readings of the paper's unitless gains (`Controller.command_scale`).
+
+    python scripts/physics_targets.py [--out DIR] [--jobs N] [--quick]
+
+Takes about 4 minutes on two cores (--quick: the readings table and dt check skipped).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from wpam_mj import paper, pool, preset
+from wpam_mj.analysis import loop_area
+from wpam_mj.experiments import sine_run, SineSpec, static_loop
+from wpam_mj.params import MM, MPA, Params
+from wpam_mj.results import write_text_atomic
+from wpam_mj.studies import step_study, sweep, table2
+from wpam_mj.study_results import LOOP_METHOD
+
+READINGS = {"MPa/mm": 1.0, "V/mm, 0-5 V input": 0.1, "V/mm, 0-10 V input": 0.05}
+SETTLE_S = 5.0  # the last 5 s of each 10 s plateau
+
+
+class _PoRowTask:
+    """The Table 2 'Po = 0.04' cell of one load at one ramp time (both loops)."""
+
+    def __init__(self, params: Params, load: float, ramp: float, dt: float) -> None:
+        self.params, self.load, self.ramp, self.dt = params, load, ramp, dt
+        self.cost = 4 * ramp / dt
+
+    def run(self) -> float:
+        areas = [loop_area(r.pi, r.x, method=LOOP_METHOD) for r in (
+            static_loop(self.params, self.load, po_down=po, ramp_time=self.ramp, dt=self.dt)
+            for po in (0.0, paper.PO_DOWN_STATIC_MPA * MPA))]
+        return areas[1] / areas[0]
+
+
+class _ReadingTask:
+    """Step runs and two sine runs of the PI loop under one reading of the gains."""
+
+    def __init__(self, params: Params, dt: float) -> None:
+        self.params, self.dt, self.cost = params, dt, 400.0 / dt
+
+    def run(self) -> dict:
+        steps = step_study(self.params, [(load, "pi") for load in paper.LOADS_N], dt=self.dt)
+        out = {"worst_error_mm": max(s.worst_error(SETTLE_S) for s in steps) / MM,
+               "peak_to_peak_mm": max(_peak_to_peak(s) for s in steps) / MM}
+        for load, freq in ((50.0, 0.1), (150.0, 0.5)):
+            r = sine_run(self.params, load, "pi", SineSpec(freq), dt=self.dt)
+            out[f"po_max_{load:g}N_{freq:g}Hz_mpa"] = float(r.po_reg.max() / MPA)
+        return out
+
+
+def _peak_to_peak(run) -> float:
+    """Largest x peak-to-peak over the last SETTLE_S of any plateau [m]."""
+    r = run.result
+    k = (r.time // paper.STEP_HOLD_S).astype(int)
+    late = (r.time % paper.STEP_HOLD_S) >= paper.STEP_HOLD_S - SETTLE_S
+    return max(float(np.ptp(r.x[late & (k == i)])) for i in np.unique(k))
+
+
+def measure(params: Params, *, dt: float, jobs: int) -> dict:
+    """Every figure of the targets at one time step."""
+    t2 = table2(params, dt=dt, jobs=jobs)
+    steps = step_study(params, [(load, c) for c in ("pi", "pid") for load in paper.LOADS_N],
+                       dt=dt, jobs=jobs)
+    sw = sweep(params, keep=(), dt=dt, jobs=jobs)
+    return {
+        "table2_po_row": {f"{k:g}": v for k, v in t2.open_po.items()},
+        "table2_feedback_row": {f"{k:g}": v for k, v in t2.feedback.items()},
+        "steps": {f"{s.control} {s.load:g} N": {
+            "worst_error_mm": s.worst_error(SETTLE_S) / MM,
+            "peak_to_peak_mm": _peak_to_peak(s) / MM,
+            "po_plateau_mean_mpa": float(np.mean(s.po_mean) / MPA),
+            "pi_plateau_mean_mpa": float(np.mean(s.pi_mean) / MPA)} for s in steps},
+        "sweep": [p.as_json() for p in sw.points],
+        "checks": [{"finding": c.finding, "verdict": c.verdict, "detail": c.detail}
+                   for c in paper.sweep_checks(sw, params.controller.po_cap)
+                   + paper.table2_checks(t2)],
+    }
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("out") / "physics_targets",
+                        help="output folder (default: out/physics_targets)")
+    parser.add_argument("--jobs", type=int, default=pool.default_jobs(),
+                        help="worker processes [count]")
+    parser.add_argument("--quick", action="store_true",
+                        help="skip the gain-readings table and the dt/2 run")
+    args = parser.parse_args()
+    params = preset("wpam")
+    dt = 1e-3
+    result = measure(params, dt=dt, jobs=args.jobs)
+    ramps = pool.run_tasks([_PoRowTask(params, load, ramp, dt) for ramp in (60.0, 240.0)
+                            for load in paper.LOADS_N], jobs=args.jobs)
+    n = len(paper.LOADS_N)
+    result["po_row_ramp"] = {f"{ramp:g} s": {f"{load:g}": v for load, v in
+                                            zip(paper.LOADS_N, ramps[i * n:(i + 1) * n])}
+                             for i, ramp in enumerate((60.0, 240.0))}
+    if not args.quick:
+        half = measure(params, dt=dt / 2, jobs=args.jobs)
+        result["dt_half"] = half
+        result["readings"] = dict(zip(READINGS, pool.run_tasks(
+            [_ReadingTask(params.replace(controller={"command_scale": s}), dt)
+             for s in READINGS.values()], jobs=args.jobs)))
+    args.out.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(args.out / "physics_targets.json", json.dumps(result, indent=1) + "\n")
+    print(json.dumps({k: v for k, v in result.items() if k not in ("sweep", "dt_half")},
+                     indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
