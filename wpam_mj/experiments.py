@@ -135,6 +135,13 @@ class SineSpec:
     def duration(self) -> float:
         return (self.settle_cycles + self.cycles) / self.freq
 
+    def analysed(self, time: np.ndarray) -> np.ndarray:
+        """Mask of the samples at `time` [s] (starting at 0) in the analysed cycles."""
+        t0 = time[0] + self.settle_cycles / self.freq
+        t1 = t0 + self.cycles / self.freq
+        eps = 1e-9 * t1  # sample times are k dt: keep the window's ends exact
+        return (time >= t0 - eps) & (time < t1 - eps)
+
     def target(self, t: np.ndarray) -> np.ndarray:
         return self.mean - self.amplitude * np.cos(2.0 * math.pi * self.freq * t)
 

@@ -164,10 +164,7 @@ class SineTask:
         r = sine_run(self.params, self.load, self.controller, spec, dt=self.dt)
         fr = frequency_response(r.time, r.x_ref, r.x, self.freq,
                                 settle_cycles=spec.settle_cycles, n_cycles=spec.cycles)
-        t0 = r.time[0] + spec.settle_cycles / self.freq
-        t1 = t0 + spec.cycles / self.freq
-        eps = 1e-9 * t1
-        window = (r.time >= t0 - eps) & (r.time < t1 - eps)
+        window = spec.analysed(r.time)
         point = SweepPoint(load=self.load, freq=self.freq, controller=self.controller,
                            gain=fr.gain, phase_lag_deg=fr.phase_lag_deg,
                            po_max=float(r.po_reg[window].max()),

@@ -398,10 +398,7 @@ def _sine_metrics(result, spec: SineSpec) -> dict[str, float]:
     regulator-gauge Po over them (as `studies.SweepPoint.po_max`)."""
     fr = frequency_response(result.time, result.x_ref, result.x, spec.freq,
                             settle_cycles=spec.settle_cycles, n_cycles=spec.cycles)
-    t0 = result.time[0] + spec.settle_cycles / spec.freq
-    t1 = t0 + spec.cycles / spec.freq
-    eps = 1e-9 * t1
-    window = (result.time >= t0 - eps) & (result.time < t1 - eps)
+    window = spec.analysed(result.time)
     return {"gain": fr.gain, "phase_lag_deg": fr.phase_lag_deg,
             "po_max_mpa": float(result.po_reg[window].max()) / MPA}
 
