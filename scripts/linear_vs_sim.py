@@ -111,7 +111,7 @@ def _regimes_table(params, comparisons) -> list[str]:
         op = c.loops[0].op
         ff = muscle.friction(op.x, op.pi, op.po)
         linear_kpa = (1.0 - pn.R_LAMINAR) * op.outer.pressure / 1e3
-        kp = params.controller.kp  # MPa/mm
+        kp = params.controller.kp * params.controller.command_scale  # MPa/mm
 
         def rate(p_set: float) -> float:
             flow = pn.mass_flow(p_set + pnm.atmosphere, op.outer.pressure,

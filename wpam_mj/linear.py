@@ -25,7 +25,8 @@ linearisation: it is what makes the two part at small amplitude, the flow limit 
 restriction at large amplitude (docs/linear_model.md).
 
 SI throughout: x in m, pressures in Pa (gauge unless stated), gains Kp in Pa/m, Ki in
-Pa/(m s), Kd in Pa s/m (the controller's MPa/mm gains times 1e6 / 1e-3).
+Pa/(m s), Kd in Pa s/m (the controller's gains per mm times `Controller.command_scale`
+[MPa per controller unit], times 1e6 / 1e-3).
 """
 
 from __future__ import annotations
@@ -182,8 +183,10 @@ def operating_point(params: Params, load: float, x: float) -> OperatingPoint:
     pi = feedforward(x)
     pnm = params.pneumatics
     if not pnm.p_min < pi < pnm.p_max:
+        need = muscle.equilibrium_pressure(x, load, po, params.controller.feedforward_friction)
         raise ParameterError(f"contraction = {x / MM:g} mm under {load:g} N needs Pi = "
-                             f"{pi / MPA:g} MPa, at the regulator's limit [{pnm.p_min / MPA:g}, "
+                             f"{need / MPA:.4g} MPa, outside the regulator's range "
+                             f"[{pnm.p_min / MPA:g}, "
                              f"{pnm.p_max / MPA:g}] MPa: no linear operating point")
     mass, damping = moving_mass_and_damping(params, load)
     dp = _REL_STEP * (pi + pnm.atmosphere)
@@ -202,9 +205,11 @@ def operating_point(params: Params, load: float, x: float) -> OperatingPoint:
 
 
 def controller_gains(params: Params) -> tuple[float, float, float]:
-    """(Kp [Pa/m], Ki [Pa/(m s)], Kd [Pa s/m]) from the MPa/mm gains of `Controller`."""
+    """(Kp [Pa/m], Ki [Pa/(m s)], Kd [Pa s/m]) from the gains of `Controller` (controller
+    units per mm, turned into MPa by `Controller.command_scale`, as `control.PoFeedback`
+    reads them)."""
     c = params.controller
-    si = MPA / MM
+    si = c.command_scale * MPA / MM
     return c.kp * si, c.ki * si, c.kd * si
 
 
