@@ -54,7 +54,7 @@ def time_direct(params, n: int) -> float:
     model = build_model(params, LOAD, DT)
     data = mujoco.MjData(model)
     idx = MuscleIndex.of(model)
-    plant = Plant(MuscleModel.from_params(params), RunConstants.make(params, DT, "open", DT))
+    plant = Plant(MuscleModel.from_params(params), RunConstants.make(params, DT, DT))
     pi = _pi(params)
     start = time.perf_counter()
     for _ in range(n):

@@ -21,8 +21,9 @@ feedforward (Pi follows x_r, so the target also acts through Pi), each regulator
 (Pade approximant) and first-order lag, both isothermal chambers linearised about zero flow
 (the slope of `pneumatics.mass_flow`, the chamber volume, and the pneumatic stiffness of its
 volume change dV/dx), and the derivative filter of the simulated PID. Dry friction has no
-linearisation: it is what makes the two part at small amplitude, the flow limit of the
-restriction at large amplitude (docs/linear_model.md).
+linearisation: on the shipped plant it is what makes the simulation lag the models at every
+amplitude and holds the loop the extended model calls unstable; the flow limit of the
+restriction adds to it at large amplitude (docs/linear_model.md).
 
 SI throughout: x in m, pressures in Pa (gauge unless stated), gains Kp in Pa/m, Ki in
 Pa/(m s), Kd in Pa s/m (the controller's gains per mm times `Controller.command_scale`
@@ -96,18 +97,23 @@ class Chamber:
                      inputs=[set_input, "v"], outputs=[output])
 
 
+def chamber_volumes(params: Params, x: float) -> tuple[float, float]:
+    """(V_i, V_o) [m^3] at contraction x [m], by `pneumatics.chamber_volumes`."""
+    b = params.braid
+    return pn.chamber_volumes(BraidGeometry.from_params(b).volume(x), x,
+                              params.muscle.axial_area,
+                              pn.outer_bag_volume(b.outer_bag_length, b.outer_bag_diameter),
+                              params.pneumatics.tube_volume)
+
+
 def inner_volume(params: Params, x: float) -> float:
-    """Inner chamber volume [m^3] at contraction x [m] as `wpam_mj.pneumatics` states it:
-    V_i = V(x) + V_tube."""
-    return BraidGeometry.from_params(params.braid).volume(x) + params.pneumatics.tube_volume
+    """Inner chamber volume V_i [m^3] at contraction x [m]."""
+    return chamber_volumes(params, x)[0]
 
 
 def outer_volume(params: Params, x: float) -> float:
-    """Outer chamber volume [m^3] at contraction x [m] as `wpam_mj.pneumatics` states it:
-    V_o = V_bag - V(x) - A_ax x + V_tube."""
-    bag = pn.outer_bag_volume(params.braid.outer_bag_length, params.braid.outer_bag_diameter)
-    return (bag - BraidGeometry.from_params(params.braid).volume(x)
-            - params.muscle.axial_area * x + params.pneumatics.tube_volume)
+    """Outer chamber volume V_o [m^3] at contraction x [m]."""
+    return chamber_volumes(params, x)[1]
 
 
 def _chamber(params: Params, x: float, gauge: float, conductance: float,
