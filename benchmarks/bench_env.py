@@ -28,14 +28,15 @@ import mujoco
 import numpy as np
 
 import wpam_mj
-from wpam_mj import Drive, simulate
 from wpam_mj.control import pi_feedforward
 from wpam_mj.env import make_env
 from wpam_mj.gym_env import ENV_ID, WPAMEnv
 from wpam_mj.model import MuscleIndex, build_model
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM, MPA
-from wpam_mj.simulate import Plant, RunConstants
+from wpam_mj.loop_contract import RunConstants
+from wpam_mj.plant import Plant
+from wpam_mj.simulate import Drive, simulate
 
 LOAD = 100.0  # N, the paper's nominal load (§4.1)
 DT = 1e-3  # s, physics step
@@ -54,7 +55,7 @@ def time_direct(params, n: int) -> float:
     model = build_model(params, LOAD, DT)
     data = mujoco.MjData(model)
     idx = MuscleIndex.of(model)
-    plant = Plant(MuscleModel.from_params(params), RunConstants.make(params, DT, "open", DT))
+    plant = Plant(MuscleModel.from_params(params), RunConstants.make(params, DT, DT))
     pi = _pi(params)
     start = time.perf_counter()
     for _ in range(n):

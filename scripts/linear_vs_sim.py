@@ -4,7 +4,7 @@ For each load, the linear models at the sweep's mean contraction and the simulat
 several amplitudes; prints Markdown tables (operating points and stability; worst agreement
 at 0.1-0.25 Hz per amplitude; every point at the paper's and the small amplitude; the Po
 limit cycle beside the extended model's instability; what bounds the linear range) and writes
-linear_vs_sim.json and linear_vs_sim.csv. About 30 s on two cores.
+linear_vs_sim.json and linear_vs_sim.csv. About 75 s of wall time on two shared cores.
 
 Usage: python scripts/linear_vs_sim.py [--loads 50,100,150] [--amplitudes MM,...] [--out DIR]
 """
@@ -111,7 +111,7 @@ def _regimes_table(params, comparisons) -> list[str]:
         op = c.loops[0].op
         ff = muscle.friction(op.x, op.pi, op.po)
         linear_kpa = (1.0 - pn.R_LAMINAR) * op.outer.pressure / 1e3
-        kp = params.controller.kp  # MPa/mm
+        kp = params.controller.kp * params.controller.command_scale  # MPa/mm
 
         def rate(p_set: float) -> float:
             flow = pn.mass_flow(p_set + pnm.atmosphere, op.outer.pressure,

@@ -28,7 +28,7 @@ from wpam_mj.geometry import BraidGeometry
 from wpam_mj.model import check_dt
 from wpam_mj.params import (MAX_TOML_BYTES, MM, MPA, Braid, ParameterError, apply_overrides,
                             load_toml, preset)
-from wpam_mj.pneumatics import outer_bag_volume
+from wpam_mj.pneumatics import chamber_volumes, outer_bag_volume
 from wpam_mj.results import SimResult, write_atomic
 from wpam_mj.simulate import Drive, simulate
 
@@ -121,7 +121,7 @@ def _locking_limit(braid: Braid) -> float:
      "braid.braid_angle"),  # the same through a larger max diameter
     ({"muscle": {"axial_area": 0.04}}, "muscle.axial_area"),  # outer chamber volume <= 0
     ({"braid": {"outer_bag_diameter": 0.043, "outer_bag_length": 0.35},
-      "muscle": {"axial_area": 0.003}}, "outer chamber volume"),  # tight bag, moderate area
+      "muscle": {"axial_area": 0.0015}}, "muscle.axial_area"),  # beyond a tight bag's section
 ])
 def test_every_geometry_constraint_is_checked_at_construction(overrides, names) -> None:
     with pytest.raises(ParameterError, match=names.replace(".", r"\.")):
@@ -150,16 +150,35 @@ def test_locking_bound_is_exact(natural_d, max_d) -> None:
         dataclasses.replace(base, braid_angle=limit * (1 + 1e-6))
 
 
-def test_outer_chamber_bound_is_where_the_free_volume_vanishes() -> None:
-    """The largest accepted axial area leaves the outer chamber just positive at x_max."""
-    b, pn = PARAMS.braid, PARAMS.pneumatics
-    geom = BraidGeometry.from_params(b)
-    x = geom.max_contraction
-    a_zero = (outer_bag_volume(b.outer_bag_length, b.outer_bag_diameter) + pn.tube_volume
-              - geom.volume(x)) / x  # V_o(x_max) = 0
-    PARAMS.replace(muscle={"axial_area": a_zero * (1 - 1e-6)})
-    with pytest.raises(ParameterError, match="outer chamber volume"):
-        PARAMS.replace(muscle={"axial_area": a_zero * (1 + 1e-6)})
+def test_axial_area_bound_is_the_bag_section() -> None:
+    b = PARAMS.braid
+    section = math.pi * b.outer_bag_diameter ** 2 / 4
+    PARAMS.replace(muscle={"axial_area": section * (1 - 1e-6)})
+    with pytest.raises(ParameterError, match=r"muscle\.axial_area .* cross-section"):
+        PARAMS.replace(muscle={"axial_area": section * (1 + 1e-6)})
+
+
+@pytest.mark.parametrize("natural_d, max_d", [(0.022, 0.042), (0.01, 0.05), (0.03, 0.035)])
+def test_accepted_parameters_keep_the_outer_chamber_open(natural_d, max_d) -> None:
+    """V_o(x) = V_bag + V_tube - V(x) - A_ax x stays positive over the whole stroke at the
+    tightest accepted corner: a bag just wider than the braid's maximum diameter and as long
+    as the muscle, no tube, A_ax at the bag's cross-section, the braid just short of
+    locking. (The bag's section bounds A_ax, V(x) = pi D(x)^2 (L0 - x) / 4 with D <= D_max,
+    so V_o > pi d_bag^2 (L_bag - L0) / 4 >= 0: the separate free-volume check in
+    `Params` can no longer be reached from a parameter file.)"""
+    base = Braid(natural_diameter=natural_d, max_diameter=max_d, braid_angle=0.1,
+                 outer_bag_diameter=max_d * (1 + 1e-6), outer_bag_length=0.35)
+    braid = dataclasses.replace(base, braid_angle=_locking_limit(base) * (1 - 1e-6))
+    section = math.pi * braid.outer_bag_diameter ** 2 / 4
+    params = PARAMS.replace(braid=dataclasses.asdict(braid),
+                            muscle={"axial_area": section * (1 - 1e-9)},
+                            pneumatics={"tube_volume": 0.0})
+    geom = BraidGeometry.from_params(params.braid)
+    x = np.linspace(0.0, geom.max_contraction, 201)
+    _, v_outer = chamber_volumes(geom.volume(x), x, params.muscle.axial_area,
+                                 outer_bag_volume(braid.outer_bag_length,
+                                                  braid.outer_bag_diameter), 0.0)
+    assert v_outer.min() > 0.0
 
 
 # ------------------------------------------------------------------ 20: calibration, durations
@@ -192,10 +211,12 @@ def test_result_series_must_share_one_length() -> None:
 # ------------------------------------------------------------------ 13: env after divergence
 
 def test_env_refuses_to_step_after_a_divergence_until_reset() -> None:
-    # zero tube volume and a large inner conductance at the largest dt: explicit Euler of
-    # the inner chamber overshoots to a negative absolute pressure on the first step
+    # zero tube volume and a large inner conductance at the largest dt, and a regulator
+    # without dead time or lag (else the first command reaches the chamber only after
+    # 20 ms): explicit Euler of the inner chamber overshoots to a negative absolute
+    # pressure on the first step
     params = PARAMS.replace(pneumatics={"inner_conductance": 1e-6, "tube_volume": 0.0,
-                                        "time_constant": 0.0})
+                                        "time_constant": 0.0, "dead_time": 0.0})
     env = make_env(params, action="both", dt=0.005, seed=0, load=100.0)
     env.reset()
     with pytest.raises(PhysicsError, match="chamber pressure"):

@@ -21,11 +21,13 @@ feedforward (Pi follows x_r, so the target also acts through Pi), each regulator
 (Pade approximant) and first-order lag, both isothermal chambers linearised about zero flow
 (the slope of `pneumatics.mass_flow`, the chamber volume, and the pneumatic stiffness of its
 volume change dV/dx), and the derivative filter of the simulated PID. Dry friction has no
-linearisation: it is what makes the two part at small amplitude, the flow limit of the
-restriction at large amplitude (docs/linear_model.md).
+linearisation: on the shipped plant it is what makes the simulation lag the models at every
+amplitude and holds the loop the extended model calls unstable; the flow limit of the
+restriction adds to it at large amplitude (docs/linear_model.md).
 
 SI throughout: x in m, pressures in Pa (gauge unless stated), gains Kp in Pa/m, Ki in
-Pa/(m s), Kd in Pa s/m (the controller's MPa/mm gains times 1e6 / 1e-3).
+Pa/(m s), Kd in Pa s/m (the controller's gains per mm times `Controller.command_scale`
+[MPa per controller unit], times 1e6 / 1e-3).
 """
 
 from __future__ import annotations
@@ -95,18 +97,23 @@ class Chamber:
                      inputs=[set_input, "v"], outputs=[output])
 
 
+def chamber_volumes(params: Params, x: float) -> tuple[float, float]:
+    """(V_i, V_o) [m^3] at contraction x [m], by `pneumatics.chamber_volumes`."""
+    b = params.braid
+    return pn.chamber_volumes(BraidGeometry.from_params(b).volume(x), x,
+                              params.muscle.axial_area,
+                              pn.outer_bag_volume(b.outer_bag_length, b.outer_bag_diameter),
+                              params.pneumatics.tube_volume)
+
+
 def inner_volume(params: Params, x: float) -> float:
-    """Inner chamber volume [m^3] at contraction x [m] as `wpam_mj.pneumatics` states it:
-    V_i = V(x) + V_tube."""
-    return BraidGeometry.from_params(params.braid).volume(x) + params.pneumatics.tube_volume
+    """Inner chamber volume V_i [m^3] at contraction x [m]."""
+    return chamber_volumes(params, x)[0]
 
 
 def outer_volume(params: Params, x: float) -> float:
-    """Outer chamber volume [m^3] at contraction x [m] as `wpam_mj.pneumatics` states it:
-    V_o = V_bag - V(x) - A_ax x + V_tube."""
-    bag = pn.outer_bag_volume(params.braid.outer_bag_length, params.braid.outer_bag_diameter)
-    return (bag - BraidGeometry.from_params(params.braid).volume(x)
-            - params.muscle.axial_area * x + params.pneumatics.tube_volume)
+    """Outer chamber volume V_o [m^3] at contraction x [m]."""
+    return chamber_volumes(params, x)[1]
 
 
 def _chamber(params: Params, x: float, gauge: float, conductance: float,
@@ -182,8 +189,10 @@ def operating_point(params: Params, load: float, x: float) -> OperatingPoint:
     pi = feedforward(x)
     pnm = params.pneumatics
     if not pnm.p_min < pi < pnm.p_max:
+        need = muscle.equilibrium_pressure(x, load, po, params.controller.feedforward_friction)
         raise ParameterError(f"contraction = {x / MM:g} mm under {load:g} N needs Pi = "
-                             f"{pi / MPA:g} MPa, at the regulator's limit [{pnm.p_min / MPA:g}, "
+                             f"{need / MPA:.4g} MPa, outside the regulator's range "
+                             f"[{pnm.p_min / MPA:g}, "
                              f"{pnm.p_max / MPA:g}] MPa: no linear operating point")
     mass, damping = moving_mass_and_damping(params, load)
     dp = _REL_STEP * (pi + pnm.atmosphere)
@@ -202,9 +211,11 @@ def operating_point(params: Params, load: float, x: float) -> OperatingPoint:
 
 
 def controller_gains(params: Params) -> tuple[float, float, float]:
-    """(Kp [Pa/m], Ki [Pa/(m s)], Kd [Pa s/m]) from the MPa/mm gains of `Controller`."""
+    """(Kp [Pa/m], Ki [Pa/(m s)], Kd [Pa s/m]) from the gains of `Controller` (controller
+    units per mm, turned into MPa by `Controller.command_scale`, as `control.PoFeedback`
+    reads them)."""
     c = params.controller
-    si = MPA / MM
+    si = c.command_scale * MPA / MM
     return c.kp * si, c.ki * si, c.kd * si
 
 

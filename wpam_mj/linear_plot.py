@@ -20,11 +20,13 @@ FREQ_RANGE_HZ = (0.03, 30.0)  # our choice: the paper's 0.1-1 Hz and the loop's 
 _MODEL_STYLE = {"paper": "-", "extended": "--"}
 _CONTROL_COLOUR = {"pi": "tab:blue", "pid": "tab:red"}
 _AMPLITUDE_MARKERS = ("o", "s", "^", "v", "D", "x")
+GAIN_FLOOR = 1e-3  # simulated gains below it: the load stuck in friction (drawn on the
+#                    floor of the gain axis; their phase has no meaning and is left out)
 
 
 def comparison_figure(cmp: LinearComparison) -> Figure:
     """G_yr of each model and controller, and the simulated points at each amplitude."""
-    fig = Figure(figsize=(7.5, 6.4), layout="constrained")
+    fig = Figure(figsize=(7.5, 7.0), layout="constrained")
     axes = fig.subplots(2, 1, sharex=True)
     omega = 2 * math.pi * np.geomspace(*FREQ_RANGE_HZ, 400)
     for lp in cmp.loops:
@@ -41,13 +43,23 @@ def comparison_figure(cmp: LinearComparison) -> Figure:
                          marker=_AMPLITUDE_MARKERS[i % len(_AMPLITUDE_MARKERS)],
                          mfc="none" if i else None,
                          label=f"simulated, {ctrl.upper()}, {amp / MM:g} mm")
-            ax_g.plot([p.freq for p in pts], [p.gain for p in pts], **style)
-            ax_ph.plot([p.freq for p in pts], [-p.phase_lag_deg for p in pts], **style)
+            freqs = np.array([p.freq for p in pts])
+            gains = np.array([p.gain for p in pts])
+            moving = gains >= GAIN_FLOOR
+            ax_g.plot(freqs, np.maximum(gains, GAIN_FLOOR), **style)
+            ax_ph.plot(freqs[moving], [-p.phase_lag_deg for p, m in zip(pts, moving) if m],
+                       **style)
+    ax_g.set_ylim(bottom=0.5 * GAIN_FLOOR)
     ax_g.set_ylabel("gain |G_yr| [1]")
+    ax_g.text(0.01, 0.02, f"simulated gains below {GAIN_FLOOR:g} (load stuck) on the floor",
+              transform=ax_g.transAxes, fontsize=7)
     ax_ph.set_ylabel("phase [deg]")
     ax_ph.set_xlabel("frequency [Hz]")
     ax_ph.set_ylim(bottom=max(ax_ph.get_ylim()[0], -200.0))
-    ax_g.legend(fontsize=7, ncol=2, loc="lower left")
+    if ax_g.get_legend() is not None:  # bode_plot's own, of the models only
+        ax_g.get_legend().remove()
+    handles, labels = ax_g.get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=7, ncol=3, loc="outside lower center")
     fig.suptitle(f"G_yr at {cmp.load:g} N about {cmp.contraction / MM:g} mm: linear models "
                  "and simulation")
     return fig

@@ -25,7 +25,7 @@ from wpam_mj.experiments import SINE_AMPLITUDE_MM, SINE_MEAN_MM
 from wpam_mj.params import MM, Params, ParameterError
 from wpam_mj.study_results import SweepResult
 
-SMALL_AMPLITUDE_MM = 5.0  # between the friction and the flow-limit regimes (docs/linear_model.md)
+SMALL_AMPLITUDE_MM = 5.0  # about the friction band's reach in error at 150 N (docs/linear_model.md)
 AMPLITUDES_MM = (SINE_AMPLITUDE_MM, SMALL_AMPLITUDE_MM)  # the paper's, and a small one
 AGREEMENT_FREQS_HZ = (0.1, 0.2, 0.25)  # issue 12: where the linear model should hold
 GAIN_TOL_DB = 1.0

@@ -13,12 +13,13 @@ Keys (MuJoCo's viewer uses every letter and the digits 0-5 itself):
     Home        next target: step (the paper's 0-50-0 mm staircase), sine (25 mm about
                 25 mm at 0.2 Hz), fixed
     End         next controller: pi, pid, open (switching is bumpless: the new PI/PID
-                starts from the current Po command)
+                starts from the current Po command; `VIEW_CONTROLS`)
 Mouse: double-click the load to select it, then Ctrl + right drag pulls it (MuJoCo's
 perturbation). The viewer writes that
 force into `data.xfrc_applied` of the load body at each sync; MuJoCo maps it onto the
 slide joint through the body's Jacobian, so it acts on the contraction x like any other
-load and the Po feedback rejects it. Scripts can add a force of their own (`perturb`).
+load and the Po feedback rejects it (a pull must exceed the muscle's dry friction, ~50 N at
+100 N, to move it at all). Scripts can add a force of their own (`perturb`).
 
 The viewer needs a display and GLFW; without them `view` raises `ViewerUnavailable` (one
 line) before any window is attempted, since MuJoCo's viewer thread would otherwise exit
@@ -40,7 +41,7 @@ from collections.abc import Callable
 import mujoco
 import numpy as np
 
-from wpam_mj.control import CONTROLLERS, CONTROLS, check_control, pi_feedforward
+from wpam_mj.control import CONTROLLERS, check_control, pi_feedforward
 from wpam_mj.experiments import STEP_LEVELS_MM, SineSpec
 from wpam_mj.geometry import BraidGeometry
 from wpam_mj.model import MuscleIndex, build_model, check_dt, check_load
@@ -61,6 +62,12 @@ TEXT_PERIOD_S = 0.1  # s (wall clock) between overlay updates: `set_texts` waits
 
 # GLFW key codes (glfw3.h)
 KEY_UP, KEY_DOWN, KEY_HOME, KEY_END = 265, 264, 268, 269
+
+# The controllers the live rig can run: those that decide Po from x and x_r alone. A
+# controller with a drive feedforward (`adds_drive_po`, e.g. pi_ff) needs the target's
+# future (it leads the regulators' dead time), which keys pressed live do not give.
+VIEW_CONTROLS = tuple(name for name, cls in CONTROLLERS.items()
+                      if not getattr(cls, "adds_drive_po", False))
 
 
 class ViewerUnavailable(RuntimeError):
@@ -87,7 +94,7 @@ class LiveRig:
     Args:
       params: muscle parameters.
       load: hanging load [N].
-      control: "pi", "pid" or "open".
+      control: one of `VIEW_CONTROLS` ("open", "pi", "pid").
       target: "step", "sine" or a fixed contraction [m].
       dt: physics step [s].
     """
@@ -143,6 +150,10 @@ class LiveRig:
         """Switch controller; PI/PID start from the current Po command (bumpless) or, at
         the start, from the Po the feedforward assumes (the loop at rest)."""
         self.control = check_control(control)
+        if control not in VIEW_CONTROLS:
+            raise ParameterError(f"control {control!r} needs the target ahead of time, which "
+                                 f"the live viewer does not have; valid: "
+                                 f"{', '.join(VIEW_CONTROLS)}")
         if control == "open":
             self._feedback = None
             return
@@ -161,7 +172,8 @@ class LiveRig:
             self.mode = TARGET_MODES[(TARGET_MODES.index(self.mode) + 1) % len(TARGET_MODES)]
             self._t0 = self.time
         elif key == KEY_END:
-            self.set_control(CONTROLS[(CONTROLS.index(self.control) + 1) % len(CONTROLS)])
+            self.set_control(VIEW_CONTROLS[(VIEW_CONTROLS.index(self.control) + 1)
+                                           % len(VIEW_CONTROLS)])
 
     def _pi_command(self, x_ref: float) -> float:
         """Pi feedforward for x_ref at the Po the controller assumes (0 in open loop)."""
