@@ -229,6 +229,9 @@ class Params:
                 raise ParameterError(f"params.{name} = {getattr(self, name)!r} must be a "
                                      f"{cls.__name__}")
         pn, c, b = self.pneumatics, self.controller, self.braid
+        # With A_ax at most the bag's cross-section, a bag wider than the inflated muscle and
+        # no shorter than it (checked by Braid), the outer chamber keeps a positive volume
+        # over the whole stroke: V_o >= (A_bag - A_max) L_stop > 0.
         bag_section = math.pi * b.outer_bag_diameter ** 2 / 4.0
         if self.muscle.axial_area > bag_section:
             raise ParameterError(
@@ -237,32 +240,6 @@ class Params:
         check_range("controller.po_cap", c.po_cap / MPA, pn.p_min / MPA, pn.p_max / MPA, "MPa")
         check_range("controller.po_feedforward", c.po_feedforward / MPA, pn.p_min / MPA,
                     c.po_cap / MPA, "MPa")
-        self._check_outer_chamber()
-
-    def _check_outer_chamber(self) -> None:
-        """The outer chamber keeps a positive volume over the whole stroke.
-
-        V_o(x) = V_bag + V_tube - V(x) - A_ax x (`wpam_mj.pneumatics`); V(x) grows with x
-        (dV/dx = S > 0 below the locking angle, checked by `Braid`), so V_o is smallest at
-        the hard stop x_max. A non-positive V_o is no pressure model at all (the run would
-        only report a divergence).
-        """
-        from wpam_mj.geometry import BraidGeometry  # noqa: PLC0415 (imports this module)
-        from wpam_mj.pneumatics import outer_bag_volume  # noqa: PLC0415
-
-        b = self.braid
-        geom = BraidGeometry.from_params(b)
-        x_max = geom.max_contraction
-        bag = outer_bag_volume(b.outer_bag_length, b.outer_bag_diameter)
-        free = bag + self.pneumatics.tube_volume - geom.volume(x_max) \
-            - self.muscle.axial_area * x_max
-        if free <= 0.0:
-            raise ParameterError(
-                f"outer chamber volume at full contraction ({x_max / MM:.1f} mm) is "
-                f"{free:.3g} m^3: the bag ({b.outer_bag_length} m x {b.outer_bag_diameter} m,"
-                f" {bag:.3g} m^3) plus pneumatics.tube_volume cannot hold the inflated muscle "
-                f"and muscle.axial_area = {self.muscle.axial_area:g} m^2 times the stroke; "
-                "use a larger bag or a smaller axial area")
 
     @property
     def outer_chamber(self) -> bool:
