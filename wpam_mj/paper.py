@@ -189,7 +189,7 @@ def _gain_spread(sw, po_cap):
 
 
 def _gain_spread_detail(sw, po_cap, margins):
-    worst, where = 0.0, "-"
+    worst, where = 0.0, "no finite gain to compare"  # all NaN: no spread to place
     for m in margins:  # the last of the largest, as a reader scanning the table finds it
         if m.value >= worst:
             worst, where = m.value, f"{m.controller.upper()} {m.freq:g} Hz"
@@ -285,7 +285,7 @@ def _po_row(t2, po_cap):
 
 def _po_row_detail(t2, po_cap, margins):
     paper = t2.paper()["open_po"]
-    return ", ".join(f"{load:g} N: {t2.open_po[load]:.4f} vs {paper[load]:.4f} ({e:+.0%})"
+    return ", ".join(f"{load:g} N: {t2.open_po[load]:.4f} vs {paper[load]:.4f} ({e:+.1%})"
                      for load, e in _po_row_errors(t2).items())
 
 
