@@ -96,9 +96,9 @@ def report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResult
         "",
         "Target 25 mm amplitude about 25 mm; gain and phase lag fitted over "
         "whole steady cycles. Paper (qualitative: Fig. 17 prints no numbers): gain falls "
-        "and lag grows with frequency; gain does not change with load; below 0.5 Hz lag is smaller at lower load; PID lags less "
-        "than PI (150 N); above about 0.5 Hz the system runs at its limit velocity and Po "
-        f"hits its {paper.PO_CAP_MPA:g} MPa cap.",
+        "and lag grows with frequency; gain does not change with load; below 0.5 Hz lag "
+        "is smaller at lower load; PID lags less than PI (150 N); above about 0.5 Hz the "
+        f"system runs at its limit velocity and Po hits its {paper.PO_CAP_MPA:g} MPa cap.",
         "",
         _sweep_table(sw),
         "",
