@@ -671,12 +671,13 @@ def _cmd_view(args: argparse.Namespace) -> int:
 def _cmd_study(args: argparse.Namespace) -> int:
     from wpam_mj import study  # noqa: PLC0415 (the study's own modules)
     from wpam_mj.executors import open_workers  # noqa: PLC0415
+    jobs = _jobs(args.jobs)
     spec = study.load_spec(args.spec)
     out = _writable_dir(args.out if args.out is not None
                         else Path("out") / "study" / args.spec.stem)
     progress = sys.stderr.isatty() if args.progress is None else args.progress
     start = time.perf_counter()
-    with open_workers(_jobs(args.jobs), args.scheduler) as workers:
+    with open_workers(jobs, args.scheduler) as workers:
         res = study.run_study(spec, out, workers, resume=args.resume, progress=progress)
     flagged = sum(r["diverged"] or r["infeasible"] for r in res.rows)
     print(f"{len(res.rows)} runs ({res.ran} run now on {workers.where}, {res.reused} "
