@@ -200,8 +200,9 @@ def test_render_simulates_only_what_it_shows(files, capsys, monkeypatch):
 
     calls = []
 
-    def render_video(result, params, out, *, fps, size):
+    def render_video(result, params, out, *, fps, size, run_id):
         calls.append((result, out, fps, size))
+        Path(out).write_bytes(run_id.encode())  # the manifest records the file's digest
         return out
 
     monkeypatch.setattr(wpam_mj.render, "render_video", render_video)
@@ -227,7 +228,17 @@ def test_reproduce_writes_every_output(files, capsys):
                "fig18_19_sine.png", "table2.png"}
     summaries = {"report.md", "checks.json", "table2.json", "table2.csv", "sweep.json",
                  "sweep.csv"}
-    assert {p.name for p in rep.iterdir() if p.is_file()} == figures | summaries
+    manifests = [p.name for p in rep.glob("manifest-*.json")]
+    assert len(manifests) == 1
+    assert {p.name for p in rep.iterdir() if p.is_file()} == figures | summaries | {
+        manifests[0]}
+    # the manifest lists every file of the run, unchanged; every figure carries its id
+    from wpam_mj import manifest
+    written = {p.relative_to(rep).as_posix() for p in rep.rglob("*")
+               if p.is_file() and p.name != manifests[0]}
+    assert manifest.check_files(rep / manifests[0]) == dict.fromkeys(written, "ok")
+    run_id = manifests[0].removeprefix("manifest-").removesuffix(".json")
+    assert {manifest.png_run_id(rep / f) for f in figures} == {run_id}
     data = {p.name for p in (rep / "data").iterdir()}
     assert {"static_wpam_50N.csv", "static_wpam_150N_po0.04MPa.csv",
             "static_mckibben_100N.csv", "static_rlam_100N.csv", "step_wpam_100N_open.csv",

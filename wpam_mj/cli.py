@@ -14,7 +14,10 @@ Subcommands (each has --help):
 
 Units at this edge: loads in N, pressures in MPa, lengths in mm, times in s, frequencies
 in Hz (the library is SI inside). Exit status: 0 success, 1 the run failed (simulation
-diverged, rendering or file system error), 2 bad arguments (one line on stderr).
+diverged, rendering or file system error), 2 bad arguments (one line on stderr), 130
+interrupted (Ctrl-C), 143 terminated (SIGTERM), 141 stdout closed early (e.g. `| head`).
+static, step, table2, sweep, linear, reproduce and render write `manifest-<run id>.json`
+beside their files (`wpam_mj.manifest`).
 """
 
 from __future__ import annotations
@@ -30,14 +33,19 @@ from pathlib import Path
 from typing import Sequence
 
 from wpam_mj import __version__, paper, pool, studies
+from wpam_mj.feasibility import check_liftable, load_moved
 from wpam_mj.control import CONTROLS, check_control
-from wpam_mj.experiments import (EXPERIMENTS, SINE_AMPLITUDE_MM, SINE_MEAN_MM, SineSpec,
-                                 check_po, simulate_for_render)
+from wpam_mj.experiments import (EXPERIMENTS, SINE_AMPLITUDE_MM, SINE_MEAN_MM, STATIC_RAMP_S,
+                                 SineSpec, check_po, simulate_for_render)
 from wpam_mj.model import check_dt, check_load
 from wpam_mj.params import (CALIBRATION_FILE, MM, MPA, PRESETS, ParameterError, Params,
                             apply_overrides, check_range, load_toml, preset)
 from wpam_mj.results import write_text_atomic
 from wpam_mj.simulate import SimulationDiverged
+from wpam_mj.termination import Terminated, remove_dead_temporaries, terminate_on_sigterm
+
+RECORD_DT_S = 0.01  # the period every run records at (`wpam_mj.simulate.simulate`)
+JOBS_PER_CPU = 4  # --jobs above this many per CPU is refused: no run gains from it
 
 
 class UsageError(Exception):
@@ -66,11 +74,27 @@ def _float_list(text: str) -> tuple[float, ...]:
             f"{text!r} is not a comma-separated list of numbers") from None
     if not values:
         raise argparse.ArgumentTypeError("empty list")
-    return values
+    return _once(text, values)
 
 
 def _name_list(text: str) -> tuple[str, ...]:
-    return tuple(v.strip() for v in text.split(",") if v.strip())
+    return _once(text, tuple(v.strip() for v in text.split(",") if v.strip()))
+
+
+def _once(text: str, values: tuple) -> tuple:
+    """`values`, refused when one is repeated (each sweep point is run once)."""
+    repeated = [v for i, v in enumerate(values) if v in values[:i]]
+    if repeated:
+        raise argparse.ArgumentTypeError(f"{text!r} repeats {repeated[0]!r}; give each "
+                                         "value once")
+    return values
+
+
+def _out_path(text: str) -> Path:
+    """An --out path; the empty string is refused (Path("") would mean the current folder)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"{text!r} is empty; give a folder or file name")
+    return Path(text)
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -97,15 +121,25 @@ def _common() -> argparse.ArgumentParser:
                    help="parameter overrides: TOML with sections braid, muscle, "
                         "pneumatics, controller; SI values (m, Pa, N, s)")
     g.add_argument("--jobs", type=int, default=pool.default_jobs(), metavar="N",
-                   help="parallel worker processes [count] (default: the number of CPUs, "
-                        f"{pool.default_jobs()}); results do not depend on it")
+                   help=_JOBS_HELP)
     g.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bars on stderr (default: when stderr is a terminal)")
     return common
 
 
+_JOBS_HELP = (f"parallel worker processes [count], 1 to {JOBS_PER_CPU} per CPU (default: the "
+              f"number of CPUs, {pool.default_jobs()}); never more than the command has "
+              "runs; results do not depend on it")
+
+
+def _description() -> str:
+    """The module docstring without its list of subcommands (argparse lists them)."""
+    paragraphs = __doc__.split("\n\n")
+    return "\n\n".join(p for p in paragraphs if not p.startswith("Subcommands"))
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = _Parser(prog="wpam", description=__doc__,
+    parser = _Parser(prog="wpam", description=_description(),
                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"wpam-mj {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
@@ -117,8 +151,17 @@ def build_parser() -> argparse.ArgumentParser:
         return p
 
     def out_dir(p: argparse.ArgumentParser, name: str) -> None:
-        p.add_argument("--out", type=Path, metavar="DIR",
+        p.add_argument("--out", type=_out_path, metavar="DIR",
                        help=f"output folder (default: out/{name} under the current folder)")
+
+    def ramp_time(p: argparse.ArgumentParser) -> None:
+        p.add_argument("--ramp-time", type=float, default=STATIC_RAMP_S, metavar="S",
+                       help="duration of each open-loop Pi ramp, up and then down [s], "
+                            f"1-3600 (default: {STATIC_RAMP_S:g}; the paper does not state "
+                            "its own)")
+
+    def json_flag(p: argparse.ArgumentParser, what: str) -> None:
+        p.add_argument("--json", action="store_true", help=f"print {what} on stdout")
 
     p = add("static", "open-loop static characteristic: slow Pi ramp up then down "
             "(paper Figs. 3, 8, 9); CSV, PNG and loop areas", _cmd_static)
@@ -130,6 +173,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--compare-presets", action="store_true",
                    help="run wpam, rlam and mckibben and overlay them in one figure "
                         "(paper Fig. 3)")
+    ramp_time(p)
+    json_flag(p, "a JSON list of {preset, load_n [N], po_down_mpa [MPa], area_mpa_mm "
+              "[MPa mm], load_moved}")
     out_dir(p, "static")
 
     p = add("step", "staircase target 0 -> 50 mm in 10 mm steps of 10 s, then back to 0 "
@@ -138,6 +184,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="hanging load [N] (default: 100)")
     p.add_argument("--control", choices=CONTROLS, default="pi",
                    help="open: Po = 0; pi/pid: feedback on Po (default: pi)")
+    json_flag(p, "one JSON object: the run's settings, load_moved and its plateau means "
+              "(target_mm, x_mm, error_mm, pi_mpa, po_mpa: chamber pressures)")
     out_dir(p, "step")
 
     p = add("table2", "hysteresis-loop areas of the paper's Table 2 (open loop with and "
@@ -145,6 +193,7 @@ def build_parser() -> argparse.ArgumentParser:
             _cmd_table2)
     p.add_argument("--json", action="store_true",
                    help="print one JSON object (normalized areas, unit-free) on stdout")
+    ramp_time(p)
     out_dir(p, "table2")
 
     p = add("sweep", "frequency response to a sinusoid about 25 mm, 25 mm amplitude unless "
@@ -171,7 +220,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = add("calibrate", "fit the parameters the paper does not give (braid angle, Kf, "
             "friction, axial area, regulators) to its Table 2 and findings", _cmd_calibrate)
-    p.add_argument("--out", type=Path, metavar="FILE",
+    p.add_argument("--out", type=_out_path, metavar="FILE",
                    help="calibrated parameter TOML (SI units) (default: "
                         f"{CALIBRATION_FILE}, which every command then uses)")
 
@@ -191,7 +240,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="frames per second [1/s] (default: 30)")
     p.add_argument("--size", type=_size, default=(640, 480), metavar="WxH",
                    help="frame size [px] (default: 640x480)")
-    p.add_argument("--out", type=Path, metavar="FILE.mp4|FILE.gif",
+    p.add_argument("--out", type=_out_path, metavar="FILE.mp4|FILE.gif",
                    help="video file (default: out/render/<experiment>.mp4)")
     _add_view_parser(add)
     _add_linear_parser(add("linear", "the paper's §3 linear model (and an extended one) "
@@ -230,7 +279,7 @@ def _add_linear_parser(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true",
                    help="print one JSON object (operating point, poles, margins, DC gains, "
                         "comparison rows) on stdout")
-    p.add_argument("--out", type=Path, metavar="DIR",
+    p.add_argument("--out", type=_out_path, metavar="DIR",
                    help="output folder (default: out/linear under the current folder)")
 
 
@@ -242,11 +291,10 @@ def _add_study_parser(sub) -> None:
                        "write study.csv (+ study.parquet with pyarrow) and plots/.")
     p.set_defaults(handler=_cmd_study)
     p.add_argument("spec", type=Path, metavar="SPEC.toml", help="the study file")
-    p.add_argument("--out", type=Path, metavar="DIR",
+    p.add_argument("--out", type=_out_path, metavar="DIR",
                    help="output folder (default: out/study/<SPEC name>)")
     p.add_argument("--jobs", type=int, default=pool.default_jobs(), metavar="N",
-                   help="local worker processes [count] (default: the number of CPUs, "
-                        f"{pool.default_jobs()}); results do not depend on it")
+                   help=_JOBS_HELP)
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="run on the Dask cluster of this scheduler, e.g. tcp://host:8786 "
                         f"(default: ${SCHEDULER_ENV} if set, else local processes)")
@@ -269,6 +317,10 @@ class _Run:
     jobs: int
     progress: bool
 
+    def jobs_for(self, tasks: int) -> int:
+        """Worker processes for `tasks` runs: no more than there are runs."""
+        return max(1, min(self.jobs, tasks))
+
 
 def _params(args: argparse.Namespace, name: str | None = None) -> Params:
     """The preset `name` (default --preset) with the --config overrides applied."""
@@ -282,10 +334,20 @@ def _params(args: argparse.Namespace, name: str | None = None) -> Params:
     return params
 
 
+def _jobs(jobs: int) -> int:
+    """--jobs: 1 to JOBS_PER_CPU per CPU (more only costs memory: every run is one task)."""
+    jobs = pool.check_jobs(jobs)
+    most = JOBS_PER_CPU * pool.default_jobs()
+    if jobs > most:
+        raise ParameterError(f"--jobs {jobs} is outside the allowed range [1, {most}] "
+                             f"({JOBS_PER_CPU} per CPU)")
+    return jobs
+
+
 def _run_options(args: argparse.Namespace) -> _Run:
     params = _params(args)
-    dt = check_dt(args.dt)
-    jobs = pool.check_jobs(args.jobs)
+    dt = check_dt(args.dt, divides=RECORD_DT_S, name="--dt")
+    jobs = _jobs(args.jobs)
     progress = sys.stderr.isatty() if args.progress is None else args.progress
     return _Run(params, dt, jobs, progress)
 
@@ -303,7 +365,9 @@ def _writable_dir(path: Path) -> Path:
 
 
 def _out_dir(args: argparse.Namespace) -> Path:
-    return _writable_dir(args.out if args.out is not None else Path("out") / args.command)
+    args.written_to = _writable_dir(args.out if args.out is not None
+                                    else Path("out") / args.command)
+    return args.written_to
 
 
 def _out_file(path: Path) -> Path:
@@ -320,8 +384,13 @@ def _output_modules():
     return summaries, writers
 
 
-def _loads(values: Sequence[float]) -> tuple[float, ...]:
-    return tuple(check_load(v) for v in values)
+def _loads(values: Sequence[float], params_list: Sequence[Params],
+           name: str = "--load") -> tuple[float, ...]:
+    """Loads [N] in range that every parameter set lifts to the top target (50 mm)."""
+    loads = tuple(check_load(v) for v in values)
+    for params in params_list:
+        check_liftable(params, loads, name)
+    return loads
 
 
 def _print_json(obj) -> None:
@@ -333,53 +402,123 @@ def _wrote(paths: Sequence[Path]) -> None:
         print(f"wrote {p}")
 
 
+def _run_id(args: argparse.Namespace, params: Params, settings: dict) -> str:
+    """The id of this run (`wpam_mj.manifest.run_id`): only result-defining settings."""
+    from wpam_mj import manifest  # noqa: PLC0415
+    return manifest.run_id(args.command, params, settings)
+
+
+def _manifest(args: argparse.Namespace, out: Path, rid: str, params: Params, settings: dict,
+              files) -> Path:
+    """Write the run's manifest beside its files (`wpam_mj.manifest.write_manifest`)."""
+    from wpam_mj import manifest  # noqa: PLC0415
+    return manifest.write_manifest(out, rid, args.command, params, files, settings=settings,
+                                   argv=getattr(args, "argv", None))
+
+
+def _flag_still(what: Sequence[tuple[str, bool]], to_stderr: bool) -> None:
+    """One line for each open-loop run whose load never moved (its numbers mean nothing)."""
+    from wpam_mj.feasibility import MOVE_MIN_MM  # noqa: PLC0415
+    for name, moved in what:
+        if not moved:
+            print(f"note: {name}: the load never moved (x spanned < {MOVE_MIN_MM:g} mm); "
+                  "this run's numbers mean nothing",
+                  file=sys.stderr if to_stderr else sys.stdout)
+
+
 # ------------------------------------------------------------------ commands
 
 
 def _cmd_static(args: argparse.Namespace) -> int:
     _, writers = _output_modules()
     run = _run_options(args)
-    loads = _loads(paper.LOADS_N if args.load is None else (args.load,))
-    po_down = check_po("--po-down", args.po_down * MPA, run.params)
     names = PRESETS if args.compare_presets else (args.preset,)
     plist = [run.params if n == args.preset else _params(args, n) for n in names]
+    loads = _loads(paper.LOADS_N if args.load is None else (args.load,), plist)
+    po_down = check_po("--po-down", args.po_down * MPA, run.params)
+    ramp_time = studies.check_ramp_time(args.ramp_time)
     out = _out_dir(args)
-    loops = studies.compare_presets(plist, loads, po_down, dt=run.dt, jobs=run.jobs,
-                                    progress=run.progress)
-    written = writers.write_static_outputs(out, loops, compare_presets=args.compare_presets)
-    print(f"loop area of x against measured Pi (Po = {args.po_down:g} MPa while Pi falls):")
-    for lp in loops:
-        print(f"  {lp.preset:>8} {lp.load:>6g} N: {lp.area_mpa_mm:.4g} MPa mm")
-    _wrote(written)
+    loops = studies.compare_presets(plist, loads, po_down, dt=run.dt,
+                                    jobs=run.jobs_for(len(plist) * len(loads)),
+                                    progress=run.progress, ramp_time=ramp_time)
+    settings = {"presets": names, "loads_n": loads, "po_down_mpa": args.po_down,
+                "ramp_time_s": ramp_time, "dt_s": run.dt}
+    rid = _run_id(args, run.params, settings)
+    written = writers.write_static_outputs(out, loops, compare_presets=args.compare_presets,
+                                           run_id=rid)
+    manifest = _manifest(args, out, rid, run.params, settings, written)
+    moved = [load_moved(lp.result) for lp in loops]
+    if args.json:
+        _print_json([{"preset": lp.preset, "load_n": lp.load, "po_down_mpa": lp.po_down / MPA,
+                      "area_mpa_mm": lp.area_mpa_mm, "load_moved": m, "run_id": rid}
+                     for lp, m in zip(loops, moved)])
+    else:
+        print(f"loop area of x against measured Pi (Po = {args.po_down:g} MPa while Pi "
+              f"falls, {ramp_time:g} s ramps):")
+        for lp in loops:
+            print(f"  {lp.preset:>8} {lp.load:>6g} N: {lp.area_mpa_mm:.4g} MPa mm")
+    _flag_still([(f"static {lp.preset} {lp.load:g} N", m) for lp, m in zip(loops, moved)],
+                args.json)
+    if not args.json:
+        _wrote([*written, manifest])
     return 0
 
 
 def _cmd_step(args: argparse.Namespace) -> int:
     summaries, writers = _output_modules()
     run = _run_options(args)
-    load = check_load(args.load)
+    (load,) = _loads((args.load,), [run.params])
     control = check_control(args.control)
     out = _out_dir(args)
     (res,) = studies.step_study(run.params, [(load, control)], dt=run.dt, jobs=1,
                                 progress=run.progress)
-    written = writers.write_step_outputs(out, res)
-    print(summaries.step_text(res))
-    _wrote(written)
+    settings = {"load_n": load, "control": control, "dt_s": run.dt}
+    rid = _run_id(args, run.params, settings)
+    written = writers.write_step_outputs(out, res, run_id=rid)
+    manifest = _manifest(args, out, rid, run.params, settings, written)
+    moved = load_moved(res.result)
+    if args.json:
+        _print_json({"preset": res.preset, "load_n": res.load, "control": res.control,
+                     "settle_s": res.settle, "load_moved": moved, "run_id": rid,
+                     "plateaus": [{"target_mm": tg / MM, "x_mm": x / MM,
+                                   "error_mm": (x - tg) / MM, "pi_mpa": pi / MPA,
+                                   "po_mpa": po / MPA}
+                                  for tg, x, pi, po in zip(res.target, res.x_mean,
+                                                           res.pi_mean, res.po_mean)]})
+    else:
+        print(summaries.step_text(res))
+    if control == "open":
+        _flag_still([(f"step {res.preset} {load:g} N open loop", moved)], args.json)
+    if not args.json:
+        _wrote([*written, manifest])
     return 0
 
 
 def _cmd_table2(args: argparse.Namespace) -> int:
     summaries, writers = _output_modules()
     run = _run_options(args)
+    _loads(paper.LOADS_N, [run.params], "Table 2 load")
+    ramp_time = studies.check_ramp_time(args.ramp_time)
     out = _out_dir(args)
-    t2 = studies.table2(run.params, dt=run.dt, jobs=run.jobs, progress=run.progress)
-    written = writers.write_table2_outputs(out, t2)
+    t2 = studies.table2(run.params, dt=run.dt, jobs=run.jobs_for(3 * len(paper.LOADS_N)),
+                        progress=run.progress, ramp_time=ramp_time)
+    settings = {"ramp_time_s": ramp_time, "dt_s": run.dt}
+    rid = _run_id(args, run.params, settings)
+    written = writers.write_table2_outputs(out, t2, run_id=rid)
+    still = [(f"table2 open loop {lp.load:g} N, Po = {lp.po_down / MPA:g} MPa while Pi falls",
+              load_moved(lp.result)) for lp in (*t2.open_loops, *t2.po_loops)]
+    moved = {name: m for name, m in still}
+    written = {path: ({"load_moved": moved} if path.suffix in (".json", ".csv") else meta)
+               for path, meta in written.items()}
+    manifest = _manifest(args, out, rid, run.params, settings, written)
     if args.json:
         _print_json(t2.as_json())
     else:
         print(summaries.table2_text(t2))
         print(summaries.checks_text(paper.table2_checks(t2)))
-        _wrote(written)
+    _flag_still(still, args.json)
+    if not args.json:
+        _wrote([*written, manifest])
     return 0
 
 
@@ -391,24 +530,30 @@ def _amplitude(name: str, mm: float) -> float:
 def _cmd_sweep(args: argparse.Namespace) -> int:
     summaries, writers = _output_modules()
     run = _run_options(args)
-    loads = _loads(args.loads)
+    loads = _loads(args.loads, [run.params], "--loads")
     amplitude = _amplitude("--amplitude", args.amplitude)
     freqs = tuple(SineSpec(f).freq for f in args.freqs)
     controllers = tuple(check_control(c) for c in args.controllers)
     if not controllers:
-        raise ParameterError("--controllers: no controller given")
+        raise ParameterError("--controllers: no controller given; valid: "
+                             + ", ".join(CONTROLS))
     out = _out_dir(args)
     key = studies.figure_run_key(loads, freqs, controllers)
     sw = studies.sweep(run.params, loads, freqs, controllers, keep=[key], dt=run.dt,
-                       jobs=run.jobs, progress=run.progress, amplitude=amplitude)
+                       jobs=run.jobs_for(len(loads) * len(freqs) * len(controllers)),
+                       progress=run.progress, amplitude=amplitude)
     po_cap = run.params.controller.po_cap
-    written = writers.write_sweep_outputs(out, sw, key, po_cap)
+    settings = {"loads_n": loads, "freqs_hz": freqs, "controllers": controllers,
+                "amplitude_mm": amplitude / MM, "dt_s": run.dt}
+    rid = _run_id(args, run.params, settings)
+    written = writers.write_sweep_outputs(out, sw, key, po_cap, run_id=rid)
+    manifest = _manifest(args, out, rid, run.params, settings, written)
     if args.json:
         _print_json(sw.as_json())
     else:
         print(summaries.sweep_text(sw))
         print(summaries.checks_text(paper.sweep_checks(sw, po_cap)))
-        _wrote(written)
+        _wrote([*written, manifest])
     return 0
 
 
@@ -422,14 +567,18 @@ def _cmd_linear(args: argparse.Namespace) -> int:
     (cmp,) = linear_study.compare(run.params, (load,), contraction=args.contraction * MM,
                                   amplitudes=amplitudes, dt=run.dt, jobs=run.jobs,
                                   progress=run.progress)
+    settings = {"load_n": load, "contraction_mm": args.contraction,
+                "amplitudes_mm": [a / MM for a in amplitudes], "dt_s": run.dt}
+    rid = _run_id(args, run.params, settings)
     stem = f"linear_{load:g}N"
-    written = [plots.save_figure(cmp.plot(), out / f"{stem}.png"),
+    written = [plots.save_figure(cmp.plot(), out / f"{stem}.png", run_id=rid),
                write_text_atomic(out / f"{stem}.csv", cmp.csv_text())]
+    manifest = _manifest(args, out, rid, run.params, settings, written)
     if args.json:
         _print_json(cmp.as_json())
     else:
         print(cmp.text())
-        _wrote(written)
+        _wrote([*written, manifest])
     return 0
 
 
@@ -437,15 +586,19 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     summaries, _ = _output_modules()
     from wpam_mj.reproduce import reproduce  # noqa: PLC0415 (matplotlib: slow import)
     run = _run_options(args)
-    compare = [run.params if n == args.preset else _params(args, n)
-               for n in ("mckibben", "rlam", "wpam")]
+    names = ("mckibben", "rlam", "wpam")
+    compare = [run.params if n == args.preset else _params(args, n) for n in names]
+    _loads(paper.LOADS_N, [run.params], "reproduce load")
     out = _out_dir(args)
+    settings = {"compare_presets": names, "dt_s": run.dt}
+    rid = _run_id(args, run.params, settings)
     start = time.perf_counter()
     rep = reproduce(out, run.params, dt=run.dt, jobs=run.jobs, progress=run.progress,
-                    compare=compare)
+                    compare=compare, run_id=rid)
+    manifest = _manifest(args, out, rid, run.params, settings, rep.files)
     print(summaries.table2_text(rep.table2))
     print(summaries.checks_text(rep.checks))
-    print(f"wrote {rep.report} ({time.perf_counter() - start:.1f} s)")
+    print(f"wrote {rep.report} and {manifest} ({time.perf_counter() - start:.1f} s)")
     return 0
 
 
@@ -463,25 +616,34 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
+    from wpam_mj.render import check_fps  # noqa: PLC0415 (needs OpenGL; only here)
     run = _run_options(args)
-    load = check_load(args.load)
+    (load,) = _loads((args.load,), [run.params])
     control = check_control(args.control)
     spec = SineSpec(args.freq)
     duration = None if args.duration is None else \
         check_range("--duration", args.duration, 0.0, 3600.0, "s", lo_open=True)
-    check_range("--fps", args.fps, 0.0, 1000.0, "1/s", lo_open=True)
     out = args.out if args.out is not None else Path("out") / "render" / f"{args.experiment}.mp4"
     if out.suffix.lower() not in (".mp4", ".gif"):
         raise ParameterError(f"--out {out}: the video must end in .mp4 or .gif")
+    fps = check_fps(args.fps, out.suffix.lower())
     _out_file(out)
+    args.written_to = out.parent
     result = simulate_for_render(run.params, load, args.experiment, control, spec,
                                  duration, run.dt)
+    settings = {"load_n": load, "experiment": args.experiment, "control": control,
+                "freq_hz": spec.freq, "duration_s": duration, "fps": fps, "size": args.size,
+                "dt_s": run.dt}
+    rid = _run_id(args, run.params, settings)
     from wpam_mj.render import render_video  # noqa: PLC0415 (needs OpenGL; only here)
     try:
-        path = render_video(result, run.params, out, fps=args.fps, size=args.size)
+        path = render_video(result, run.params, out, fps=fps, size=args.size, run_id=rid)
     except RuntimeError as err:
         raise RunFailed(str(err)) from None
-    print(f"wrote {path} ({result.time[-1]:.2f} s of simulated time)")
+    _, writers = _output_modules()
+    manifest = _manifest(args, out.parent, rid, run.params, settings,
+                         {path: writers.run_metadata(result)})
+    print(f"wrote {path} ({result.time[-1]:.2f} s of simulated time) and {manifest}")
     return 0
 
 
@@ -509,12 +671,13 @@ def _cmd_view(args: argparse.Namespace) -> int:
 def _cmd_study(args: argparse.Namespace) -> int:
     from wpam_mj import study  # noqa: PLC0415 (the study's own modules)
     from wpam_mj.executors import open_workers  # noqa: PLC0415
+    jobs = _jobs(args.jobs)
     spec = study.load_spec(args.spec)
     out = _writable_dir(args.out if args.out is not None
                         else Path("out") / "study" / args.spec.stem)
     progress = sys.stderr.isatty() if args.progress is None else args.progress
     start = time.perf_counter()
-    with open_workers(pool.check_jobs(args.jobs), args.scheduler) as workers:
+    with open_workers(jobs, args.scheduler) as workers:
         res = study.run_study(spec, out, workers, resume=args.resume, progress=progress)
     flagged = sum(r["diverged"] or r["infeasible"] for r in res.rows)
     print(f"{len(res.rows)} runs ({res.ran} run now on {workers.where}, {res.reused} "
@@ -534,9 +697,14 @@ def _one_line(err: BaseException) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the `wpam` command line; returns the exit status."""
     parser = build_parser()
+    args = None
     try:
-        args = parser.parse_args(argv)
-        return args.handler(args)
+        with terminate_on_sigterm():
+            args = parser.parse_args(argv)
+            args.argv = list(sys.argv[1:] if argv is None else argv)
+            code = args.handler(args)
+            sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+            return code
     except SystemExit as exc:  # --help, --version
         return exc.code if isinstance(exc.code, int) else 0
     except (UsageError, ParameterError) as err:
@@ -545,15 +713,28 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (SimulationDiverged, RunFailed) as err:
         print(f"wpam: error: {_one_line(err)}", file=sys.stderr)
         return 1
-    except BrokenPipeError:  # stdout piped into e.g. `head`, which has exited
+    except BrokenPipeError:  # stdout piped into e.g. `head`, which has exited: quietly,
+        # with the status a POSIX tool killed by SIGPIPE has (128 + 13)
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no flush error
-        return 1
+        return 141
     except OSError as err:
         print(f"wpam: error: {_one_line(err)}", file=sys.stderr)
         return 1
+    except Terminated:
+        _remove_temporaries(args)
+        print("wpam: terminated", file=sys.stderr)
+        return 143
     except KeyboardInterrupt:
+        _remove_temporaries(args)
         print("wpam: interrupted", file=sys.stderr)
         return 130
+
+
+def _remove_temporaries(args: argparse.Namespace | None) -> None:
+    """Temporary files the stopped workers were writing in the output folder."""
+    folder = getattr(args, "written_to", None)
+    if folder is not None:
+        remove_dead_temporaries(folder)
 
 
 if __name__ == "__main__":

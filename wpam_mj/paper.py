@@ -194,7 +194,7 @@ def _gain_spread(sw, po_cap):
 
 
 def _gain_spread_detail(sw, po_cap, margins):
-    worst, where = 0.0, "-"
+    worst, where = 0.0, "no finite gain to compare"  # all NaN: no spread to place
     for m in margins:  # the last of the largest, as a reader scanning the table finds it
         if m.value >= worst:
             worst, where = m.value, f"{m.controller.upper()} {m.freq:g} Hz"

@@ -95,10 +95,10 @@ def report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResult
         "## Frequency response (Figs. 17-19)",
         "",
         "Target 25 mm amplitude about 25 mm; gain and phase lag fitted over "
-        "whole steady cycles. Paper: gain falls and lag grows with frequency; gain does "
-        "not change with load; below 0.5 Hz lag is smaller at lower load; PID lags less "
-        "than PI (150 N); above about 0.5 Hz the system runs at its limit velocity and Po "
-        f"hits its {paper.PO_CAP_MPA:g} MPa cap.",
+        "whole steady cycles. Paper (qualitative: Fig. 17 prints no numbers): gain falls "
+        "and lag grows with frequency; gain does not change with load; below 0.5 Hz lag "
+        "is smaller at lower load; PID lags less than PI (150 N); above about 0.5 Hz the "
+        f"system runs at its limit velocity and Po hits its {paper.PO_CAP_MPA:g} MPa cap.",
         "",
         _sweep_table(sw),
         "",
@@ -125,7 +125,8 @@ def _step_table(runs: Sequence[StepRun]) -> str:
 
 def _sweep_table(sw: SweepResult) -> str:
     head = "| load | controller | " + " | ".join(f"{f:g} Hz" for f in sw.freqs) + " |"
-    lines = ["Gain / phase lag [deg] / max chamber Po [MPa]:", "", head,
+    lines = ["Gain / phase lag [deg] / max Po at the regulator gauge [MPa] (what the "
+             "paper's Figs. 18-19 plot):", "", head,
              "|---|---|" + "---|" * len(sw.freqs)]
     for load in sw.loads:
         for c in sw.controllers:

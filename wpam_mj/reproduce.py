@@ -18,8 +18,8 @@ from wpam_mj.report import report_markdown
 from wpam_mj.results import write_text_atomic
 from wpam_mj.studies import StaticTask, StepTask, figure_run_key, sweep_batch, table2_batch
 from wpam_mj.study_results import SweepResult, Table2Result
-from wpam_mj.writers import (sine_csv_name, static_csv_name, step_csv_name, write_checks,
-                             write_sweep, write_table2)
+from wpam_mj.writers import (run_metadata, sine_csv_name, static_csv_name, step_csv_name,
+                             write_checks, write_sweep, write_table2)
 
 
 PRESET_COMPARE_LOAD_N = 100.0  # our choice for Fig. 3 (the paper's load is not given)
@@ -42,12 +42,14 @@ class _FigureTask:
 
     cost = 3.0
 
-    def __init__(self, path: Path, builder: str, args: tuple, kwargs: dict) -> None:
+    def __init__(self, path: Path, builder: str, args: tuple, kwargs: dict,
+                 run_id: str | None) -> None:
         self.path, self.builder, self.args, self.kwargs = path, builder, args, kwargs
+        self.run_id = run_id
 
     def run(self) -> Path:
         return plots.save_figure(getattr(plots, self.builder)(*self.args, **self.kwargs),
-                                 self.path)
+                                 self.path, run_id=self.run_id)
 
 
 @dataclass(frozen=True)
@@ -56,10 +58,12 @@ class Reproduction:
     table2: Table2Result
     sweep: SweepResult
     checks: tuple[Check, ...]
+    files: dict[Path, dict]  # every file written, with its manifest metadata
 
 
 def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: int = 1,
-              progress: bool = False, compare: Sequence[Params] | None = None) -> Reproduction:
+              progress: bool = False, compare: Sequence[Params] | None = None,
+              run_id: str | None = None) -> Reproduction:
     """Run every experiment and write CSV/PNG/JSON and `report.md` into `out_dir`.
 
     Args:
@@ -67,6 +71,7 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
       compare: muscle types for the Fig. 3 comparison at 100 N; default: the mckibben
         and rlam presets beside `params`.
       dt: physics step [s]; jobs: process-pool size.
+      run_id: the run's id (`wpam_mj.manifest.run_id`), recorded in every figure.
     """
     out = Path(out_dir)
     data = out / "data"
@@ -75,11 +80,18 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
     extra = ([StepTask(params, 100.0, "open", dt)]
              + [StaticTask(p, PRESET_COMPARE_LOAD_N, 0.0, dt) for p in compare if p != params])
 
+    files: dict[Path, dict] = {}
+
     def csv_tasks(runs, file_name) -> list[_CsvTask]:
-        return [_CsvTask(data / file_name(run), run.result) for run in runs]
+        return [csv_task(data / file_name(run), run.result) for run in runs]
+
+    def csv_task(path: Path, result) -> _CsvTask:
+        files[path] = run_metadata(result)
+        return _CsvTask(path, result)
 
     def figure_tasks(figs: dict) -> list[_FigureTask]:
-        return [_FigureTask(out / name, *spec) for name, spec in figs.items()]
+        files.update(dict.fromkeys((out / name for name in figs), {}))
+        return [_FigureTask(out / name, *spec, run_id) for name, spec in figs.items()]
 
     # One pool for everything: the runs of all studies longest first, then each study's
     # CSVs and figures as soon as its runs are in (they queue behind the remaining runs).
@@ -98,7 +110,7 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
                 "fig16_closed_loop_static.png": ("closed_loop_static_figure",
                                                  (t2.feedback_runs, params), {}),
                 "table2.png": ("table2_figure", (t2,), {})}))
-        write_table2(out, t2)
+        files.update(dict.fromkeys(write_table2(out, t2), {}))
 
         open_step, *preset_runs = extra_response()
         own_loop = t2.open_loops[t2.loads.index(PRESET_COMPARE_LOAD_N)]
@@ -119,15 +131,16 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
         fig_key = figure_run_key(paper.LOADS_N, paper.SWEEP_FREQS_HZ,
                                  paper.SWEEP_CONTROLLERS)
         outputs += pool.submit(
-            [_CsvTask(data / sine_csv_name(fig_key), sw.series[fig_key])]
+            [csv_task(data / sine_csv_name(fig_key), sw.series[fig_key])]
             + figure_tasks({
                 "fig17_frequency_response.png": ("sweep_figure", (sw,), {}),
                 "fig18_19_sine.png": ("sine_figure", (sw.series[fig_key], fig_key[1],
                                                       params.controller.po_cap), {})}))
-        write_sweep(out, sw)
+        files.update(dict.fromkeys(write_sweep(out, sw), {}))
         checks = (*paper.table2_checks(t2), *paper.sweep_checks(sw, params.controller.po_cap))
-        write_checks(out, checks)
+        files[write_checks(out, checks)] = {}
         pool.results(outputs)
     text = report_markdown(params, dt, t2, sw, open_step, preset_loops, checks)
     report = write_text_atomic(out / "report.md", text)
-    return Reproduction(report=report, table2=t2, sweep=sw, checks=tuple(checks))
+    files[report] = {}
+    return Reproduction(report=report, table2=t2, sweep=sw, checks=tuple(checks), files=files)

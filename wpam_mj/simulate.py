@@ -47,6 +47,9 @@ class Drive:
 
     def __post_init__(self) -> None:
         n = len(self.pi_cmd)
+        if n < 2:  # a run needs a start and at least one step
+            raise ParameterError(f"drive has {n} sample(s); a run needs at least 2 "
+                                 "(a positive duration)")
         for name in ("pi_cmd", "po_cmd", "x_ref"):
             arr = np.ascontiguousarray(getattr(self, name), dtype=float)
             if arr.shape != (n,):

@@ -25,12 +25,13 @@ from wpam_mj.model import check_dt, check_load
 from wpam_mj.paper import (FIG18_FREQ_HZ, FIG18_LOAD_N, LOADS_N, PO_DOWN_STATIC_MPA,
                            SINE_AMPLITUDE_MM, STEP_HOLD_S, STEP_LEVELS_MM, SWEEP_CONTROLLERS,
                            SWEEP_FREQS_HZ)
-from wpam_mj.params import MM, MPA, Params, ParameterError
+from wpam_mj.params import MM, MPA, Params, ParameterError, check_range
 from wpam_mj.pool import Batch, run_batches, run_tasks
 from wpam_mj.results import SimResult
 from wpam_mj.study_results import (LOOP_METHOD, StaticLoop, StepRun, SweepKey, SweepPoint,
                                    SweepResult, Table2Result)
 
+RAMP_TIME_RANGE_S = (1.0, 3600.0)  # what `experiments.static_loop` accepts
 PLATEAU_SETTLE_S = 5.0  # our choice: average the last half of each 10 s plateau (Fig. 16)
 
 
@@ -40,13 +41,15 @@ class StaticTask:
     load: float
     po_down: float
     dt: float
+    ramp_time: float = STATIC_RAMP_S  # s, each direction
 
     @property
     def cost(self) -> float:
-        return 2.0 * STATIC_RAMP_S / self.dt
+        return 2.0 * self.ramp_time / self.dt
 
     def run(self) -> StaticLoop:
-        r = static_loop(self.params, self.load, po_down=self.po_down, dt=self.dt)
+        r = static_loop(self.params, self.load, po_down=self.po_down, dt=self.dt,
+                        ramp_time=self.ramp_time)
         return StaticLoop(load=self.load, po_down=self.po_down, preset=self.params.preset,
                           area=loop_area(r.pi, r.x, method=LOOP_METHOD), result=r)
 
@@ -58,19 +61,27 @@ def _check_loads(loads: Iterable[float]) -> tuple[float, ...]:
     return loads
 
 
+def check_ramp_time(ramp_time: float) -> float:
+    """Duration of each static ramp [s] (the paper does not state its own)."""
+    return check_range("ramp_time", ramp_time, *RAMP_TIME_RANGE_S, "s")
+
+
 def static_study(params: Params, loads: Iterable[float] = LOADS_N,
                  po_down: float = 0.0, *, dt: float = 1e-3, jobs: int = 1,
-                 progress: bool = False) -> list[StaticLoop]:
-    """Open-loop static characteristic at each load [N]; Po = `po_down` [Pa] while Pi falls."""
-    return compare_presets([params], loads, po_down, dt=dt, jobs=jobs, progress=progress)
+                 progress: bool = False, ramp_time: float = STATIC_RAMP_S) -> list[StaticLoop]:
+    """Open-loop static characteristic at each load [N]; Po = `po_down` [Pa] while Pi falls;
+    each ramp (up, then down) lasts `ramp_time` [s]."""
+    return compare_presets([params], loads, po_down, dt=dt, jobs=jobs, progress=progress,
+                           ramp_time=ramp_time)
 
 
 def compare_presets(params_list: Sequence[Params], loads: Iterable[float] = (100.0,),
                     po_down: float = 0.0, *, dt: float = 1e-3, jobs: int = 1,
-                    progress: bool = False) -> list[StaticLoop]:
+                    progress: bool = False,
+                    ramp_time: float = STATIC_RAMP_S) -> list[StaticLoop]:
     """`static_study` for several parameter sets (e.g. muscle presets), params-major order."""
-    loads, dt = _check_loads(loads), check_dt(dt)
-    tasks = [StaticTask(p, load, check_po("po_down", po_down, p), dt)
+    loads, dt, ramp_time = _check_loads(loads), check_dt(dt), check_ramp_time(ramp_time)
+    tasks = [StaticTask(p, load, check_po("po_down", po_down, p), dt, ramp_time)
              for p in params_list for load in loads]
     return run_tasks(tasks, jobs=jobs, progress=progress, desc="static")
 
@@ -117,20 +128,21 @@ def step_study(params: Params, runs: Iterable[tuple[float, str]], *, dt: float =
 
 def table2(params: Params, *, loads: Iterable[float] = LOADS_N,
            po_down: float = PO_DOWN_STATIC_MPA * MPA, dt: float = 1e-3, jobs: int = 1,
-           progress: bool = False) -> Table2Result:
-    """Run the open-loop ramps (Po = 0 and Po = `po_down` [Pa]) and the PI staircase at
-    each load [N], and compute the Table 2 areas."""
-    batch = table2_batch(params, loads=loads, po_down=po_down, dt=dt)
+           progress: bool = False, ramp_time: float = STATIC_RAMP_S) -> Table2Result:
+    """Run the open-loop ramps (Po = 0 and Po = `po_down` [Pa], each direction lasting
+    `ramp_time` [s]) and the PI staircase at each load [N], and compute the Table 2 areas."""
+    batch = table2_batch(params, loads=loads, po_down=po_down, dt=dt, ramp_time=ramp_time)
     return run_batches([batch], jobs=jobs, progress=progress, desc="table 2")[0]
 
 
 def table2_batch(params: Params, *, loads: Iterable[float] = LOADS_N,
-                 po_down: float = PO_DOWN_STATIC_MPA * MPA, dt: float = 1e-3) -> Batch:
+                 po_down: float = PO_DOWN_STATIC_MPA * MPA, dt: float = 1e-3,
+                 ramp_time: float = STATIC_RAMP_S) -> Batch:
     """The runs of `table2` as a `Batch` (to share a pool with other studies)."""
-    loads, dt = _check_loads(loads), check_dt(dt)
+    loads, dt, ramp_time = _check_loads(loads), check_dt(dt), check_ramp_time(ramp_time)
     po_down = check_po("po_down", po_down, params)
-    tasks = ([StaticTask(params, load, 0.0, dt) for load in loads]
-             + [StaticTask(params, load, po_down, dt) for load in loads]
+    tasks = ([StaticTask(params, load, 0.0, dt, ramp_time) for load in loads]
+             + [StaticTask(params, load, po_down, dt, ramp_time) for load in loads]
              + [StepTask(params, load, "pi", dt) for load in loads])
 
     def assemble(res: list) -> Table2Result:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from typing import Sequence
 
+from wpam_mj.display import fmt
 from wpam_mj.paper import Check
 from wpam_mj.params import MM, MPA, Params, describe
 from wpam_mj.study_results import StepRun, SweepResult, Table2Result
@@ -17,7 +18,7 @@ def mpa_label(po: float) -> str:
 
 def fmt_value(v: float | None, spec: str = ".4f") -> str:
     """A table cell; "-" where the value is missing (None or NaN)."""
-    return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, spec)
+    return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else fmt(v, spec)
 
 
 def table2_text(t2: Table2Result) -> str:
@@ -41,20 +42,21 @@ def table2_text(t2: Table2Result) -> str:
 
 def sweep_text(sw: SweepResult) -> str:
     lines = [f"{'load [N]':>9}{'freq [Hz]':>10}{'ctrl':>6}{'gain':>8}{'lag [deg]':>11}"
-             f"{'Po max [MPa]':>14}"]
+             f"{'Po max [MPa]':>14}   (Po: regulator gauge)"]
     for p in sw.points:
-        lines.append(f"{p.load:>9g}{p.freq:>10g}{p.controller:>6}{p.gain:>8.3f}"
-                     f"{p.phase_lag_deg:>11.1f}{p.po_max / MPA:>14.4f}")
+        lines.append(f"{p.load:>9g}{p.freq:>10g}{p.controller:>6}{fmt(p.gain, '>8.3f')}"
+                     f"{fmt(p.phase_lag_deg, '>11.1f')}{fmt(p.po_max / MPA, '>14.4f')}")
     return "\n".join(lines)
 
 
 def step_text(run: StepRun) -> str:
+    """Plateau means of a staircase run; Pi and Po are the chamber pressures."""
     lines = [f"plateau means over the last {run.settle:g} s ({run.load:g} N, {run.control}):",
              f"{'target [mm]':>12}{'x [mm]':>10}{'error [mm]':>12}{'Pi [MPa]':>10}"
              f"{'Po [MPa]':>10}"]
     for tg, x, pi, po in zip(run.target, run.x_mean, run.pi_mean, run.po_mean):
-        lines.append(f"{tg / MM:>12g}{x / MM:>10.3f}{(x - tg) / MM:>12.3f}{pi / MPA:>10.4f}"
-                     f"{po / MPA:>10.4f}")
+        lines.append(f"{tg / MM:>12g}{fmt(x / MM, '>10.3f')}{fmt((x - tg) / MM, '>12.3f')}"
+                     f"{fmt(pi / MPA, '>10.4f')}{fmt(po / MPA, '>10.4f')}")
     return "\n".join(lines)
 
 

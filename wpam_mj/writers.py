@@ -11,8 +11,9 @@ from pathlib import Path
 from typing import Sequence
 
 from wpam_mj import plots
+from wpam_mj.feasibility import load_moved
 from wpam_mj.paper import Check
-from wpam_mj.results import write_text_atomic
+from wpam_mj.results import SimResult, write_text_atomic
 from wpam_mj.study_results import StaticLoop, StepRun, SweepKey, SweepResult, Table2Result
 from wpam_mj.summaries import mpa_label
 
@@ -71,41 +72,55 @@ def write_checks(out: Path, checks: Sequence[Check]) -> Path:
         indent=2) + "\n")
 
 
-# ---- what the single-study commands write (figures through wpam_mj.plots)
+# ---- what the single-study commands write (figures through wpam_mj.plots), as
+# {path: manifest metadata} (`wpam_mj.manifest.write_manifest`); `run_id` goes into each PNG
+
+
+def run_metadata(result: SimResult) -> dict:
+    """What a run's CSV does not hold, for the manifest: its settings and whether the load
+    moved at all (`wpam_mj.feasibility.load_moved`)."""
+    return {**result.metadata(), "load_moved": load_moved(result)}
 
 
 def write_static_outputs(out: Path, loops: Sequence[StaticLoop], *,
-                         compare_presets: bool = False) -> list[Path]:
+                         compare_presets: bool = False,
+                         run_id: str | None = None) -> dict[Path, dict]:
     """One CSV per loop and one figure of all of them (`wpam static`)."""
-    written = [lp.result.to_csv(out / static_csv_name(lp)) for lp in loops]
+    written = {lp.result.to_csv(out / static_csv_name(lp)): run_metadata(lp.result)
+               for lp in loops}
     po_down = loops[0].po_down
     po = "" if po_down == 0.0 else f"_po{mpa_label(po_down)}MPa"
     stem = "static_presets" if compare_presets else f"static_{loops[0].preset}"
-    written.append(plots.save_figure(plots.static_figure(loops), out / f"{stem}{po}.png"))
+    written[plots.save_figure(plots.static_figure(loops), out / f"{stem}{po}.png",
+                              run_id=run_id)] = {}
     return written
 
 
-def write_step_outputs(out: Path, run: StepRun) -> list[Path]:
+def write_step_outputs(out: Path, run: StepRun, *,
+                       run_id: str | None = None) -> dict[Path, dict]:
     """The run's CSV and its figure (`wpam step`)."""
     name = step_csv_name(run)
-    return [run.result.to_csv(out / name),
+    return {run.result.to_csv(out / name): run_metadata(run.result),
             plots.save_figure(plots.step_figure([run.result]),
-                              out / name.replace(".csv", ".png"))]
+                              out / name.replace(".csv", ".png"), run_id=run_id): {}}
 
 
-def write_table2_outputs(out: Path, t2: Table2Result) -> list[Path]:
+def write_table2_outputs(out: Path, t2: Table2Result, *,
+                         run_id: str | None = None) -> dict[Path, dict]:
     """table2.json, table2.csv and table2.png (`wpam table2`)."""
-    return [*write_table2(out, t2),
-            plots.save_figure(plots.table2_figure(t2), out / "table2.png")]
+    return {**dict.fromkeys(write_table2(out, t2), {}),
+            plots.save_figure(plots.table2_figure(t2), out / "table2.png", run_id=run_id): {}}
 
 
-def write_sweep_outputs(out: Path, sw: SweepResult, key: SweepKey,
-                        po_cap: float) -> list[Path]:
+def write_sweep_outputs(out: Path, sw: SweepResult, key: SweepKey, po_cap: float, *,
+                        run_id: str | None = None) -> dict[Path, dict]:
     """sweep.json/.csv, the gain-phase figure, and the CSV and figure of the kept run
     `key` (`wpam sweep`); po_cap [Pa] is drawn in the Po panel."""
     series = sw.series[key]
-    return [*write_sweep(out, sw),
-            plots.save_figure(plots.sweep_figure(sw), out / "sweep_gain_phase.png"),
-            series.to_csv(out / sine_csv_name(key)),
+    return {**dict.fromkeys(write_sweep(out, sw), {}),
+            plots.save_figure(plots.sweep_figure(sw), out / "sweep_gain_phase.png",
+                              run_id=run_id): {},
+            series.to_csv(out / sine_csv_name(key)): run_metadata(series),
             plots.save_figure(plots.sine_figure(series, key[1], po_cap),
-                              out / sine_csv_name(key).replace(".csv", ".png"))]
+                              out / sine_csv_name(key).replace(".csv", ".png"),
+                              run_id=run_id): {}}
