@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import collections
 import copy
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -64,6 +65,7 @@ from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM, STANDARD_GRAVITY, ParameterError, Params, check_range, preset
 from wpam_mj.loop_contract import RunConstants, SimulationDiverged
 from wpam_mj.plant import Plant
+from wpam_mj.randomize import ParameterRanges
 
 ACTIONS = ("po", "both")
 TARGET_RANGE = (0.0, 50 * MM)  # m: the paper's step experiment spans 0-50 mm (§4.1)
@@ -118,6 +120,16 @@ class MusclePhysics(engine.Physics):
         new.plant = copy.deepcopy(self.plant)
         return new
 
+    def set_params(self, params: Params) -> None:
+        """Use `params` from the next step on (domain randomisation): the model fields
+        `build_model` derives from them (stroke, slide damping) and the pneumatics; the
+        load and the state are kept."""
+        m = self.model.ptr
+        joint = m.joint("contraction")
+        joint.range[:] = (0.0, BraidGeometry.from_params(params.braid).max_contraction)
+        m.dof_damping[self._idx.dof] = params.muscle.damping
+        self._setup(params, self.constants.dt)
+
     def set_load(self, load: float) -> None:
         """Hang `load` [N]: the load body's mass becomes load / g."""
         self.model.ptr.body_mass[self._load_body] = check_load(load) / STANDARD_GRAVITY
@@ -167,7 +179,8 @@ class TrackingTask(control.Task):
                  load: float | None = None, target_range: tuple[float, float] = TARGET_RANGE,
                  load_range: tuple[float, float] = LOAD_RANGE,
                  random: int | np.random.RandomState | None = None,
-                 flat_observation: bool = False) -> None:
+                 flat_observation: bool = False,
+                 randomize: ParameterRanges | None = None) -> None:
         if action not in ACTIONS:
             raise ParameterError(f"action = {action!r}; valid actions: {', '.join(ACTIONS)}")
         x_max = BraidGeometry.from_params(params.braid).max_contraction
@@ -178,6 +191,7 @@ class TrackingTask(control.Task):
                                                                       x_max, "m")
         self._fixed_load = None if load is None else check_load(load)
         self._params, self._action = params, action
+        self._base, self._randomize = params, randomize
         self._flat = flat_observation
         self._muscle = MuscleModel.from_params(params)
         if not isinstance(random, np.random.RandomState):
@@ -203,6 +217,10 @@ class TrackingTask(control.Task):
         target = self._random.uniform(*self._target_range)
         load = self._random.uniform(*self._load_range)
         self.target = target if self._fixed_target is None else self._fixed_target
+        if self._randomize is not None:  # drawn after target and load: same sequence
+            self._params = self._randomize.sample(self._base, self._random)
+            self._muscle = MuscleModel.from_params(self._params)
+            physics.set_params(self._params)
         physics.set_load(load if self._fixed_load is None else self._fixed_load)
         self._pi_ff = float(pi_feedforward(self._muscle, self._params, [self.target],
                                            physics.load(),
@@ -254,7 +272,8 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
              target: float | None = None, load: float | None = None,
              target_range: tuple[float, float] = TARGET_RANGE,
              load_range: tuple[float, float] = LOAD_RANGE,
-             flat_observation: bool = False) -> control.Environment:
+             flat_observation: bool = False,
+             randomize: str | Path | ParameterRanges | None = None) -> control.Environment:
     """The hung W-PAM as a `dm_control.rl.control.Environment`.
 
     Args:
@@ -270,8 +289,13 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
       load_range: (low, high) [N] for random loads.
       flat_observation: concatenate the observations, in `OBSERVATIONS` order, into one
         array of shape (6,) under the key "observations".
+      randomize: domain randomisation: a ranges file (`wpam fit --randomize-out`) or
+        `ParameterRanges`; each episode draws the listed parameters from their ranges
+        (with the task's RandomState, after target and load).
     """
     params = preset() if params is None else params
+    if randomize is not None and not isinstance(randomize, ParameterRanges):
+        randomize = ParameterRanges.load(randomize, params)
     time_limit = check_range("time_limit", time_limit, *TIME_LIMIT_RANGE, "s")
     control_timestep = check_range("control_timestep", control_timestep,
                                    *CONTROL_TIMESTEP_RANGE, "s")
@@ -283,7 +307,7 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
     physics = MusclePhysics.create(params, dt)
     task = TrackingTask(params, action=action, target=target, load=load,
                         target_range=target_range, load_range=load_range, random=seed,
-                        flat_observation=flat_observation)
+                        flat_observation=flat_observation, randomize=randomize)
     return control.Environment(physics, task, time_limit=time_limit, n_sub_steps=n_sub,
                                flat_observation=flat_observation)
 
