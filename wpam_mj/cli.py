@@ -515,7 +515,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if args.json:
         _print_json(result.as_json())
         return 0
-    units = {name: unit for name, _, unit, _, _ in describe(run.params)}
+    units = {name: unit for name, _, unit, _ in describe(run.params)}
     print(result.result.table(lambda name: units[name]))
     for f in result.files:
         print(f"  {f.experiment.name:<24} {'held out' if f.held_out else 'fitted':<9} "

@@ -60,8 +60,8 @@ class ParameterRanges:
     @classmethod
     def from_estimates(cls, estimates: tuple["Estimate", ...], k: float) -> "ParameterRanges":
         """Each estimate +- k sigma, clipped to its bounds."""
-        return cls({e.name: (max(e.lo, e.value - k * e.sigma), min(e.hi, e.value + k * e.sigma))
-                    for e in estimates})
+        return cls({e.name: (float(max(e.lo, e.value - k * e.sigma)),
+                             float(min(e.hi, e.value + k * e.sigma))) for e in estimates})
 
     @staticmethod
     def _at(base: Params, values: Mapping[str, float]) -> Params:
