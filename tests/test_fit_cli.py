@@ -20,7 +20,7 @@ def _run(capsys, *argv):
 def synthetic(tmp_path_factory):
     out = tmp_path_factory.mktemp("synth")
     assert main(["synth", "--loads", "50", "--out", str(out), "--noise-mm", "0.05",
-                 "--noise-kpa", "1", "--jobs", "1"]) == 0
+                 "--noise-kpa", "1", "--sample-ms", "5", "--jobs", "1"]) == 0
     return out
 
 
@@ -36,7 +36,7 @@ def test_fit_writes_config_figures_and_ranges(synthetic, tmp_path, capsys):
     ranges = tmp_path / "ranges.toml"
     lines = (synthetic / "static_50N.csv").read_text().splitlines()
     rising = tmp_path / "static_50N.csv"  # the first 20 s: a shorter test
-    rising.write_text("\n".join(lines[:2 + 10000]) + "\n")
+    rising.write_text("\n".join(lines[:2 + 4000]) + "\n")
     code, stdout, err = _run(capsys, "fit", "--data", rising,
                              "--holdout", synthetic / "holdout", "--free",
                              "muscle.friction_coeff", "--max-evals", "3", "--jobs", "1",

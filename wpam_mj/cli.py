@@ -540,8 +540,8 @@ def _add_synth_parser(add) -> None:
     p.add_argument("--noise-kpa", type=float, default=0.0, metavar="KPA",
                    help="standard deviation of the noise on the gauges [kPa] (default: 0)")
     p.add_argument("--seed", type=int, default=0, help="seed of the noise (default: 0)")
-    p.add_argument("--sample-ms", type=float, default=2.0, metavar="MS",
-                   help="logger sample period [ms], a multiple of --dt (default: 2)")
+    p.add_argument("--sample-ms", type=float, default=1.0, metavar="MS",
+                   help="logger sample period [ms], a multiple of --dt (default: 1)")
 
 
 def _cmd_synth(args: argparse.Namespace) -> int:

@@ -28,6 +28,7 @@ in mm, every sample of every fitted file.
 
 from __future__ import annotations
 
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -39,12 +40,11 @@ from wpam_mj.measurements import Experiment
 from wpam_mj.model import DT_RANGE_S, check_dt
 from wpam_mj.params import MM, Params, ParameterError
 from wpam_mj.simulate import Drive, simulate
-from wpam_mj.studies import run_tasks
 
 PREROLL_S = 2.0  # s of the first commands held before the first sample
-# The rough first pass of `fit_data`: replays at this multiple of dt (a 2 ms replay of
-# 1 ms synthetic data biases the 7 default parameters by < 0.15 %), stopped when an
-# iteration lowers the cost by less than this fraction.
+# The rough first pass of `fit_data` replays at this multiple of dt (a 2 ms replay of
+# 1 ms synthetic data biases the 7 default parameters by < 0.15 %). Both passes stop
+# when an iteration lowers the cost by less than RELATIVE_COST_TOL of itself.
 COARSE_DT_FACTOR = 2.0
 RELATIVE_COST_TOL = 0.01
 
@@ -178,18 +178,22 @@ def fit_data(start: Params, experiments: Sequence[Experiment],
         raise ParameterError("no experiments to fit")
     dt = check_dt(dt)
     open_loop = [e for e in experiments if e.x_ref is None] or list(experiments)
-    rough = fitting.fit(DataModel(tuple(open_loop), min(COARSE_DT_FACTOR * dt, DT_RANGE_S[1])), start,
-                        free, jobs=jobs, executor=executor, max_nfev=max_nfev,
-                        ftol=RELATIVE_COST_TOL, xtol=1e-3, progress=progress)
+    coarse = DataModel(tuple(open_loop), min(COARSE_DT_FACTOR * dt, DT_RANGE_S[1]))
     model = DataModel(tuple(experiments), dt)
-    result = fitting.fit(model, rough.params, free, jobs=jobs, executor=executor,
-                         max_nfev=max_nfev, ftol=1e-3, xtol=1e-3, progress=progress)
-    everything = DataModel((*experiments, *holdout), model.dt)
-    tasks = everything.tasks(result.params)
-    if executor is None:
-        x = run_tasks(tasks, jobs=jobs)
-    else:
-        x = [f.result() for f in [executor.submit(fitting.run_task, t) for t in tasks]]
+    everything = DataModel((*experiments, *holdout), dt)
+    own = ProcessPoolExecutor(jobs) if executor is None and jobs > 1 else None
+    ex = executor or own
+    try:
+        rough = fitting.fit(coarse, start, free, executor=ex, max_nfev=max_nfev,
+                            ftol=RELATIVE_COST_TOL, xtol=1e-3, progress=progress)
+        result = fitting.fit(model, rough.params, free, executor=ex, max_nfev=max_nfev,
+                             ftol=RELATIVE_COST_TOL, xtol=1e-3, progress=progress)
+        tasks = everything.tasks(result.params)
+        x = [t.run() for t in tasks] if ex is None else \
+            [f.result() for f in [ex.submit(fitting.run_task, t) for t in tasks]]
+    finally:
+        if own is not None:
+            own.shutdown()
     files = tuple(FileFit(e, xs, i >= len(experiments))
                   for i, (e, xs) in enumerate(zip(everything.experiments, x)))
     return DataFit(result, files)
