@@ -462,7 +462,8 @@ def _add_fit_parser(add) -> None:
     p.add_argument("--randomize-k", type=float, default=2.0, metavar="K",
                    help="ranges span +- K sigma [1] (default: 2)")
     p.add_argument("--max-evals", type=int, default=60, metavar="N",
-                   help="most residual evaluations of the search [count] (default: 60)")
+                   help="most residual evaluations of each of the two passes [count] "
+                        "(default: 60)")
     p.add_argument("--json", action="store_true",
                    help="print one JSON object (estimates SI, RMS in mm) on stdout")
 
