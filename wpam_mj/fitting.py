@@ -252,17 +252,19 @@ class _Objective:
         return with_values(self.start, self.free, [p.from_z(zi) for p, zi in zip(self.free, z)])
 
     def _many(self, zs: list[np.ndarray]) -> list[np.ndarray]:
+        """Residuals at each z; keeps only this call's (scipy asks for the Jacobian at
+        the point it just evaluated, so the base point is never run twice)."""
         todo = [z for z in zs if z.tobytes() not in self.cache]
-        if todo:
-            for z, r in zip(todo, evaluate(self.model, [self.params(z) for z in todo],
-                                           self.executor)):
-                if r is None:
-                    if self.size is None:
-                        raise ParameterError("the simulation fails at the start values; "
-                                             "check the start parameters and the data")
-                    r = np.full(self.size, FAILED_RESIDUAL)
-                self.size = r.size
-                self.cache[z.tobytes()] = r
+        for z, r in zip(todo, evaluate(self.model, [self.params(z) for z in todo],
+                                       self.executor)):
+            if r is None:
+                if self.size is None:
+                    raise ParameterError("the simulation fails at the start values; "
+                                         "check the start parameters and the data")
+                r = np.full(self.size, FAILED_RESIDUAL)
+            self.size = r.size
+            self.cache[z.tobytes()] = r
+        self.cache = {z.tobytes(): self.cache[z.tobytes()] for z in zs}
         return [self.cache[z.tobytes()] for z in zs]
 
     def fun(self, z: np.ndarray) -> np.ndarray:
