@@ -69,6 +69,7 @@ def main() -> int:
     t_synth = time.perf_counter() - start
     fitted = [read_experiment(f, shipped) for f in experiment_files([folder])]
     held = [read_experiment(f, shipped) for f in experiment_files([folder / HOLDOUT_DIR])]
+    load_before = os.getloadavg()
     start = time.perf_counter()
     result = fit_data(shipped, fitted, free, holdout=held, jobs=args.jobs,
                       max_nfev=args.max_evals, progress=True)
@@ -87,7 +88,8 @@ def main() -> int:
         "pass_parameters": all(abs(r["error"]) <= TARGET_REL for r in rows),
         "pass_holdout": holdout <= TARGET_HOLDOUT * args.noise_mm,
         "fit_s": t_fit, "synth_s": t_synth, "evaluations": result.result.nfev,
-        "jacobians": result.result.njev, "jobs": args.jobs, "load_average": load,
+        "jacobians": result.result.njev, "jobs": args.jobs,
+        "load_average_before": load_before, "load_average_after": load,
     }
     if args.keep:
         from wpam_mj.datafit import write_figures  # noqa: PLC0415 (matplotlib)
@@ -109,8 +111,9 @@ def main() -> int:
     print(f"worst parameter error {summary['worst_error']:.2%} (target <= "
           f"{TARGET_REL:.0%}): {'PASS' if summary['pass_parameters'] else 'FAIL'}")
     print(f"fit {t_fit:.1f} s ({result.result.nfev} evaluations, {result.result.njev} "
-          f"Jacobians, {args.jobs} jobs), synth {t_synth:.1f} s; load average "
-          f"{load[0]:.2f} {load[1]:.2f} {load[2]:.2f}")
+          f"Jacobians of the last pass, {args.jobs} jobs), synth {t_synth:.1f} s; load "
+          f"average (1/5/15 min) before {'/'.join(f'{v:.2f}' for v in load_before)}, after "
+          f"{'/'.join(f'{v:.2f}' for v in load)}")
     return 0
 
 

@@ -67,7 +67,7 @@ class FreeParameter:
     def of(cls, name: str, bounds: tuple[float, float] | None = None) -> "FreeParameter":
         """`name` with `bounds` (default: its plausible range); log scale when the range
         is positive and spans at least a factor LOG_SPAN."""
-        _field(name)  # names the valid fields when unknown
+        _check_name(name)
         lo, hi = plausible_range(name) if bounds is None else (float(bounds[0]),
                                                                float(bounds[1]))
         if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
@@ -100,12 +100,11 @@ class FreeParameter:
         return float(getattr(getattr(params, section), key))
 
 
-def _field(name: str):
-    """(section, field) of "section.field", or ParameterError listing the valid names."""
+def _check_name(name: str) -> None:
+    """Raise ParameterError listing the valid names unless `name` is "section.field"."""
     names = [row[0] for row in describe_with_ranges(Params())]
     if name not in names:
         raise ParameterError(f"unknown parameter {name!r}; valid names: {', '.join(names)}")
-    return name.split(".")
 
 
 def default_free() -> tuple[str, ...]:
@@ -294,6 +293,7 @@ def fit(model: ResidualModel, start: Params, free: Sequence[FreeParameter], *,
         max_nfev: int = 60, xtol: float = 1e-4, ftol: float = 1e-6,
         method: str = "dogbox", progress: bool = False) -> FitResult:
     """Fit the `free` parameters of `start` to `model`'s residuals (module docstring).
+    A start value outside its bounds starts at the nearest bound.
 
     Args:
       jobs: worker processes of the local pool used when no `executor` is given (1: run
