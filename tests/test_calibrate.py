@@ -1,46 +1,46 @@
-"""Calibration plumbing: parameter mapping, search, and the TOML it writes.
+"""Calibration plumbing: its parameters and bounds, its Table 2 residuals, and the TOML
+it writes.
 
-The full fit runs the simulator for tens of minutes (`wpam calibrate`); here the search is
-checked on residuals with a known minimum, which is what a recovery test needs."""
+The full fit runs the simulator for tens of minutes (`wpam calibrate`); the search itself
+is the engine of `wpam fit`, checked in tests/test_fitting.py."""
 
-import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from wpam_mj.calibrate import (DYNAMIC_FIT, STATIC_FIT, CalibrationResult, FitParameter,
-                               _search, with_values)
-from wpam_mj.params import apply_overrides, load_toml, preset
+from wpam_mj import fitting, paper
+from wpam_mj.calibrate import DYNAMIC_FIT, STATIC_FIT, WEIGHTS, CalibrationResult, StaticStage
+from wpam_mj.params import apply_overrides, load_toml, plausible_range, preset
 
 
-@pytest.mark.parametrize("p", [*STATIC_FIT, *DYNAMIC_FIT])
-def test_unit_mapping_round_trips_inside_the_bounds(p: FitParameter):
-    for value in (p.lo, p.hi, math.sqrt(p.lo * p.hi) if p.log else 0.5 * (p.lo + p.hi)):
-        assert p.from_unit(p.to_unit(value)) == pytest.approx(value, rel=1e-12)
-    assert p.from_unit(-0.5) == pytest.approx(p.lo) and p.from_unit(1.5) == pytest.approx(p.hi)
+@pytest.mark.parametrize("name", [*STATIC_FIT, *DYNAMIC_FIT])
+def test_fitted_parameters_are_bounded_by_their_plausible_range(name):
+    p = fitting.FreeParameter.of(name)
+    assert (p.lo, p.hi) == plausible_range(name)
 
 
-def test_search_recovers_known_parameters():
-    """Residuals that vanish at known values: the search must find them."""
-    fit = (FitParameter("muscle", "friction_coeff", 0.002, 0.3),
-           FitParameter("muscle", "axial_area", 5e-5, 3e-3))
-    truth = {"friction_coeff": 0.021, "axial_area": 7.5e-4}
+def _loops(ratios):
+    """Fake static loops with Po = 0 areas 1 and the given Po = 0.04 areas."""
+    return [SimpleNamespace(area=a) for r in ratios for a in (1.0, r)]
 
-    def residuals(p):
-        return np.array([math.log(p.muscle.friction_coeff / truth["friction_coeff"]),
-                         math.log(p.muscle.axial_area / truth["axial_area"])])
 
-    best, res = _search(preset("wpam"), fit, residuals, maxiter=400, progress=False,
-                        label="test")
-    assert best.muscle.friction_coeff == pytest.approx(truth["friction_coeff"], rel=1e-3)
-    assert best.muscle.axial_area == pytest.approx(truth["axial_area"], rel=1e-3)
-    assert np.all(np.abs(res) < 1e-3)
+def test_static_residuals_vanish_at_the_papers_row_and_wall_beyond_the_limit():
+    stage, params = StaticStage(), preset()
+    paper_row = [paper.TABLE2["open_po"][load] for load in paper.LOADS_N]
+    at_paper = stage.residuals(params, _loops(paper_row))
+    assert np.allclose(at_paper[:6], 0.0)
+    off = 0.2  # one cell 20 % high: relative error 0.2, plus the wall past 12 %
+    res = stage.residuals(params, _loops([paper_row[0] * (1 + off), *paper_row[1:]]))
+    assert res[0] == pytest.approx(off)
+    assert res[3] == pytest.approx(WEIGHTS.table2_wall * (off - WEIGHTS.table2_wall_from))
+    assert np.allclose(res[[1, 2, 4, 5]], 0.0)
 
 
 def test_written_toml_reproduces_the_fitted_parameters(tmp_path):
-    params = with_values(preset("wpam"), STATIC_FIT, [0.35, 0.2, 0.02, 3.0, 1e-3])
-    fitted = {f"{p.section}.{p.name}": getattr(getattr(params, p.section), p.name)
-              for p in (*STATIC_FIT, *DYNAMIC_FIT)}
+    free = [fitting.FreeParameter.of(n) for n in STATIC_FIT]
+    params = fitting.with_values(preset("wpam"), free, [0.36, 0.7, 0.2, 3.0, 1e-3])
+    fitted = {n: fitting.FreeParameter.of(n).value(params) for n in (*STATIC_FIT, *DYNAMIC_FIT)}
     result = CalibrationResult(params, fitted, np.zeros(3), np.zeros(2))
     path = tmp_path / "fit.toml"
     path.write_text(result.toml())

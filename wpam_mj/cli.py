@@ -7,6 +7,8 @@ Subcommands (each has --help):
   sweep      frequency response to a sinusoidal target (Figs. 17-19)
   reproduce  all of the above into one folder with report.md
   calibrate  fit the parameters the paper does not give
+  fit        fit the parameters to your own measured experiments (CSV)
+  synth      synthetic measurements in that CSV format
   render     offscreen video of a simulated run
   view       MuJoCo's interactive viewer on the muscle, stepped live (needs a display)
   linear     the paper's §3 linear model beside the simulated frequency response
@@ -25,6 +27,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import os
 import sys
 import tempfile
@@ -39,7 +42,7 @@ from wpam_mj.experiments import (EXPERIMENTS, SINE_AMPLITUDE_MM, SINE_MEAN_MM, S
                                  SineSpec, check_po, simulate_for_render)
 from wpam_mj.model import check_dt, check_load
 from wpam_mj.params import (CALIBRATION_FILE, MM, MPA, PRESETS, ParameterError, Params,
-                            apply_overrides, check_range, load_toml, preset)
+                            apply_overrides, check_range, describe, load_toml, preset)
 from wpam_mj.results import write_text_atomic
 from wpam_mj.simulate import SimulationDiverged
 from wpam_mj.termination import Terminated, remove_dead_temporaries, terminate_on_sigterm
@@ -247,6 +250,8 @@ def build_parser() -> argparse.ArgumentParser:
                            "at an operating point: poles, margins, DC gains, and its Bode "
                            "plot beside the simulated frequency response", _cmd_linear))
     _add_study_parser(sub)
+    _add_fit_parser(add)
+    _add_synth_parser(add)
     return parser
 
 
@@ -684,6 +689,129 @@ def _cmd_study(args: argparse.Namespace) -> int:
           f"resumed, {flagged} diverged or infeasible) in {time.perf_counter() - start:.1f} s")
     from wpam_mj.study_plots import save_study_plots  # noqa: PLC0415 (matplotlib: slow)
     _wrote([*res.files, *save_study_plots(spec, res.rows, out / "plots")])
+    return 0
+
+
+# ------------------------------------------------------------------ fit and synth
+
+
+def _add_fit_parser(add) -> None:
+    p = add("fit", "fit the model to your own measured experiments (CSV files, format in "
+            "docs/fitting.md): estimates with 1-sigma, RMS per file, a PNG per file",
+            _cmd_fit)
+    p.add_argument("--data", nargs="+", required=True, metavar="FILE_OR_DIR",
+                   help="measurement CSV files, or folders of them (their *.csv)")
+    p.add_argument("--holdout", nargs="+", default=[], metavar="FILE_OR_DIR",
+                   help="experiments replayed with the fitted values but not fitted")
+    p.add_argument("--free", type=_name_list, metavar="NAME,NAME,...",
+                   help="parameters to fit, as section.field (default: those the paper does "
+                        "not give: braid angle, Kf, mu, F_f0, A_ax, both line conductances)")
+    p.add_argument("--bounds", type=_name_list, default=(), metavar="NAME=LO:HI,...",
+                   help="override the bounds of free parameters [SI] (default: their "
+                        "plausible ranges, docs/fitting.md)")
+    p.add_argument("--out", type=Path, default=Path("out") / "fit" / "params.toml",
+                   metavar="FILE.toml",
+                   help="fitted parameters, a --config file for the same --preset; the "
+                        "figures go next to it (default: out/fit/params.toml)")
+    p.add_argument("--randomize-out", type=Path, metavar="FILE.toml",
+                   help="also write domain-randomisation ranges (estimate +- k sigma) for "
+                        "wpam_mj.env.make_env(randomize=FILE)")
+    p.add_argument("--randomize-k", type=float, default=2.0, metavar="K",
+                   help="ranges span +- K sigma [1] (default: 2)")
+    p.add_argument("--max-evals", type=int, default=60, metavar="N",
+                   help="most residual evaluations of each of the two passes [count] "
+                        "(default: 60)")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object (estimates SI, RMS in mm) on stdout")
+
+
+def _bounds(items: Sequence[str]) -> dict[str, tuple[float, float]]:
+    out = {}
+    for item in items:
+        name, _, rng = item.partition("=")
+        lo, _, hi = rng.partition(":")
+        try:
+            out[name.strip()] = (float(lo), float(hi))
+        except ValueError:
+            raise ParameterError(f"--bounds {item!r}: expected NAME=LO:HI, e.g. "
+                                 "muscle.friction_coeff=0.05:0.4") from None
+    return out
+
+
+def _cmd_fit(args: argparse.Namespace) -> int:
+    run = _run_options(args)  # the search starts from the preset plus --config
+    if not 0 < args.max_evals <= 10000:
+        raise ParameterError(f"--max-evals = {args.max_evals} must be in [1, 10000]")
+    k = check_range("--randomize-k", args.randomize_k, 0.0, 10.0, "")
+    from wpam_mj import datafit, fitting  # noqa: PLC0415 (scipy.optimize: slow import)
+    from wpam_mj.measurements import experiment_files, read_experiment  # noqa: PLC0415
+    data = [read_experiment(f, run.params) for f in experiment_files(args.data)]
+    held = [read_experiment(f, run.params) for f in experiment_files(args.holdout)] \
+        if args.holdout else []
+    names = args.free or fitting.default_free()
+    bounds = _bounds(args.bounds)
+    for name in bounds:
+        if name not in names:
+            raise ParameterError(f"--bounds {name}: not a free parameter (free: "
+                                 f"{', '.join(names)})")
+    free = [fitting.FreeParameter.of(n, bounds.get(n)) for n in names]
+    out = _out_file(args.out)
+    if args.randomize_out is not None:
+        _out_file(args.randomize_out)
+    result = datafit.fit_data(run.params, data, free, holdout=held, dt=run.dt,
+                              jobs=run.jobs, max_nfev=args.max_evals, progress=run.progress)
+    header = (f"Fitted by `wpam fit --preset {args.preset}` to "
+              + ", ".join(e.name for e in data) + f"; use with --preset {args.preset}.")
+    written = [write_text_atomic(out, datafit.params_toml(result.params, preset(args.preset),
+                                                          result, header))]
+    if args.randomize_out is not None:
+        from wpam_mj.randomize import ParameterRanges  # noqa: PLC0415
+        ranges = ParameterRanges.from_estimates(result.result.estimates, k)
+        written.append(write_text_atomic(args.randomize_out, ranges.toml(
+            f"wpam fit: estimates +- {k:g} sigma, clipped to the fit bounds.")))
+    written += datafit.write_figures(result, out.parent)
+    if args.json:
+        _print_json(result.as_json())
+        return 0
+    units = {name: unit for name, _, unit, _ in describe(run.params)}
+    print(result.result.table(lambda name: units[name]))
+    for f in result.files:
+        print(f"  {f.experiment.name:<24} {'held out' if f.held_out else 'fitted':<9} "
+              f"RMS {f.rms / MM:.4f} mm")
+    held_rms = result.rms(True)
+    print(f"RMS over fitted files {result.rms(False) / MM:.4f} mm"
+          + ("" if math.isnan(held_rms) else f", held out {held_rms / MM:.4f} mm")
+          + f" ({result.result.nfev} evaluations; {result.result.message})")
+    _wrote(written)
+    return 0
+
+
+def _add_synth_parser(add) -> None:
+    p = add("synth", "write synthetic measurements (the CSV format of `wpam fit`) from the "
+            "simulator: static ramps and PI staircases, PI sine runs in holdout/", _cmd_synth)
+    p.add_argument("--out", type=Path, default=Path("out") / "synth", metavar="DIR",
+                   help="output folder (default: out/synth)")
+    p.add_argument("--loads", type=_float_list, default=paper.LOADS_N, metavar="N,N,...",
+                   help="hanging loads [N] (default: 50,100,150)")
+    p.add_argument("--noise-mm", type=float, default=0.0, metavar="MM",
+                   help="standard deviation of the noise on x [mm] (default: 0)")
+    p.add_argument("--noise-kpa", type=float, default=0.0, metavar="KPA",
+                   help="standard deviation of the noise on the gauges [kPa] (default: 0)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the noise (default: 0)")
+    p.add_argument("--sample-ms", type=float, default=1.0, metavar="MS",
+                   help="logger sample period [ms], a multiple of --dt (default: 1)")
+
+
+def _cmd_synth(args: argparse.Namespace) -> int:
+    run = _run_options(args)
+    out = _writable_dir(args.out)
+    sample_dt = check_range("--sample-ms", args.sample_ms, 0.001, 1000.0, "ms") * 1e-3
+    from wpam_mj.synth import synth  # noqa: PLC0415
+    paths = synth(run.params, out, loads=_loads(args.loads, [run.params], "--loads"),
+                  noise_mm=args.noise_mm,
+                  noise_kpa=args.noise_kpa, seed=args.seed, sample_dt=sample_dt, dt=run.dt,
+                  jobs=run.jobs, progress=run.progress)
+    _wrote(paths)
     return 0
 
 

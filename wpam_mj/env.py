@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import collections
 import copy
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -73,6 +74,7 @@ from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM, STANDARD_GRAVITY, ParameterError, Params, check_range, preset
 from wpam_mj.loop_contract import RunConstants, SimulationDiverged
 from wpam_mj.plant import Plant
+from wpam_mj.randomize import ParameterRanges
 
 ACTIONS = ("po", "both")
 REFERENCES = ("step", "sine")
@@ -130,6 +132,16 @@ class MusclePhysics(engine.Physics):
             setattr(new, name, getattr(self, name))
         new.plant = copy.deepcopy(self.plant)
         return new
+
+    def set_params(self, params: Params) -> None:
+        """Use `params` from the next step on (domain randomisation): the model fields
+        `build_model` derives from them (stroke, slide damping) and the pneumatics; the
+        load and the state are kept."""
+        m = self.model.ptr
+        joint = m.joint("contraction")
+        joint.range[:] = (0.0, BraidGeometry.from_params(params.braid).max_contraction)
+        m.dof_damping[self._idx.dof] = params.muscle.damping
+        self._setup(params, self.constants.dt)
 
     def set_load(self, load: float) -> None:
         """Hang `load` [N]: the load body's mass becomes load / g."""
@@ -189,7 +201,8 @@ class TrackingTask(control.Task):
                  random: int | np.random.RandomState | None = None,
                  flat_observation: bool = False, reference: str = "step",
                  sine_freq: float | None = None,
-                 sine_freq_range: tuple[float, float] = SINE_FREQ_RANGE) -> None:
+                 sine_freq_range: tuple[float, float] = SINE_FREQ_RANGE,
+                 randomize: ParameterRanges | None = None) -> None:
         if action not in ACTIONS:
             raise ParameterError(f"action = {action!r}; valid actions: {', '.join(ACTIONS)}")
         if reference not in REFERENCES:
@@ -211,6 +224,7 @@ class TrackingTask(control.Task):
                                                                       x_max, "m")
         self._fixed_load = None if load is None else check_load(load)
         self._params, self._action = params, action
+        self._base, self._randomize = params, randomize
         self._flat = flat_observation
         self._muscle = MuscleModel.from_params(params)
         if not isinstance(random, np.random.RandomState):
@@ -236,6 +250,10 @@ class TrackingTask(control.Task):
         target = self._random.uniform(*self._target_range)
         load = self._random.uniform(*self._load_range)
         self.target = target if self._fixed_target is None else self._fixed_target
+        if self._randomize is not None:  # drawn after target and load: same sequence
+            self._params = self._randomize.sample(self._base, self._random)
+            self._muscle = MuscleModel.from_params(self._params)
+            physics.set_params(self._params)
         physics.set_load(load if self._fixed_load is None else self._fixed_load)
         if self._reference == "sine":
             freq = self._random.uniform(*self._freq_range)
@@ -301,7 +319,8 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
              load_range: tuple[float, float] = LOAD_RANGE,
              flat_observation: bool = False, reference: str = "step",
              sine_freq: float | None = None,
-             sine_freq_range: tuple[float, float] = SINE_FREQ_RANGE) -> control.Environment:
+             sine_freq_range: tuple[float, float] = SINE_FREQ_RANGE,
+             randomize: str | Path | ParameterRanges | None = None) -> control.Environment:
     """The hung W-PAM as a `dm_control.rl.control.Environment`.
 
     Args:
@@ -321,8 +340,13 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
       reference: "step" (constant target) or "sine" (sinusoidal target), see above.
       sine_freq: fix the sine target's frequency [Hz] instead of drawing it.
       sine_freq_range: (low, high) [Hz] for random sine frequencies.
+      randomize: domain randomisation: a ranges file (`wpam fit --randomize-out`) or
+        `ParameterRanges`; each episode draws the listed parameters from their ranges
+        (with the task's RandomState, after target and load).
     """
     params = preset() if params is None else params
+    if randomize is not None and not isinstance(randomize, ParameterRanges):
+        randomize = ParameterRanges.load(randomize, params)
     time_limit = check_range("time_limit", time_limit, *TIME_LIMIT_RANGE, "s")
     control_timestep = check_range("control_timestep", control_timestep,
                                    *CONTROL_TIMESTEP_RANGE, "s")
@@ -335,7 +359,8 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
     task = TrackingTask(params, action=action, target=target, load=load,
                         target_range=target_range, load_range=load_range, random=seed,
                         flat_observation=flat_observation, reference=reference,
-                        sine_freq=sine_freq, sine_freq_range=sine_freq_range)
+                        sine_freq=sine_freq, sine_freq_range=sine_freq_range,
+                        randomize=randomize)
     return control.Environment(physics, task, time_limit=time_limit, n_sub_steps=n_sub,
                                flat_observation=flat_observation)
 

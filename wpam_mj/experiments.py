@@ -54,7 +54,7 @@ def static_top_pressure(params: Params, load: float, x_top: float = STATIC_TOP_M
 
 def static_loop(params: Params, load: float, *, po_down: float = 0.0,
                 pi_top: float | None = None, ramp_time: float = STATIC_RAMP_S,
-                dt: float = 1e-3, engine: str = "auto") -> SimResult:
+                dt: float = 1e-3, record_dt: float = 0.01, engine: str = "auto") -> SimResult:
     """Open-loop Pi ramp p_min -> pi_top -> p_min with Po = 0 rising, `po_down` falling.
 
     Args:
@@ -76,7 +76,8 @@ def static_loop(params: Params, load: float, *, po_down: float = 0.0,
     pi_cmd = np.interp(t, knots_t, [p_min, p_min, pi_top, p_min, p_min])
     po_cmd = np.where(t > dwell + ramp_time, po_down, 0.0)
     drive = Drive(pi_cmd=pi_cmd, po_cmd=po_cmd, x_ref=np.full(n, np.nan))
-    return simulate(params, load, drive, dt=dt, control="open", engine=engine)
+    return simulate(params, load, drive, dt=dt, control="open", record_dt=record_dt,
+                    engine=engine)
 
 
 def step_targets(t: np.ndarray, levels_mm=STEP_LEVELS_MM, hold: float = STEP_HOLD_S) -> np.ndarray:
@@ -100,7 +101,8 @@ def drive_for_targets(params: Params, load: float, x_ref: np.ndarray, control: s
 
 
 def step_run(params: Params, load: float, control: str, *, levels_mm=STEP_LEVELS_MM,
-             hold: float = STEP_HOLD_S, dt: float = 1e-3, engine: str = "auto") -> SimResult:
+             hold: float = STEP_HOLD_S, dt: float = 1e-3, record_dt: float = 0.01,
+             engine: str = "auto") -> SimResult:
     """Staircase target (paper §4.1): open loop or PI/PID on Po."""
     load, dt, control = check_load(load), check_dt(dt), check_control(control)
     hold = check_range("hold", hold, 0.0, 3600.0, "s", lo_open=True)
@@ -109,7 +111,7 @@ def step_run(params: Params, load: float, control: str, *, levels_mm=STEP_LEVELS
     n, t = _steps(len(levels_mm) * hold - dt, dt)
     x_ref = step_targets(t, levels_mm, hold)
     return simulate(params, load, drive_for_targets(params, load, x_ref, control, dt), dt=dt,
-                    control=control, engine=engine)
+                    control=control, record_dt=record_dt, engine=engine)
 
 
 @dataclass(frozen=True)
@@ -147,13 +149,13 @@ class SineSpec:
 
 
 def sine_run(params: Params, load: float, control: str, spec: SineSpec, *,
-             dt: float = 1e-3, engine: str = "auto") -> SimResult:
+             dt: float = 1e-3, record_dt: float = 0.01, engine: str = "auto") -> SimResult:
     """Sinusoidal target (paper §4.2) under PI/PID on Po (or open loop)."""
     load, dt, control = check_load(load), check_dt(dt), check_control(control)
     n, t = _steps(spec.duration, dt)
     x_ref = spec.target(t)
     return simulate(params, load, drive_for_targets(params, load, x_ref, control, dt), dt=dt,
-                    control=control, engine=engine)
+                    control=control, record_dt=record_dt, engine=engine)
 
 
 def simulate_for_render(params: Params, load: float, experiment: str, control: str,
