@@ -171,8 +171,8 @@ def test_calibrate_calls_the_library(files, capsys, monkeypatch):
 
     seen = {}
 
-    def calibrate(*, out, jobs, dt, progress, start):
-        seen.update(out=out, jobs=jobs, dt=dt, progress=progress)
+    def calibrate(*, out, jobs, dt, progress, start, resume):
+        seen.update(out=out, jobs=jobs, dt=dt, progress=progress, resume=resume)
         seen["start"] = start
         return _FakeCalibration()
 
@@ -181,12 +181,15 @@ def test_calibrate_calls_the_library(files, capsys, monkeypatch):
     code, out, err = _run(capsys, "calibrate", "--out", "fit.toml", "--jobs", "3",
                           "--dt", "0.0005", "--no-progress")
     assert code == 0, err
-    assert out.strip() == "fitted values"
+    assert out.splitlines()[0] == "fitted values"
+    assert "--config fit.toml" in out  # where the fit went and how to use it
     start = seen.pop("start")
-    assert seen == {"out": Path("fit.toml"), "jobs": 3, "dt": 0.0005, "progress": False}
+    assert seen == {"out": Path("fit.toml"), "jobs": 3, "dt": 0.0005, "progress": False,
+                    "resume": False}
     assert start == preset("wpam")  # the search starts from the preset (plus --config)
-    _run(capsys, "calibrate", "--no-progress")
-    assert seen["out"] == CALIBRATION_FILE  # the file `preset` reads
+    _run(capsys, "calibrate", "--no-progress", "--resume")
+    # the current folder, never the installed package's file
+    assert seen["out"] == Path("calibrated.toml") != CALIBRATION_FILE and seen["resume"]
 
 
 def test_calibrate_refuses_other_presets(files, capsys):

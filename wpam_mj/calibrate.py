@@ -6,7 +6,8 @@ parameters' plausible ranges, scaled coordinates, parallel Jacobian columns):
 
   1. static:  braid angle, Kf, mu, F_f0, A_ax  ->  Table 2, "Po = 0.04 MPa" row
      (open-loop loop areas normalized by the Po = 0 loops, paper Figs. 8-9);
-  2. dynamic: Pi/Po line conductances  ->  the qualitative frequency-response findings
+  2. dynamic: Pi/Po line conductances and the Pi feedforward protocol (the Po it assumes,
+     its share of the friction band)  ->  the qualitative frequency-response findings
      of §4.2 (Fig. 17) and convergence of the step runs (Fig. 14), as hinge residuals of
      the findings' margins in `wpam_mj.paper` (zero when a finding holds with headroom),
      the same margins `wpam reproduce` checks.
@@ -19,6 +20,9 @@ so every command uses them.
 
 from __future__ import annotations
 
+import json
+import sys
+import time
 from concurrent.futures import ProcessPoolExecutor
 from contextlib import nullcontext
 from dataclasses import dataclass
@@ -37,7 +41,8 @@ PO_DOWN = paper.PO_DOWN_STATIC_MPA * MPA  # paper Fig. 9
 
 STATIC_FIT = ("braid.braid_angle", "muscle.output_coeff", "muscle.friction_coeff",
               "muscle.friction_const", "muscle.axial_area")
-DYNAMIC_FIT = ("pneumatics.inner_conductance", "pneumatics.outer_conductance")
+DYNAMIC_FIT = ("pneumatics.inner_conductance", "pneumatics.outer_conductance",
+               "controller.po_feedforward", "controller.feedforward_friction")
 
 
 @dataclass(frozen=True)
@@ -146,20 +151,66 @@ class CalibrationResult:
         return "\n".join(out)
 
 
+def checkpoint_path(out: Path) -> Path:
+    """Where `calibrate` keeps the parameters after each finished stage of a fit to `out`."""
+    return out.with_name(f".{out.name}.checkpoint.json")
+
+
+def _stage_checkpoint(path: Path, done: int, params: Params) -> None:
+    values = {n: fitting.FreeParameter.of(n).value(params) for n in (*STATIC_FIT, *DYNAMIC_FIT)}
+    write_text_atomic(path, json.dumps({"stages_done": done, "values": values}, indent=1))
+
+
+def _resume(path: Path, params: Params) -> tuple[int, Params]:
+    try:
+        saved = json.loads(path.read_text())
+        done, values = int(saved["stages_done"]), dict(saved["values"])
+    except (OSError, ValueError, KeyError, TypeError):
+        raise ParameterError(f"--resume: no readable checkpoint {path}") from None
+    overrides: dict[str, dict[str, float]] = {}
+    for name, value in values.items():
+        section, _, key = name.partition(".")
+        overrides.setdefault(section, {})[key] = value
+    return done, params.replace(**overrides)
+
+
 def calibrate(*, out: Path | None = CALIBRATION_FILE, jobs: int = 2, dt: float = 1e-3,
               progress: bool = True, rounds: int = 2, max_nfev: int = 30,
-              start: Params | None = None) -> CalibrationResult:
+              start: Params | None = None, resume: bool = False) -> CalibrationResult:
     """Alternate the static and dynamic stages `rounds` times, then refit the static stage
     (the conductances shift the static loops a little); write the TOML to `out` (None: do
-    not write). Every stage shares one process pool of `jobs` workers."""
+    not write). Every stage shares one process pool of `jobs` workers.
+
+    After each stage the parameters are kept in `checkpoint_path(out)`; an interrupted fit
+    loses the stage it was in, and `resume=True` continues after the last finished one
+    (the same result as an uninterrupted fit: each stage is deterministic from its start).
+    With progress, each stage prints its number, the time so far and an estimate of the
+    time left (the mean stage time so far times the stages left)."""
     params = start if start is not None else preset("wpam")
     stages = [(StaticStage(dt), STATIC_FIT), (DynamicStage(dt), DYNAMIC_FIT)] * rounds
     stages.append((StaticStage(dt), STATIC_FIT))
+    ckpt = None if out is None else checkpoint_path(Path(out))
+    done = 0
+    if resume:
+        if ckpt is None:
+            raise ParameterError("--resume needs an output file to resume")
+        done, params = _resume(ckpt, params)
+    started = time.perf_counter()
     with ProcessPoolExecutor(jobs) if jobs > 1 else nullcontext() as ex:
-        for stage, names in stages:
+        for k, (stage, names) in enumerate(stages[done:], start=done):
+            if progress:
+                ran = k - done
+                spent = time.perf_counter() - started
+                left = f"{spent / ran * (len(stages) - k) / 60:.1f} min left" if ran else \
+                    "time left after the first stage"
+                print(f"[calibrate] stage {k + 1}/{len(stages)} "
+                      f"({type(stage).__name__[:-5].lower()}), {spent / 60:.1f} min so far, "
+                      f"{left}", file=sys.stderr, flush=True)
             free = [fitting.FreeParameter.of(n) for n in names]
             params = fitting.fit(stage, params, free, executor=ex, max_nfev=max_nfev,
                                  progress=progress).params
+            if ckpt is not None:
+                _stage_checkpoint(ckpt, k + 1, params)
         s_res, d_res = fitting.evaluate(StaticStage(dt), [params], ex)[0], \
             fitting.evaluate(DynamicStage(dt), [params], ex)[0]
     if s_res is None or d_res is None:
@@ -169,4 +220,5 @@ def calibrate(*, out: Path | None = CALIBRATION_FILE, jobs: int = 2, dt: float =
     result = CalibrationResult(params, fitted, s_res, d_res)
     if out is not None:
         write_text_atomic(out, result.toml())
+        ckpt.unlink(missing_ok=True)
     return result

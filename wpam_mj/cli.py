@@ -41,7 +41,7 @@ from wpam_mj.control import CONTROLS, check_control
 from wpam_mj.experiments import (EXPERIMENTS, SINE_AMPLITUDE_MM, SINE_MEAN_MM, STATIC_RAMP_S,
                                  SineSpec, check_po, simulate_for_render)
 from wpam_mj.model import check_dt, check_load
-from wpam_mj.params import (CALIBRATION_FILE, MM, MPA, PRESETS, ParameterError, Params,
+from wpam_mj.params import (MM, MPA, PRESETS, ParameterError, Params,
                             apply_overrides, check_range, describe, load_toml, preset)
 from wpam_mj.results import write_text_atomic
 from wpam_mj.simulate import SimulationDiverged
@@ -224,8 +224,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = add("calibrate", "fit the parameters the paper does not give (braid angle, Kf, "
             "friction, axial area, regulators) to its Table 2 and findings", _cmd_calibrate)
     p.add_argument("--out", type=_out_path, metavar="FILE",
-                   help="calibrated parameter TOML (SI units) (default: "
-                        f"{CALIBRATION_FILE}, which every command then uses)")
+                   help="calibrated parameter TOML (SI units) for --config (default: "
+                        "calibrated.toml in the current folder; the shipped values are "
+                        "models/wpam/calibrated.toml in the package)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted calibration to the same --out after its "
+                        "last finished stage")
 
     p = add("render", "simulate one run, then write an offscreen video of it", _cmd_render)
     p.add_argument("--load", type=float, default=100.0, metavar="N",
@@ -612,11 +616,12 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         raise ParameterError(f"--preset {args.preset}: calibrate fits the wpam preset "
                              "(start from other values with --config)")
     run = _run_options(args)  # the search starts from the preset plus --config
-    out = _out_file(CALIBRATION_FILE if args.out is None else args.out)
+    out = _out_file(Path("calibrated.toml") if args.out is None else args.out)
     from wpam_mj.calibrate import calibrate  # noqa: PLC0415 (scipy.optimize: slow import)
     result = calibrate(out=out, jobs=run.jobs, dt=run.dt, progress=run.progress,
-                       start=run.params)
+                       start=run.params, resume=args.resume)
     print(result.table())
+    print(f"wrote {out} (use it with --config {out})")
     return 0
 
 
