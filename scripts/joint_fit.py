@@ -1,0 +1,128 @@
+"""The joint fit behind the shipped parameters: random search, then Nelder-Mead.
+
+Every fitted parameter moves inside its plausible range (`wpam_mj.params`), the three
+readings of the paper's gains (`controller.command_scale` 1, 0.1, 0.05) are drawn as a
+category, and one cost adds (docs/physics.md): the squared log errors of Table 2's
+"Po = 0.04" row; the PI step runs' settled plateau error beyond 0.45 mm and peak-to-peak
+beyond 0.18 mm (last 5 s of each plateau); the feedback row above 0.018, out of order or
+with 150 N below 3x 100 N; Po missing its cap at 150 N 0.5 Hz, reaching 0.068 MPa at 50 N
+0.1 Hz, or a plateau-mean Po falling with load. `wpam calibrate` fits in stages instead
+and does not see the step runs while it fits the static parameters.
+
+    python scripts/joint_fit.py [--seed 7] [--samples 150] [--nm-from 2] [--nm-evals 160]
+
+The shipped values came from this method with these defaults (about 40 minutes on two
+cores); it prints the best cost and writes calibrated-joint.toml in the current folder.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from concurrent.futures import ProcessPoolExecutor
+
+import numpy as np
+from scipy.optimize import minimize
+
+from wpam_mj import paper, preset
+from wpam_mj.analysis import loop_area
+from wpam_mj.experiments import SineSpec, sine_run, static_loop, step_run
+from wpam_mj.params import MM, MPA, Params, plausible_range
+from wpam_mj.results import write_text_atomic
+
+FREE = ("braid.braid_angle", "muscle.output_coeff", "muscle.friction_coeff",
+        "muscle.friction_const", "muscle.axial_area", "pneumatics.outer_conductance",
+        "pneumatics.inner_conductance", "controller.po_feedforward",
+        "controller.feedforward_friction")
+LOG = {"pneumatics.outer_conductance", "pneumatics.inner_conductance"}
+READINGS = (1.0, 0.1, 0.05)
+
+
+def params_at(u: np.ndarray, reading: float) -> Params:
+    """Parameters at unit coordinates u (one per FREE name, log for conductances)."""
+    over: dict[str, dict[str, float]] = {"controller": {"command_scale": reading}}
+    for name, ui in zip(FREE, np.clip(u, 0.0, 1.0)):
+        lo, hi = plausible_range(name)
+        value = math.exp(math.log(lo) + ui * math.log(hi / lo)) if name in LOG \
+            else lo + ui * (hi - lo)
+        section, _, key = name.partition(".")
+        over.setdefault(section, {})[key] = value
+    return preset("wpam").replace(**over)
+
+
+def _job(args):
+    kind, params, load, extra = args
+    if kind == "static":
+        r = static_loop(params, load, po_down=extra)
+        return loop_area(r.pi, r.x)
+    if kind == "step":
+        r = step_run(params, load, "pi")
+        out = []
+        for k in range(len(paper.STEP_LEVELS_MM)):
+            seg = (r.time >= k * 10 + 5) & (r.time < k * 10 + 10)
+            out.append((np.max(np.abs(r.x[seg] - r.x_ref[seg])), np.ptp(r.x[seg]),
+                        r.x[seg].mean(), r.pi[seg].mean(), r.po[seg].mean()))
+        return np.array(out)
+    return float(sine_run(params, load, "pi", SineSpec(extra)).po_reg.max())
+
+
+def cost(params: Params, pool: ProcessPoolExecutor) -> float:
+    loads = paper.LOADS_N
+    jobs = ([("step", params, f, 0.0) for f in loads]
+            + [("static", params, f, po) for f in loads for po in (0.0, 0.04 * MPA)]
+            + [("sine", params, 50.0, 0.1), ("sine", params, 150.0, 0.5)])
+    try:
+        out = list(pool.map(_job, jobs))
+    except Exception:  # noqa: BLE001 (a parameter set the simulator refuses costs the most)
+        return 1e9
+    steps, static, (po_slow, po_fast) = out[:3], out[3:9], out[9:]
+    t2 = [static[2 * i + 1] / static[2 * i] for i in range(3)]
+    fb = [loop_area(s[:, 3], s[:, 2]) / static[2 * i] for i, s in enumerate(steps)]
+    c = sum(math.log(v / paper.TABLE2["open_po"][f]) ** 2 for v, f in zip(t2, loads))
+    c += sum(4 * max(0, s[:, 0].max() / MM - 0.45) ** 2 + 4 * max(0, s[:, 1].max() / MM
+                                                                   - 0.18) ** 2
+             for s in steps)
+    c += sum(100 * max(0, v - 0.018) for v in fb) + 30 * max(0, 3 * fb[1] - fb[2]) \
+        + 30 * max(0, fb[0] - fb[1])
+    c += 100 * max(0, 0.079 - po_fast / MPA) + 100 * max(0, po_slow / MPA - 0.068) \
+        + 100 * max(0, (steps[0][:, 4].mean() - steps[2][:, 4].mean()) / MPA + 0.005)
+    return c
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seed", type=int, default=7, help="random-search seed (default 7)")
+    ap.add_argument("--samples", type=int, default=150, help="random samples (default 150)")
+    ap.add_argument("--nm-from", type=int, default=2,
+                    help="start Nelder-Mead from the n-th best sample (default 2)")
+    ap.add_argument("--nm-evals", type=int, default=160, help="Nelder-Mead evaluations")
+    ap.add_argument("--jobs", type=int, default=2, help="worker processes")
+    args = ap.parse_args()
+    rng = np.random.default_rng(args.seed)
+    samples = [(rng.uniform(size=len(FREE)), float(rng.choice(READINGS)))
+               for _ in range(args.samples)]
+    with ProcessPoolExecutor(args.jobs) as pool:
+        scored = []
+        for i, (u, reading) in enumerate(samples):
+            scored.append((cost(params_at(u, reading), pool), i))
+            print(f"sample {i + 1}/{len(samples)}: cost {scored[-1][0]:.3f}", flush=True)
+        scored.sort()
+        u0, reading = samples[scored[args.nm_from - 1][1]]
+        res = minimize(lambda u: cost(params_at(u, reading), pool), u0, method="Nelder-Mead",
+                       options=dict(maxfev=args.nm_evals, xatol=1e-3, fatol=1e-3))
+    best = params_at(res.x, reading)
+    lines = ["# scripts/joint_fit.py; SI units", ""]
+    for section in ("braid", "muscle", "pneumatics", "controller"):
+        lines.append(f"[{section}]")
+        keys = [n.partition(".")[2] for n in FREE if n.startswith(section + ".")]
+        lines += [f"{k} = {getattr(getattr(best, section), k)!r}" for k in keys]
+        if section == "controller":
+            lines.append(f"command_scale = {reading!r}")
+        lines.append("")
+    write_text_atomic("calibrated-joint.toml", "\n".join(lines))
+    print(f"best cost {res.fun:.3f}; wrote calibrated-joint.toml")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
