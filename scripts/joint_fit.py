@@ -25,10 +25,10 @@ import numpy as np
 from scipy.optimize import minimize
 
 from wpam_mj import paper, preset
-from wpam_mj.analysis import loop_area
-from wpam_mj.experiments import SineSpec, sine_run, static_loop, step_run
+from wpam_mj.experiments import SineSpec, sine_run
 from wpam_mj.params import MM, MPA, Params, plausible_range
 from wpam_mj.results import write_text_atomic
+from wpam_mj.studies import StaticTask, StepTask
 
 FREE = ("braid.braid_angle", "muscle.output_coeff", "muscle.friction_coeff",
         "muscle.friction_const", "muscle.axial_area", "pneumatics.outer_conductance",
@@ -36,6 +36,7 @@ FREE = ("braid.braid_angle", "muscle.output_coeff", "muscle.friction_coeff",
         "controller.feedforward_friction")
 LOG = {"pneumatics.outer_conductance", "pneumatics.inner_conductance"}
 READINGS = (1.0, 0.1, 0.05)
+DT = 1e-3  # s
 
 
 def params_at(u: np.ndarray, reading: float) -> Params:
@@ -50,19 +51,19 @@ def params_at(u: np.ndarray, reading: float) -> Params:
     return preset("wpam").replace(**over)
 
 
+SETTLE_S = 5.0  # the last 5 s of each 10 s plateau
+
+
 def _job(args):
+    """One run's figures: a static loop's area, a PI staircase's settled errors and plateau
+    means, or a sine's highest regulator Po."""
     kind, params, load, extra = args
     if kind == "static":
-        r = static_loop(params, load, po_down=extra)
-        return loop_area(r.pi, r.x)
+        return StaticTask(params, load, extra, DT).run().area
     if kind == "step":
-        r = step_run(params, load, "pi")
-        out = []
-        for k in range(len(paper.STEP_LEVELS_MM)):
-            seg = (r.time >= k * 10 + 5) & (r.time < k * 10 + 10)
-            out.append((np.max(np.abs(r.x[seg] - r.x_ref[seg])), np.ptp(r.x[seg]),
-                        r.x[seg].mean(), r.pi[seg].mean(), r.po[seg].mean()))
-        return np.array(out)
+        run = StepTask(params, load, "pi", DT).run()
+        return (run.worst_error(SETTLE_S), run.worst_peak_to_peak(SETTLE_S), run.area,
+                float(np.mean(run.po_mean)))
     return float(sine_run(params, load, "pi", SineSpec(extra)).po_reg.max())
 
 
@@ -77,15 +78,14 @@ def cost(params: Params, pool: ProcessPoolExecutor) -> float:
         return 1e9
     steps, static, (po_slow, po_fast) = out[:3], out[3:9], out[9:]
     t2 = [static[2 * i + 1] / static[2 * i] for i in range(3)]
-    fb = [loop_area(s[:, 3], s[:, 2]) / static[2 * i] for i, s in enumerate(steps)]
+    fb = [area / static[2 * i] for i, (_, _, area, _) in enumerate(steps)]
     c = sum(math.log(v / paper.TABLE2["open_po"][f]) ** 2 for v, f in zip(t2, loads))
-    c += sum(4 * max(0, s[:, 0].max() / MM - 0.45) ** 2 + 4 * max(0, s[:, 1].max() / MM
-                                                                   - 0.18) ** 2
-             for s in steps)
+    c += sum(4 * max(0, err / MM - 0.45) ** 2 + 4 * max(0, pp / MM - 0.18) ** 2
+             for err, pp, _, _ in steps)
     c += sum(100 * max(0, v - 0.018) for v in fb) + 30 * max(0, 3 * fb[1] - fb[2]) \
         + 30 * max(0, fb[0] - fb[1])
     c += 100 * max(0, 0.079 - po_fast / MPA) + 100 * max(0, po_slow / MPA - 0.068) \
-        + 100 * max(0, (steps[0][:, 4].mean() - steps[2][:, 4].mean()) / MPA + 0.005)
+        + 100 * max(0, (steps[0][3] - steps[2][3]) / MPA + 0.005)
     return c
 
 

@@ -20,29 +20,13 @@ from pathlib import Path
 import numpy as np
 
 from wpam_mj import paper, pool, preset
-from wpam_mj.analysis import loop_area
-from wpam_mj.experiments import sine_run, SineSpec, static_loop
+from wpam_mj.experiments import SineSpec, sine_run
 from wpam_mj.params import MM, MPA, Params
 from wpam_mj.results import write_text_atomic
-from wpam_mj.studies import step_study, sweep, table2
-from wpam_mj.study_results import LOOP_METHOD
+from wpam_mj.studies import static_study, step_study, sweep, table2
 
 READINGS = {"MPa/mm": 1.0, "V/mm, 0-5 V input": 0.1, "V/mm, 0-10 V input": 0.05}
 SETTLE_S = 5.0  # the last 5 s of each 10 s plateau
-
-
-class _PoRowTask:
-    """The Table 2 'Po = 0.04' cell of one load at one ramp time (both loops)."""
-
-    def __init__(self, params: Params, load: float, ramp: float, dt: float) -> None:
-        self.params, self.load, self.ramp, self.dt = params, load, ramp, dt
-        self.cost = 4 * ramp / dt
-
-    def run(self) -> float:
-        areas = [loop_area(r.pi, r.x, method=LOOP_METHOD) for r in (
-            static_loop(self.params, self.load, po_down=po, ramp_time=self.ramp, dt=self.dt)
-            for po in (0.0, paper.PO_DOWN_STATIC_MPA * MPA))]
-        return areas[1] / areas[0]
 
 
 class _ReadingTask:
@@ -54,19 +38,11 @@ class _ReadingTask:
     def run(self) -> dict:
         steps = step_study(self.params, [(load, "pi") for load in paper.LOADS_N], dt=self.dt)
         out = {"worst_error_mm": max(s.worst_error(SETTLE_S) for s in steps) / MM,
-               "peak_to_peak_mm": max(_peak_to_peak(s) for s in steps) / MM}
+               "peak_to_peak_mm": max(s.worst_peak_to_peak(SETTLE_S) for s in steps) / MM}
         for load, freq in ((50.0, 0.1), (150.0, 0.5)):
             r = sine_run(self.params, load, "pi", SineSpec(freq), dt=self.dt)
             out[f"po_max_{load:g}N_{freq:g}Hz_mpa"] = float(r.po_reg.max() / MPA)
         return out
-
-
-def _peak_to_peak(run) -> float:
-    """Largest x peak-to-peak over the last SETTLE_S of any plateau [m]."""
-    r = run.result
-    k = (r.time // paper.STEP_HOLD_S).astype(int)
-    late = (r.time % paper.STEP_HOLD_S) >= paper.STEP_HOLD_S - SETTLE_S
-    return max(float(np.ptp(r.x[late & (k == i)])) for i in np.unique(k))
 
 
 def measure(params: Params, *, dt: float, jobs: int) -> dict:
@@ -80,7 +56,7 @@ def measure(params: Params, *, dt: float, jobs: int) -> dict:
         "table2_feedback_row": {f"{k:g}": v for k, v in t2.feedback.items()},
         "steps": {f"{s.control} {s.load:g} N": {
             "worst_error_mm": s.worst_error(SETTLE_S) / MM,
-            "peak_to_peak_mm": _peak_to_peak(s) / MM,
+            "peak_to_peak_mm": s.worst_peak_to_peak(SETTLE_S) / MM,
             "po_plateau_mean_mpa": float(np.mean(s.po_mean) / MPA),
             "pi_plateau_mean_mpa": float(np.mean(s.pi_mean) / MPA)} for s in steps},
         "sweep": [p.as_json() for p in sw.points],
@@ -102,12 +78,11 @@ def main() -> int:
     params = preset("wpam")
     dt = 1e-3
     result = measure(params, dt=dt, jobs=args.jobs)
-    ramps = pool.run_tasks([_PoRowTask(params, load, ramp, dt) for ramp in (60.0, 240.0)
-                            for load in paper.LOADS_N], jobs=args.jobs)
-    n = len(paper.LOADS_N)
-    result["po_row_ramp"] = {f"{ramp:g} s": {f"{load:g}": v for load, v in
-                                            zip(paper.LOADS_N, ramps[i * n:(i + 1) * n])}
-                             for i, ramp in enumerate((60.0, 240.0))}
+    slow = [static_study(params, po_down=po, ramp_time=240.0, dt=dt, jobs=args.jobs)
+            for po in (0.0, paper.PO_DOWN_STATIC_MPA * MPA)]
+    result["po_row_ramp"] = {
+        "60 s": result["table2_po_row"],
+        "240 s": {f"{a.load:g}": b.area / a.area for a, b in zip(*slow)}}
     if not args.quick:
         half = measure(params, dt=dt / 2, jobs=args.jobs)
         result["dt_half"] = half

@@ -79,11 +79,21 @@ class StepRun:
         """Settled error x - target per plateau [m]."""
         return self.x_mean - self.target
 
+    def _settled(self, settle: float) -> np.ndarray:
+        r = self.result
+        return (r.time % STEP_HOLD_S) >= STEP_HOLD_S - settle
+
     def worst_error(self, settle: float = 3.0) -> float:
         """Largest |x - x_r| over the last `settle` s of every plateau [m]."""
         r = self.result
-        settled = (r.time % STEP_HOLD_S) >= STEP_HOLD_S - settle
-        return float(np.max(np.abs(r.x - r.x_ref)[settled]))
+        return float(np.max(np.abs(r.x - r.x_ref)[self._settled(settle)]))
+
+    def worst_peak_to_peak(self, settle: float = 3.0) -> float:
+        """Largest x peak-to-peak over the last `settle` s of any plateau [m]."""
+        r = self.result
+        plateau = (r.time // STEP_HOLD_S).astype(int)
+        late = self._settled(settle)
+        return max(float(np.ptp(r.x[late & (plateau == k)])) for k in np.unique(plateau))
 
     def plot(self):
         """Figure of x, target, Pi and Po against time (`wpam_mj.plots.step_figure`)."""
