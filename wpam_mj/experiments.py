@@ -29,7 +29,8 @@ from wpam_mj.simulate import Drive, simulate
 
 EXPERIMENTS = ("step", "sweep", "static")  # what `simulate_for_render` can run
 SINE_MEAN_MM = 25.0  # our choice: the target spans 0-50 mm, the range of the step runs
-STATIC_TOP_MM = 50.0  # our choice: ramp until the contracting branch reaches this
+STATIC_TOP_MM = float(max(STEP_LEVELS_MM))  # ramp until the contracting branch reaches the
+# step runs' top target (our choice)
 STATIC_RAMP_S = 60.0  # our choice: "slow" (near quasi-static), each direction
 
 

@@ -18,10 +18,11 @@ import numpy as np
 
 from wpam_mj.model import LOAD_RANGE_N
 from wpam_mj.muscle import MuscleModel
+from wpam_mj.paper import STEP_LEVELS_MM
 from wpam_mj.params import MM, MPA, ParameterError, Params
 from wpam_mj.results import SimResult
 
-TOP_CONTRACTION_MM = 50.0  # the highest target of the step runs, static ramps and sines
+TOP_CONTRACTION_MM = float(max(STEP_LEVELS_MM))  # highest target of step runs, ramps and sines
 MOVE_MIN_MM = 0.5  # our choice: a load that spans less than this never moved
 
 
