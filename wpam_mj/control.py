@@ -205,10 +205,7 @@ class PIFlowFeedforward(PIControl):
         pa = pn_.atmosphere
         p_i = pi_feedforward(muscle, params, x_ref, load, c.po_feedforward) + pa  # abs
         p_o = np.full_like(x_ref, c.po_feedforward + pa)
-        v_i, v_o = pneumatics.chamber_volumes(
-            muscle.geometry.volume(x_ref), x_ref, muscle.axial_area,
-            pneumatics.outer_bag_volume(params.braid.outer_bag_length,
-                                        params.braid.outer_bag_diameter), pn_.tube_volume)
+        v_i, v_o = pneumatics.chamber_volumes_of(params, x_ref)
         commands = []
         for p, v, conductance in ((p_i, v_i, pn_.inner_conductance),
                                   (p_o, v_o, pn_.outer_conductance)):

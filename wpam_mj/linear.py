@@ -97,23 +97,14 @@ class Chamber:
                      inputs=[set_input, "v"], outputs=[output])
 
 
-def chamber_volumes(params: Params, x: float) -> tuple[float, float]:
-    """(V_i, V_o) [m^3] at contraction x [m], by `pneumatics.chamber_volumes`."""
-    b = params.braid
-    return pn.chamber_volumes(BraidGeometry.from_params(b).volume(x), x,
-                              params.muscle.axial_area,
-                              pn.outer_bag_volume(b.outer_bag_length, b.outer_bag_diameter),
-                              params.pneumatics.tube_volume)
-
-
 def inner_volume(params: Params, x: float) -> float:
     """Inner chamber volume V_i [m^3] at contraction x [m]."""
-    return chamber_volumes(params, x)[0]
+    return pn.chamber_volumes_of(params, x)[0]
 
 
 def outer_volume(params: Params, x: float) -> float:
     """Outer chamber volume V_o [m^3] at contraction x [m]."""
-    return chamber_volumes(params, x)[1]
+    return pn.chamber_volumes_of(params, x)[1]
 
 
 def _chamber(params: Params, x: float, gauge: float, conductance: float,

@@ -34,6 +34,9 @@ import math
 
 import numpy as np
 
+from wpam_mj.geometry import BraidGeometry
+from wpam_mj.params import Params
+
 R_AIR = 287.05  # J/(kg K), specific gas constant of dry air
 T_0 = 293.15  # K, ISO 8778 reference (ANR) temperature
 RHO_0 = 1.185  # kg/m^3, ISO 8778 reference density (ANR)
@@ -94,6 +97,14 @@ def chamber_volumes(bag_inner: float, x: float, axial_area: float, bag_volume: f
     bag's enclosed `bag_volume` less the inner bag and A_ax x, plus its tube (module doc).
     Floats or arrays."""
     return bag_inner + tube_volume, bag_volume + tube_volume - bag_inner - axial_area * x
+
+
+def chamber_volumes_of(params: Params, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`chamber_volumes` [m^3] of one parameter set at contraction x [m] (float or array)."""
+    b = params.braid
+    return chamber_volumes(BraidGeometry.from_params(b).volume(x), x, params.muscle.axial_area,
+                           outer_bag_volume(b.outer_bag_length, b.outer_bag_diameter),
+                           params.pneumatics.tube_volume)
 
 
 def outer_bag_volume(length: float, diameter: float) -> float:
