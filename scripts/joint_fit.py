@@ -41,14 +41,12 @@ DT = 1e-3  # s
 
 def params_at(u: np.ndarray, reading: float) -> Params:
     """Parameters at unit coordinates u (one per FREE name, log for conductances)."""
-    over: dict[str, dict[str, float]] = {"controller": {"command_scale": reading}}
+    values = {"controller.command_scale": reading}
     for name, ui in zip(FREE, np.clip(u, 0.0, 1.0)):
         lo, hi = plausible_range(name)
-        value = math.exp(math.log(lo) + ui * math.log(hi / lo)) if name in LOG \
+        values[name] = math.exp(math.log(lo) + ui * math.log(hi / lo)) if name in LOG \
             else lo + ui * (hi - lo)
-        section, _, key = name.partition(".")
-        over.setdefault(section, {})[key] = value
-    return preset("wpam").replace(**over)
+    return preset("wpam").with_values(values)
 
 
 SETTLE_S = 5.0  # the last 5 s of each 10 s plateau

@@ -529,3 +529,12 @@ def test_controller_reset_restarts_the_run(control):
     ctl.reset()
     assert [ctl.update(*u) for u in inputs] == first
     assert (first[0] == 0.03 * MPA) == (not ctl.feedback)
+
+
+def test_with_values_sets_fields_by_dotted_name():
+    p = WPAM.with_values({"muscle.damping": 30.0, "controller.kp": 0.2})
+    assert (p.muscle.damping, p.controller.kp) == (30.0, 0.2)
+    assert p.replace(muscle={"damping": 20.0}, controller={"kp": 0.1}) == WPAM
+    assert WPAM.with_values({}) is WPAM
+    with pytest.raises(ParameterError, match="unknown parameter muscle.nope"):
+        WPAM.with_values({"muscle.nope": 1.0})

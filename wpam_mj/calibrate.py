@@ -167,11 +167,7 @@ def _resume(path: Path, params: Params) -> tuple[int, Params]:
         done, values = int(saved["stages_done"]), dict(saved["values"])
     except (OSError, ValueError, KeyError, TypeError):
         raise ParameterError(f"--resume: no readable checkpoint {path}") from None
-    overrides: dict[str, dict[str, float]] = {}
-    for name, value in values.items():
-        section, _, key = name.partition(".")
-        overrides.setdefault(section, {})[key] = value
-    return done, params.replace(**overrides)
+    return done, params.with_values(values)
 
 
 def calibrate(*, out: Path | None = CALIBRATION_FILE, jobs: int = 2, dt: float = 1e-3,

@@ -119,11 +119,7 @@ def default_free() -> tuple[str, ...]:
 def with_values(params: Params, free: Sequence[FreeParameter],
                 values: Sequence[float]) -> Params:
     """`params` with each free parameter set to its value [SI]."""
-    overrides: dict[str, dict[str, float]] = {}
-    for p, v in zip(free, values):
-        section, key = p.name.split(".")
-        overrides.setdefault(section, {})[key] = float(v)
-    return params.replace(**overrides)
+    return params.with_values({p.name: float(v) for p, v in zip(free, values)})
 
 
 class ResidualModel(Protocol):

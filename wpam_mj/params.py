@@ -250,6 +250,16 @@ class Params:
         """Copy with some fields changed: ``p.replace(muscle={"friction_coeff": 0})``."""
         return apply_overrides(self, sections)
 
+    def with_values(self, values: Mapping[str, Any]) -> "Params":
+        """Copy with fields named "section.field" changed: ``{"muscle.damping": 30.0}``."""
+        if not values:
+            return self
+        sections: dict[str, dict[str, Any]] = {}
+        for name, value in values.items():
+            section, _, key = name.partition(".")
+            sections.setdefault(section, {})[key] = value
+        return apply_overrides(self, sections)
+
     def as_dict(self) -> dict[str, dict[str, float]]:
         return {s: dataclasses.asdict(getattr(self, s)) for s in _SECTIONS}
 

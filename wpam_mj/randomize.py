@@ -52,7 +52,7 @@ class ParameterRanges:
         out = cls(ranges)
         for corner in (0.0, 1.0):  # both ends must make valid parameters
             try:
-                out._at(base, {n: lo + corner * (hi - lo) for n, (lo, hi) in ranges.items()})
+                base.with_values({n: lo + corner * (hi - lo) for n, (lo, hi) in ranges.items()})
             except ParameterError as err:
                 raise ParameterError(f"{path}: {err}") from None
         return out
@@ -63,18 +63,11 @@ class ParameterRanges:
         return cls({e.name: (float(max(e.lo, e.value - k * e.sigma)),
                              float(min(e.hi, e.value + k * e.sigma))) for e in estimates})
 
-    @staticmethod
-    def _at(base: Params, values: Mapping[str, float]) -> Params:
-        overrides: dict[str, dict[str, float]] = {}
-        for name, v in values.items():
-            section, key = name.split(".")
-            overrides.setdefault(section, {})[key] = v
-        return base.replace(**overrides)
-
     def sample(self, base: Params, random: np.random.RandomState) -> Params:
         """`base` with every listed field drawn uniformly from its range (sorted name
         order, so a seed gives the same parameters)."""
-        return self._at(base, {n: random.uniform(*self.ranges[n]) for n in sorted(self.ranges)})
+        return base.with_values({n: random.uniform(*self.ranges[n])
+                                 for n in sorted(self.ranges)})
 
     def toml(self, header: str = "") -> str:
         lines = [f"# {ln}" for ln in header.splitlines()]

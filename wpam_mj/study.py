@@ -56,8 +56,8 @@ from wpam_mj.executors import Workers
 from wpam_mj.experiments import STATIC_RAMP_S, SineSpec, check_po, sine_run, step_run
 from wpam_mj.model import check_dt, check_load
 from wpam_mj.paper import PO_DOWN_STATIC_MPA, STEP_HOLD_S, STEP_LEVELS_MM
-from wpam_mj.params import (MM, MPA, PRESETS, ParameterError, Params, apply_overrides,
-                            check_range, load_toml, preset)
+from wpam_mj.params import (MM, MPA, PRESETS, ParameterError, Params, check_range, load_toml,
+                            preset)
 from wpam_mj.results import write_atomic, write_text_atomic
 from wpam_mj.simulate import SimulationDiverged
 from wpam_mj.studies import PLATEAU_SETTLE_S, StaticTask, plateau_segments, table2_batch
@@ -372,12 +372,8 @@ def sample(spec: StudySpec) -> list[dict[str, Any]]:
 
 
 def _params_for(base: Params, inputs: Mapping[str, Any]) -> Params:
-    sections: dict[str, dict[str, float]] = {}
-    for name, value in inputs.items():
-        if "." in name:
-            section, key = name.split(".", 1)
-            sections.setdefault(section, {})[key] = value
-    return apply_overrides(base, sections) if sections else base
+    """`base` with the inputs that name a parameter ("section.field") applied."""
+    return base.with_values({n: v for n, v in inputs.items() if "." in n})
 
 
 def _step_metrics(result, hold: float) -> dict[str, float]:
