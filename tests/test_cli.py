@@ -171,21 +171,23 @@ def test_calibrate_calls_the_library(files, capsys, monkeypatch):
 
     seen = {}
 
-    def calibrate(*, out, jobs, dt, progress, start, resume):
-        seen.update(out=out, jobs=jobs, dt=dt, progress=progress, resume=resume)
+    def calibrate(*, out, jobs, dt, progress, start, samples, seed, max_nfev, resume):
+        seen.update(out=out, jobs=jobs, dt=dt, progress=progress, resume=resume,
+                    samples=samples, seed=seed, max_nfev=max_nfev)
         seen["start"] = start
         return _FakeCalibration()
 
     monkeypatch.setitem(sys.modules, "wpam_mj.calibrate",
                         types.SimpleNamespace(calibrate=calibrate))
     code, out, err = _run(capsys, "calibrate", "--out", "fit.toml", "--jobs", "3",
-                          "--dt", "0.0005", "--no-progress")
+                          "--dt", "0.0005", "--no-progress", "--samples", "5", "--seed", "3",
+                          "--max-steps", "2")
     assert code == 0, err
     assert out.splitlines()[0] == "fitted values"
     assert "--config fit.toml" in out  # where the fit went and how to use it
     start = seen.pop("start")
     assert seen == {"out": Path("fit.toml"), "jobs": 3, "dt": 0.0005, "progress": False,
-                    "resume": False}
+                    "resume": False, "samples": 5, "seed": 3, "max_nfev": 2}
     assert start == preset("wpam")  # the search starts from the preset (plus --config)
     _run(capsys, "calibrate", "--no-progress", "--resume")
     # the current folder, never the installed package's file

@@ -103,6 +103,36 @@ def test_parameter_without_effect_is_unidentifiable_and_bound_is_flagged():
     assert not const.identifiable
 
 
+def test_an_interrupted_fit_resumes_from_its_journal_without_rerunning(tmp_path):
+    """A fit stopped by Ctrl-C after a few evaluations and run again with its journal
+    replays them (no task runs again), then ends exactly where an uninterrupted fit does."""
+    t = np.linspace(0.0, 10.0, 50)
+    runs = []
+
+    @dataclass(frozen=True)
+    class Counted(_Line):
+        def tasks(self, params):
+            runs.append(params)
+            if len(runs) == 5 and not resumed:
+                raise KeyboardInterrupt
+            return super().tasks(params)
+
+    model, path = Counted(t, 0.2 * t + 4.0), tmp_path / "fit.journal.json"
+    resumed = False
+    with pytest.raises(KeyboardInterrupt):
+        fitting.fit(model, preset(), FREE, journal=fitting.Journal(path))
+    journaled = fitting.Journal(path, keep=True).size
+    assert journaled == 4
+    resumed, before = True, len(runs)
+    again = fitting.fit(model, preset(), FREE, journal=fitting.Journal(path, keep=True))
+    replayed = len(runs) - before
+    runs.clear()
+    whole = fitting.fit(model, preset(), FREE)
+    assert again.params == whole.params and np.array_equal(again.residuals, whole.residuals)
+    assert replayed == len(runs) - journaled  # the journaled sets were not run again
+    assert fitting.Journal(tmp_path / "new.json", keep=True).size == 0
+
+
 # ---- the simulator: replay and a reduced recovery
 
 

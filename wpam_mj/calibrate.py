@@ -1,29 +1,38 @@
 """Calibrate the parameters the paper does not give, against the paper's own results.
 
-Two stages, alternated (`calibrate`), each a bounded least-squares fit on the simulator
-itself (no surrogate) with the engine of `wpam fit` (`wpam_mj.fitting`: bounds from the
-parameters' plausible ranges, scaled coordinates, parallel Jacobian columns):
+One cost, every target at once (`PaperTargets`): a stage that fits the static parameters
+without the step runs trades the steps for Table 2 (docs/physics.md), so every residual
+is computed from one batch of runs at the same parameters:
 
-  1. static:  braid angle, Kf, mu, F_f0, A_ax  ->  Table 2, "Po = 0.04 MPa" row
-     (open-loop loop areas normalized by the Po = 0 loops, paper Figs. 8-9);
-  2. dynamic: Pi/Po line conductances and the Pi feedforward protocol (the Po it assumes,
-     its share of the friction band)  ->  the qualitative frequency-response findings
-     of §4.2 (Fig. 17) and convergence of the step runs (Fig. 14), as hinge residuals of
-     the findings' margins in `wpam_mj.paper` (zero when a finding holds with headroom),
-     the same margins `wpam reproduce` checks.
+  * Table 2's "Po = 0.04 MPa" row: the log error of each cell (open-loop loop areas with
+    Po on the way down, normalized by the Po = 0 loops; paper Figs. 8-9);
+  * the step staircases (Fig. 14), PI and PID at 50/100/150 N: each worst settled plateau
+    error beyond 0.45 mm and x peak-to-peak beyond 0.18 mm (targets 0.5 and 0.2 mm);
+  * Table 2's feedback row (Fig. 16) as the margins of `wpam_mj.paper.TABLE2_FINDINGS`;
+  * Po (§4.2, Figs. 15 and 18): the cap reached at 150 N, 0.5 Hz and not at 0.1 Hz for the
+    lighter loads (the margins of `wpam_mj.paper.PO_CAP_FINDINGS`), and the plateau-mean
+    Po of the PI staircase rising with load;
+  * walls where the 150 N ramp top or feedforward would need more than 95 % of p_max.
 
-How much each residual counts is set in one place, `WEIGHTS`. The analysis is the same
-for every run (`wpam_mj.analysis`); only model parameters move. The fitted values go to a
-TOML file (default `models/wpam/calibrated.toml`) that `wpam_mj.params.preset` applies,
-so every command uses them.
+The search (`calibrate`): optionally a seeded random search of the plausible ranges
+(`samples`; the gain reading `controller.command_scale` drawn as a category from
+`READINGS`), then bounded least squares from the best point on the engine of `wpam fit`
+(`wpam_mj.fitting`: scaled coordinates, parallel Jacobian columns), with a forward
+difference step wide enough to see trends through stick-slip (`DIFF_STEP`). Every
+evaluation is journaled, so an interrupted calibration resumes where it stopped
+(`resume=True`) and ends exactly where an uninterrupted one does. Deterministic: the same
+start, seed and settings give the same fit.
+
+The fitted values go to a TOML file that `--config` (or, shipped as
+`models/wpam/calibrated.toml`, `wpam_mj.params.preset`) applies.
 """
 
 from __future__ import annotations
 
-import json
+import math
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Executor, ProcessPoolExecutor
 from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,109 +42,159 @@ import numpy as np
 from wpam_mj import fitting, paper
 from wpam_mj.experiments import STATIC_TOP_MM, static_top_pressure
 from wpam_mj.muscle import MuscleModel
-from wpam_mj.params import CALIBRATION_FILE, MM, MPA, Params, ParameterError, preset
+from wpam_mj.params import MM, MPA, Params, ParameterError, check_range, preset
 from wpam_mj.results import write_text_atomic
-from wpam_mj.studies import StaticTask, StepTask, sweep_batch
+from wpam_mj.studies import PLATEAU_SETTLE_S, StepTask, sweep_batch, table2_batch
 
-PO_DOWN = paper.PO_DOWN_STATIC_MPA * MPA  # paper Fig. 9
-
-STATIC_FIT = ("braid.braid_angle", "muscle.output_coeff", "muscle.friction_coeff",
-              "muscle.friction_const", "muscle.axial_area")
-DYNAMIC_FIT = ("pneumatics.inner_conductance", "pneumatics.outer_conductance",
-               "controller.po_feedforward", "controller.feedforward_friction")
+FREE = ("braid.braid_angle", "muscle.output_coeff", "muscle.friction_coeff",
+        "muscle.friction_const", "muscle.axial_area", "pneumatics.inner_conductance",
+        "pneumatics.outer_conductance", "controller.po_feedforward",
+        "controller.feedforward_friction")
+# The paper's unitless gains read as MPa/mm, as volts on the ITV's 0-5 V input and on its
+# 0-10 V input (docs/physics.md): controller.command_scale [MPa per unit].
+READINGS = (1.0, 0.1, 0.05)
+PO_SINE_FREQS_HZ = (min(paper.SWEEP_FREQS_HZ), paper.FIG18_FREQ_HZ)
+DIFF_STEP = 0.01  # forward-difference step in scaled coordinates: 1 % of each range
+SAMPLES_RANGE = (0, 10_000)
+NFEV_RANGE = (1, 500)
 
 
 @dataclass(frozen=True)
 class Weights:
     """How much each calibration residual counts (the one place to tune them)."""
 
-    table2_wall_from: float = 0.12  # Table 2 relative error where a steep wall starts ...
-    table2_wall: float = 10.0  # ... of this slope, so no cell is sacrificed to the others
+    table2: float = 1.0  # per unit log error of a Table 2 "Po = 0.04" cell
+    step_error_mm: float = 0.45  # a plateau's settled error costs beyond this [mm] ...
+    step_pp_mm: float = 0.18  # ... and its x peak-to-peak beyond this [mm] ...
+    step: float = 2.0  # ... this residual per mm
+    feedback_row: float = 0.3  # per unit of the feedback-row margins' residuals
+    po_cap: float = 1.0  # per unit of the Po-cap margins' residuals
+    po_rise_mpa: float = 0.01  # plateau-mean Po falling by this much with load costs 1
     pressure_share: float = 0.95  # the 150 N ramp top and feedforward may use this share
     pressure_wall: float = 10.0  # of p_max; beyond it a wall of this slope
-    step_error_mm: float = 0.4  # every PI plateau settles within this [mm] ...
-    step_wall: float = 1.0  # ... beyond it, this residual per mm
 
 
 WEIGHTS = Weights()
 
 
-# ---- residuals ----
+@dataclass(frozen=True)
+class Scores:
+    """The figures a calibration is judged by, at one parameter set."""
+
+    table2_po_row: tuple[float, ...]  # 50/100/150 N, normalized loop areas
+    feedback_row: tuple[float, ...]
+    step_error_mm: dict[str, tuple[float, ...]]  # controller -> per load
+    step_pp_mm: dict[str, tuple[float, ...]]
+    po_plateau_mpa: tuple[float, ...]  # PI staircase, mean over plateaus, per load
+    po_max_mpa: dict[tuple[float, float], float]  # (load, freq) -> PI sine's Po max
+
+    def text(self) -> str:
+        row = [paper.TABLE2["open_po"][f] for f in paper.LOADS_N]
+        errs = ", ".join(f"{v:.4f} ({v / p - 1:+.1%})" for v, p in zip(self.table2_po_row, row))
+        lines = [f"Table 2 'Po = 0.04' row (50/100/150 N): {errs}",
+                 "Table 2 feedback row: " + "/".join(f"{v:.4f}" for v in self.feedback_row)]
+        for c in self.step_error_mm:
+            lines.append(f"{c.upper()} steps, worst plateau error / x p-p [mm]: "
+                         + ", ".join(f"{e:.2f}/{p:.2f}" for e, p in
+                                     zip(self.step_error_mm[c], self.step_pp_mm[c])))
+        lines.append("PI plateau-mean Po [MPa]: "
+                     + "/".join(f"{v:.4f}" for v in self.po_plateau_mpa))
+        lines.append("PI sine Po max [MPa]: " + ", ".join(
+            f"{load:g} N {freq:g} Hz {v:.4f}" for (load, freq), v in self.po_max_mpa.items()))
+        return "\n".join(lines)
 
 
 @dataclass(frozen=True)
-class StaticStage:
-    """`fitting.ResidualModel` of Table 2's "Po = 0.04" row: relative errors of the three
-    cells, walls past `WEIGHTS.table2_wall_from`, and walls if 150 N at 50 mm would need
-    more than `WEIGHTS.pressure_share` of the regulator's p_max (ramp top, feedforward)."""
+class PaperTargets:
+    """`fitting.ResidualModel` of the paper's targets (module docstring)."""
 
     dt: float = 1e-3
 
-    def tasks(self, params: Params) -> list:
-        return [StaticTask(params, load, po, self.dt) for load in paper.LOADS_N
-                for po in (0.0, PO_DOWN)]
+    def _batches(self, params: Params):
+        return (table2_batch(params, dt=self.dt),
+                sweep_batch(params, paper.LOADS_N, PO_SINE_FREQS_HZ, ("pi",), keep=(),
+                            dt=self.dt))
 
-    def residuals(self, params: Params, loops: list) -> np.ndarray:
+    def tasks(self, params: Params) -> list:
+        t2, sw = self._batches(params)
+        pid = [StepTask(params, load, "pid", self.dt) for load in paper.LOADS_N]
+        return [*t2.tasks, *pid, *sw.tasks]
+
+    def _assemble(self, params: Params, results: list):
+        t2, sw = self._batches(params)
+        n, k = len(t2.tasks), len(paper.LOADS_N)
+        table2 = t2.assemble(results[:n])
+        steps = {"pi": table2.feedback_runs, "pid": tuple(results[n:n + k])}
+        return table2, steps, sw.assemble(results[n + k:])
+
+    def scores(self, params: Params, results: list) -> Scores:
+        table2, steps, sweep = self._assemble(params, results)
+        loads = paper.LOADS_N
+        return Scores(
+            table2_po_row=tuple(table2.open_po[f] for f in loads),
+            feedback_row=tuple(table2.feedback[f] for f in loads),
+            step_error_mm={c: tuple(r.worst_error(PLATEAU_SETTLE_S) / MM for r in runs)
+                           for c, runs in steps.items()},
+            step_pp_mm={c: tuple(r.worst_peak_to_peak(PLATEAU_SETTLE_S) / MM
+                                 for r in runs) for c, runs in steps.items()},
+            po_plateau_mpa=tuple(float(np.mean(r.po_mean)) / MPA for r in steps["pi"]),
+            po_max_mpa={(p.load, p.freq): p.po_max / MPA for p in sweep.points})
+
+    def residual_groups(self, params: Params, results: list) -> dict[str, np.ndarray]:
+        """The residuals by target, in the order `residuals` concatenates them."""
         w = WEIGHTS
-        ratios = [p.area / o.area for o, p in zip(loops[::2], loops[1::2])]
-        target = [paper.TABLE2["open_po"][load] for load in paper.LOADS_N]
-        rel = [(r - t) / t for r, t in zip(ratios, target)]
-        res = rel + [w.table2_wall * max(0.0, abs(e) - w.table2_wall_from) for e in rel]
-        p_max = params.pneumatics.p_max
-        muscle = MuscleModel.from_params(params)
-        worst = paper.LOADS_N[-1]
-        need_ramp = static_top_pressure(params, worst) / p_max
-        need_ff = muscle.equilibrium_pressure(STATIC_TOP_MM * MM, worst,
-                                              params.controller.po_feedforward) / p_max
-        res += [w.pressure_wall * max(0.0, need - w.pressure_share)
-                for need in (need_ramp, need_ff)]
-        return np.array(res)
-
-
-@dataclass(frozen=True)
-class DynamicStage:
-    """`fitting.ResidualModel` of the §4.2 findings (`wpam_mj.paper.residuals` of the
-    margins `reproduce` checks) and of step convergence (Fig. 14); 0 where they hold."""
-
-    dt: float = 1e-3
-
-    def _sweep(self, params: Params):
-        return sweep_batch(params, paper.LOADS_N, paper.SWEEP_FREQS_HZ,
-                           paper.SWEEP_CONTROLLERS, keep=(), dt=self.dt)
-
-    def tasks(self, params: Params) -> list:
-        return [*self._sweep(params).tasks,
-                *(StepTask(params, load, "pi", self.dt) for load in paper.LOADS_N)]
+        table2, _, sweep = self._assemble(params, results)
+        s = self.scores(params, results)
+        row = [paper.TABLE2["open_po"][f] for f in paper.LOADS_N]
+        steps = []
+        for c in s.step_error_mm:
+            steps += [w.step * max(0.0, e - w.step_error_mm) for e in s.step_error_mm[c]]
+            steps += [w.step * max(0.0, p - w.step_pp_mm) for p in s.step_pp_mm[c]]
+        po = s.po_plateau_mpa
+        groups = {
+            "table2": [w.table2 * math.log(v / p) for v, p in zip(s.table2_po_row, row)],
+            "steps": steps,
+            "feedback_row": w.feedback_row * paper.residuals(
+                paper.check_all(paper.TABLE2_FINDINGS[1:], table2, math.nan)),
+            "po_cap": w.po_cap * paper.residuals(
+                paper.check_all(paper.PO_CAP_FINDINGS, sweep, params.controller.po_cap)),
+            "po_rise": [max(0.0, a - b) / w.po_rise_mpa for a, b in zip(po, po[1:])],
+            "pressure": _pressure_walls(params)}
+        return {k: np.asarray(v, dtype=float) for k, v in groups.items()}
 
     def residuals(self, params: Params, results: list) -> np.ndarray:
-        sweep = self._sweep(params)
-        n = len(sweep.tasks)
-        findings = paper.residuals(paper.check_all(paper.SWEEP_FINDINGS,
-                                                   sweep.assemble(results[:n]),
-                                                   params.controller.po_cap))
-        w = WEIGHTS
-        step = [w.step_wall * max(0.0, s.worst_error() / MM - w.step_error_mm)
-                for s in results[n:]]
-        return np.concatenate([findings, step])
+        return np.concatenate(list(self.residual_groups(params, results).values()))
+
+
+def _pressure_walls(params: Params) -> list[float]:
+    """Walls if 150 N at the top step would need more than `pressure_share` of p_max."""
+    w, p_max, worst = WEIGHTS, params.pneumatics.p_max, paper.LOADS_N[-1]
+    need_ramp = static_top_pressure(params, worst) / p_max
+    need_ff = MuscleModel.from_params(params).equilibrium_pressure(
+        STATIC_TOP_MM * MM, worst, params.controller.po_feedforward) / p_max
+    return [w.pressure_wall * max(0.0, need - w.pressure_share)
+            for need in (need_ramp, need_ff)]
 
 
 # ---- search ----
+
 
 @dataclass(frozen=True)
 class CalibrationResult:
     params: Params
     fitted: dict[str, float]
-    static_residuals: np.ndarray
-    dynamic_residuals: np.ndarray
+    cost: float  # 1/2 |r|^2 at the fitted values
+    start_cost: float  # ... and at the start of the least-squares search
+    scores: Scores
+    evaluations: int
+    seconds: float
 
     def table(self) -> str:
         lines = ["fitted parameter                      value"]
         lines += [f"  {k:<34s} {v:.6g}" for k, v in self.fitted.items()]
-        lines.append("Table 2 'Po = 0.04' relative errors (50/100/150 N): "
-                     + ", ".join(f"{r:+.3f}" for r in self.static_residuals[:3]))
-        lines.append(f"dynamic hinge residual norm: {np.linalg.norm(self.dynamic_residuals):.4f}"
-                     f" ({np.count_nonzero(self.dynamic_residuals)} of "
-                     f"{self.dynamic_residuals.size} findings violated)")
+        lines.append(f"cost {self.cost:.4f} (least-squares start {self.start_cost:.4f}); "
+                     f"{self.evaluations} parameter sets in {self.seconds / 60:.1f} min")
+        lines.append(self.scores.text())
         return "\n".join(lines)
 
     def toml(self) -> str:
@@ -151,70 +210,91 @@ class CalibrationResult:
         return "\n".join(out)
 
 
-def checkpoint_path(out: Path) -> Path:
-    """Where `calibrate` keeps the parameters after each finished stage of a fit to `out`."""
-    return out.with_name(f".{out.name}.checkpoint.json")
+def journal_path(out: Path) -> Path:
+    """Where `calibrate` journals every evaluation of a fit to `out`."""
+    return out.with_name(f".{out.name}.journal.json")
 
 
-def _stage_checkpoint(path: Path, done: int, params: Params) -> None:
-    values = {n: fitting.FreeParameter.of(n).value(params) for n in (*STATIC_FIT, *DYNAMIC_FIT)}
-    write_text_atomic(path, json.dumps({"stages_done": done, "values": values}, indent=1))
+def random_starts(start: Params, samples: int, seed: int) -> list[Params]:
+    """`start` and `samples` parameter sets drawn uniformly over the plausible ranges of
+    FREE (log-uniform for conductances, as `fitting.FreeParameter` scales them), each with
+    a gain reading drawn from READINGS (seeded: the same seed, the same sets)."""
+    rng = np.random.default_rng(seed)
+    free = [fitting.FreeParameter.of(n) for n in FREE]
+    out = [start]
+    for _ in range(samples):
+        z = rng.uniform(size=len(free))
+        reading = float(rng.choice(READINGS))
+        values = {p.name: p.from_z(zi) for p, zi in zip(free, z)}
+        out.append(start.with_values({**values, "controller.command_scale": reading}))
+    return out
 
 
-def _resume(path: Path, params: Params) -> tuple[int, Params]:
-    try:
-        saved = json.loads(path.read_text())
-        done, values = int(saved["stages_done"]), dict(saved["values"])
-    except (OSError, ValueError, KeyError, TypeError):
-        raise ParameterError(f"--resume: no readable checkpoint {path}") from None
-    return done, params.with_values(values)
+def _best_start(model: PaperTargets, candidates: list[Params], ex: Executor | None,
+                journal: fitting.Journal, progress: bool) -> Params:
+    """The candidate of least cost (the first on ties: the given start)."""
+    costs = []
+    batch = 8 if ex is not None else 1
+    started = time.perf_counter()
+    for i in range(0, len(candidates), batch):
+        chunk = candidates[i:i + batch]
+        for r in fitting.evaluate(model, chunk, ex, journal=journal):
+            costs.append(math.inf if r is None else 0.5 * float(r @ r))
+        if progress:
+            done = len(costs)
+            left = (time.perf_counter() - started) / done * (len(candidates) - done)
+            print(f"[calibrate] random search {done}/{len(candidates)}: start cost "
+                  f"{costs[0]:.4f}, best sample {min(costs[1:], default=math.inf):.4f}, "
+                  f"{left / 60:.1f} min left", file=sys.stderr, flush=True)
+    best = int(np.argmin(costs))
+    if not math.isfinite(costs[best]):
+        raise ParameterError("the simulation fails at the start values and every sample")
+    return candidates[best]
 
 
-def calibrate(*, out: Path | None = CALIBRATION_FILE, jobs: int = 2, dt: float = 1e-3,
-              progress: bool = True, rounds: int = 2, max_nfev: int = 30,
-              start: Params | None = None, resume: bool = False) -> CalibrationResult:
-    """Alternate the static and dynamic stages `rounds` times, then refit the static stage
-    (the conductances shift the static loops a little); write the TOML to `out` (None: do
-    not write). Every stage shares one process pool of `jobs` workers.
+def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
+              progress: bool = True, start: Params | None = None, samples: int = 0,
+              seed: int = 7, max_nfev: int = 6, resume: bool = False) -> CalibrationResult:
+    """Fit FREE to `PaperTargets` (module docstring) and write the TOML to `out` (None: do
+    not write).
 
-    After each stage the parameters are kept in `checkpoint_path(out)`; an interrupted fit
-    loses the stage it was in, and `resume=True` continues after the last finished one
-    (the same result as an uninterrupted fit: each stage is deterministic from its start).
-    With progress, each stage prints its number, the time so far and an estimate of the
-    time left (the mean stage time so far times the stages left)."""
+    Args:
+      start: where the search starts (default: the shipped calibration).
+      samples: random samples of the plausible ranges scored before the least-squares
+        search, which starts from the best of them and `start` (0: from `start`).
+      seed: the random search's seed.
+      max_nfev: most least-squares steps (each also runs a Jacobian: len(FREE) + 1 sets).
+      resume: replay the journal of an interrupted fit to `out` (evaluations already run
+        are not run again).
+    """
+    check_range("samples", samples, *SAMPLES_RANGE, "")
+    check_range("max_nfev", max_nfev, *NFEV_RANGE, "")
+    check_range("seed", seed, 0, 2**32 - 1, "")
     params = start if start is not None else preset("wpam")
-    stages = [(StaticStage(dt), STATIC_FIT), (DynamicStage(dt), DYNAMIC_FIT)] * rounds
-    stages.append((StaticStage(dt), STATIC_FIT))
-    ckpt = None if out is None else checkpoint_path(Path(out))
-    done = 0
-    if resume:
-        if ckpt is None:
-            raise ParameterError("--resume needs an output file to resume")
-        done, params = _resume(ckpt, params)
+    journal_file = None if out is None else journal_path(Path(out))
+    if resume and (journal_file is None or not journal_file.exists()):
+        raise ParameterError(f"--resume: no journal {journal_file} of an interrupted fit")
+    journal = fitting.Journal(journal_file, keep=resume)
+    model = PaperTargets(dt)
     started = time.perf_counter()
     with ProcessPoolExecutor(jobs) if jobs > 1 else nullcontext() as ex:
-        for k, (stage, names) in enumerate(stages[done:], start=done):
-            if progress:
-                ran = k - done
-                spent = time.perf_counter() - started
-                left = f"{spent / ran * (len(stages) - k) / 60:.1f} min left" if ran else \
-                    "time left after the first stage"
-                print(f"[calibrate] stage {k + 1}/{len(stages)} "
-                      f"({type(stage).__name__[:-5].lower()}), {spent / 60:.1f} min so far, "
-                      f"{left}", file=sys.stderr, flush=True)
-            free = [fitting.FreeParameter.of(n) for n in names]
-            params = fitting.fit(stage, params, free, executor=ex, max_nfev=max_nfev,
-                                 progress=progress).params
-            if ckpt is not None:
-                _stage_checkpoint(ckpt, k + 1, params)
-        s_res, d_res = fitting.evaluate(StaticStage(dt), [params], ex)[0], \
-            fitting.evaluate(DynamicStage(dt), [params], ex)[0]
-    if s_res is None or d_res is None:
-        raise ParameterError("the simulation fails at the calibrated parameters")
-    fitted = {n: fitting.FreeParameter.of(n).value(params)
-              for n in (*STATIC_FIT, *DYNAMIC_FIT)}
-    result = CalibrationResult(params, fitted, s_res, d_res)
+        if samples:
+            params = _best_start(model, random_starts(params, samples, seed), ex, journal,
+                                 progress)
+        free = [fitting.FreeParameter.of(n) for n in FREE]
+        fit = fitting.fit(model, params, free, executor=ex, max_nfev=max_nfev,
+                          diff_step=DIFF_STEP, progress=progress, journal=journal)
+        (first,) = fitting.evaluate(model, [params], ex, journal=journal)
+        tasks = model.tasks(fit.params)  # once more, for the figures behind the residuals
+        results = [t.run() for t in tasks] if ex is None else \
+            list(ex.map(fitting.run_task, tasks))
+    fitted = {n: fitting.FreeParameter.of(n).value(fit.params) for n in FREE}
+    fitted["controller.command_scale"] = fit.params.controller.command_scale
+    result = CalibrationResult(fit.params, fitted, cost=0.5 * float(fit.residuals @ fit.residuals),
+                               start_cost=0.5 * float(first @ first),
+                               scores=model.scores(fit.params, results),
+                               evaluations=journal.size, seconds=time.perf_counter() - started)
     if out is not None:
         write_text_atomic(out, result.toml())
-        ckpt.unlink(missing_ok=True)
+        journal.remove()
     return result

@@ -228,8 +228,15 @@ def build_parser() -> argparse.ArgumentParser:
                         "calibrated.toml in the current folder; the shipped values are "
                         "models/wpam/calibrated.toml in the package)")
     p.add_argument("--resume", action="store_true",
-                   help="continue an interrupted calibration to the same --out after its "
-                        "last finished stage")
+                   help="continue an interrupted calibration to the same --out: the "
+                        "evaluations it journaled are replayed, not run again")
+    p.add_argument("--samples", type=int, default=0, metavar="N",
+                   help="score N random parameter sets of the plausible ranges first and "
+                        "start from the best of them and the preset (default: 0)")
+    p.add_argument("--seed", type=int, default=7,
+                   help="seed of the random samples (default: 7)")
+    p.add_argument("--max-steps", type=int, default=6, metavar="N",
+                   help="most least-squares steps, each ~10 parameter sets (default: 6)")
 
     p = add("render", "simulate one run, then write an offscreen video of it", _cmd_render)
     p.add_argument("--load", type=float, default=100.0, metavar="N",
@@ -619,7 +626,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     out = _out_file(Path("calibrated.toml") if args.out is None else args.out)
     from wpam_mj.calibrate import calibrate  # noqa: PLC0415 (scipy.optimize: slow import)
     result = calibrate(out=out, jobs=run.jobs, dt=run.dt, progress=run.progress,
-                       start=run.params, resume=args.resume)
+                       start=run.params, samples=args.samples, seed=args.seed,
+                       max_nfev=args.max_steps, resume=args.resume)
     print(result.table())
     print(f"wrote {out} (use it with --config {out})")
     return 0

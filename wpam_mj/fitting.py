@@ -32,10 +32,14 @@ whatever the executor, so the same data give the same fit.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 import sys
+import time
 from concurrent.futures import Executor, ProcessPoolExecutor
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Callable, Protocol, Sequence
 
 import numpy as np
@@ -43,6 +47,7 @@ from scipy.optimize import least_squares
 
 from wpam_mj.loop_contract import SimulationDiverged
 from wpam_mj.params import Params, ParameterError, describe_with_ranges, plausible_range
+from wpam_mj.results import write_text_atomic
 
 DIFF_STEP = 1e-3  # forward-difference step in scaled coordinates (see the module doc)
 LOG_SPAN = 10.0  # hi / lo from which a positive parameter is searched in log scale
@@ -135,11 +140,60 @@ def run_task(task):
     return task.run()
 
 
-def evaluate(model: ResidualModel, trials: Sequence[Params],
-             executor: Executor | None = None) -> list[np.ndarray | None]:
+class Journal:
+    """Residual vectors by parameter set, kept in a JSON file (`path`; None: in memory)
+    after every evaluation. A deterministic search interrupted and run again with the
+    journal replays what it had done without running it, so it loses at most the
+    evaluation in progress. keep=False starts a new journal."""
+
+    def __init__(self, path: Path | None = None, keep: bool = False) -> None:
+        self.path = path
+        self.entries: dict[str, list[float] | None] = {}
+        if keep and path is not None and path.exists():
+            try:
+                self.entries = dict(json.loads(path.read_text()))
+            except (OSError, ValueError, TypeError):
+                raise ParameterError(f"{path}: not a readable journal") from None
+
+    @staticmethod
+    def key(params: Params) -> str:
+        return hashlib.sha256(repr(params).encode()).hexdigest()
+
+    def __contains__(self, params: Params) -> bool:
+        return self.key(params) in self.entries
+
+    def get(self, params: Params) -> np.ndarray | None:
+        r = self.entries[self.key(params)]
+        return None if r is None else np.array(r, dtype=float)
+
+    def record(self, done: dict[str, np.ndarray | None]) -> None:
+        if not done:
+            return
+        self.entries.update({k: None if r is None else [float(v) for v in r]
+                             for k, r in done.items()})
+        if self.path is not None:
+            write_text_atomic(self.path, json.dumps(self.entries))
+
+    @property
+    def size(self) -> int:
+        return len(self.entries)
+
+    def remove(self) -> None:
+        if self.path is not None:
+            self.path.unlink(missing_ok=True)
+
+
+def evaluate(model: ResidualModel, trials: Sequence[Params], executor: Executor | None = None,
+             journal: Journal | None = None) -> list[np.ndarray | None]:
     """Residual vectors of `model` at each parameter set (None where its simulation
     failed or its parameters are invalid). All tasks of all trials go to the executor
-    at once, longest first (None: run here, one after the other)."""
+    at once, longest first (None: run here, one after the other). Sets found in the
+    `journal` are not run again; the others are recorded in it."""
+    if journal is not None:
+        todo = [p for p in trials if p not in journal]
+        journal.record({Journal.key(p): r for p, r in zip(todo, evaluate(model, todo,
+                                                                           executor))})
+        return [journal.get(p) for p in trials]
     groups: list[list | None] = []
     for p in trials:
         try:
@@ -236,12 +290,15 @@ class _Objective:
     """Residuals and their forward-difference Jacobian in scaled coordinates, with the
     perturbed evaluations of each Jacobian run together on the executor."""
 
-    def __init__(self, model, start, free, executor, diff_step, progress) -> None:
+    def __init__(self, model, start, free, executor, diff_step, progress, journal,
+                 max_nfev) -> None:
         self.model, self.start, self.free = model, start, free
         self.executor, self.diff_step, self.progress = executor, diff_step, progress
+        self.journal = journal
         self.cache: dict[bytes, np.ndarray] = {}
         self.size: int | None = None
         self.best = math.inf
+        self.nfev, self.max_nfev, self.started = 0, max_nfev, time.perf_counter()
 
     def params(self, z: np.ndarray) -> Params:
         return with_values(self.start, self.free, [p.from_z(zi) for p, zi in zip(self.free, z)])
@@ -251,7 +308,7 @@ class _Objective:
         the point it just evaluated, so the base point is never run twice)."""
         todo = [z for z in zs if z.tobytes() not in self.cache]
         for z, r in zip(todo, evaluate(self.model, [self.params(z) for z in todo],
-                                       self.executor)):
+                                       self.executor, self.journal)):
             if r is None:
                 if self.size is None:
                     raise ParameterError("the simulation fails at the start values; "
@@ -265,11 +322,18 @@ class _Objective:
     def fun(self, z: np.ndarray) -> np.ndarray:
         r = self._many([np.asarray(z, dtype=float)])[0]
         cost = 0.5 * float(r @ r)
+        self.nfev += 1
+        if self.progress:
+            spent = time.perf_counter() - self.started
+            left = spent / self.nfev * (self.max_nfev - self.nfev)
+            print(f"fit: step {self.nfev}/{self.max_nfev}: cost {cost:.6g}, "
+                  f"{spent / 60:.1f} min so far, at most {left / 60:.1f} min left",
+                  file=sys.stderr, flush=True)
         if self.progress and cost < self.best:
             self.best = cost
             shown = ", ".join(f"{p.name.split('.')[1]}={p.from_z(zi):.4g}"
                               for p, zi in zip(self.free, z))
-            print(f"fit: cost {cost:.6g}: {shown}", file=sys.stderr, flush=True)
+            print(f"fit: best so far: {shown}", file=sys.stderr, flush=True)
         return r
 
     def jac(self, z: np.ndarray) -> np.ndarray:
@@ -287,7 +351,8 @@ class _Objective:
 def fit(model: ResidualModel, start: Params, free: Sequence[FreeParameter], *,
         jobs: int = 1, executor: Executor | None = None, diff_step: float = DIFF_STEP,
         max_nfev: int = 60, xtol: float = 1e-4, ftol: float = 1e-6,
-        method: str = "dogbox", progress: bool = False) -> FitResult:
+        method: str = "dogbox", progress: bool = False,
+        journal: Journal | None = None) -> FitResult:
     """Fit the `free` parameters of `start` to `model`'s residuals (module docstring).
     A start value outside its bounds starts at the nearest bound.
 
@@ -299,6 +364,8 @@ def fit(model: ResidualModel, start: Params, free: Sequence[FreeParameter], *,
       max_nfev: most residual evaluations of the search (Jacobians not counted).
       xtol, ftol: scipy's termination tolerances (xtol on the scaled coordinates).
       method: scipy's bounded method, "dogbox" or "trf".
+      journal: keeps every evaluation (`Journal`): a fit interrupted and run again with
+        the same journal replays its steps instead of running them.
     """
     if not free:
         raise ParameterError("no free parameters to fit")
@@ -309,7 +376,7 @@ def fit(model: ResidualModel, start: Params, free: Sequence[FreeParameter], *,
     if executor is None and jobs > 1:
         executor = own = ProcessPoolExecutor(max_workers=jobs)
     try:
-        obj = _Objective(model, start, free, executor, diff_step, progress)
+        obj = _Objective(model, start, free, executor, diff_step, progress, journal, max_nfev)
         z0 = np.array([p.to_z(p.value(start)) for p in free])
         res = least_squares(obj.fun, z0, jac=obj.jac, bounds=(0.0, 1.0), method=method,
                             x_scale=1.0, max_nfev=max_nfev, xtol=xtol, ftol=ftol,
