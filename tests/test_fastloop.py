@@ -136,6 +136,24 @@ def test_env_var_disables_compiled_path():
     assert out == ["False", "True"]
 
 
+def test_missing_compiler_falls_back_to_python_with_one_notice(tmp_path):
+    """No compiler and no cached library: engine="auto" runs the Python loop and says
+    why, once per process; WPAM_MJ_NO_COMPILE=1 (the user's choice) stays quiet."""
+    code = ("import numpy as np; from wpam_mj import preset; "
+            "from wpam_mj.experiments import drive_for_targets; "
+            "from wpam_mj.simulate import simulate; p = preset('wpam'); "
+            "d = drive_for_targets(p, 100.0, np.full(50, 0.02), 'pi', 1e-3); "
+            "simulate(p, 100.0, d); simulate(p, 100.0, d)")
+    env = dict(os.environ, CC=str(tmp_path / "no-such-cc"), XDG_CACHE_HOME=str(tmp_path))
+    err = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                         text=True, check=True).stderr.strip().splitlines()
+    assert len(err) == 1 and "compiled loop is unavailable" in err[0] \
+        and "no-such-cc" in err[0] and "Python loop" in err[0]
+    env["WPAM_MJ_NO_COMPILE"] = "1"
+    assert subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                          text=True, check=True).stderr == ""
+
+
 def test_layout_checked_by_name():
     """The C library's constant and record names are compared with Python's when it
     loads: a constant missing on either side, or a reordered record row, is refused

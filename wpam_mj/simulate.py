@@ -116,7 +116,16 @@ def _check_commands(drive: Drive, params: Params, dt: float, *, feedback: bool) 
                                  f"outside the regulator range [0, {hi / MPA:g}] MPa")
 
 
-_noticed: set[str] = set()  # controllers whose Python fallback was announced
+_noticed: set[str] = set()  # Python fallbacks already announced (once per process)
+
+
+def _python_fallback(key: str, why: str):
+    """The Python loop, saying once per process why it runs instead of the compiled one."""
+    if key not in _noticed:
+        _noticed.add(key)
+        print(f"wpam_mj: {why}; running the Python loop (about 6x slower, same physics)",
+              file=sys.stderr)
+    return run_python
 
 
 def _select_engine(engine: str, control: str):
@@ -128,13 +137,12 @@ def _select_engine(engine: str, control: str):
     if engine != "auto":
         raise ParameterError(f"unknown engine {engine!r}; valid: auto, python, c")
     if not fastloop.available():
-        return run_python
+        if fastloop.disabled():  # the user asked for it (WPAM_MJ_NO_COMPILE=1)
+            return run_python
+        return _python_fallback("", f"the compiled loop is unavailable "
+                                    f"({fastloop.unavailable_reason()})")
     if control not in fastloop.compiled_controllers():
-        if control not in _noticed:
-            _noticed.add(control)
-            print(f"wpam_mj: controller {control!r} has no compiled loop; running the Python "
-                  "loop (slower, same physics)", file=sys.stderr)
-        return run_python
+        return _python_fallback(control, f"controller {control!r} has no compiled loop")
     return fastloop.run_compiled
 
 
