@@ -44,6 +44,7 @@
   X(CRITICAL_RATIO, critical_ratio)  /* ISO 6358 b [1] */                          \
   X(TUBE_VOLUME, tube_volume)        /* [m^3] */                                   \
   X(BAG_VOLUME, bag_volume)          /* outer bag volume [m^3] */                  \
+  X(START_AT_REST, start_at_rest)    /* 1: plant_rest at the first commands */     \
   /* wpam_mj.pneumatics module constants */                                        \
   X(RT0, rt0)                        /* R_AIR * T_0 [J/kg] */                      \
   X(RHO0, rho0)                      /* RHO_0 [kg/m^3] */                          \
@@ -215,6 +216,12 @@ typedef struct {
   int head, delay;
 } Regulator;
 
+static void regulator_rest(const double* k, Regulator* r, double command) {
+  int i;
+  for (i = 0; i < r->delay; i++) r->queue[i] = command;
+  r->set_point = py_min(py_max(command, 0.0), k[K_P_MAX]);
+}
+
 static double regulator_update(const double* k, Regulator* r, double command) {
   double clamped;
   if (r->delay) {
@@ -248,6 +255,13 @@ typedef struct {
   Regulator regulator_i, regulator_o;
   Chamber chamber_i, chamber_o;
 } Plant;
+
+static void plant_rest(const double* k, Plant* s, double pi_cmd, double po_cmd) {
+  regulator_rest(k, &s->regulator_i, pi_cmd);
+  regulator_rest(k, &s->regulator_o, po_cmd);
+  s->chamber_i.pressure = s->regulator_i.set_point + k[K_ATMOSPHERE];
+  s->chamber_o.pressure = s->regulator_o.set_point + k[K_ATMOSPHERE];
+}
 
 /* One step at contraction x [m], velocity v [m/s]: writes tension and friction [N].
    Returns 0, or FAIL_PRESSURE with the new state left in the plant. */
@@ -324,6 +338,11 @@ int wpam_run(mjModel* m, mjData* d, const double* consts, int n, const double* p
     xr = x_ref[step];
     po_c = controller == CTRL_OPEN ? po_cmd[step]
          : feedback_update(k, &pid, x, xr, controller == CTRL_PI_FF ? po_cmd[step] : 0.0);
+    if (step == 0 && k[K_START_AT_REST] != 0.0) { /* first commands held before the run */
+      plant_rest(k, &plant, pi_c, po_c);
+      pi_gauge = plant.chamber_i.pressure - k[K_ATMOSPHERE];
+      po_gauge = plant.chamber_o.pressure - k[K_ATMOSPHERE];
+    }
     if (plant_advance(k, &plant, x, v, pi_c, po_c, &tension, &friction)) {
       fail_info[0] = FAIL_PRESSURE;
       fail_info[1] = plant.chamber_i.pressure;

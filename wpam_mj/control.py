@@ -3,11 +3,12 @@
 
 Paper §3-4: Pi is set by the mechanical equilibrium model for the target x_r and load F
 (eqs. 5-6), Po by feedback on the position error. The feedforward is the equilibrium
-at a nominal Po (`Controller.po_feedforward`) on a branch between the frictionless one
-and the contracting one of eq. 5 (`Controller.feedforward_friction` = 0 .. 1): with
-friction counted, the muscle sits over-contracted (the paper's "excessive contraction
-state", §4.1) by an amount that grows with the load, so the Po the feedback settles at
-rises with the load (paper Fig. 15).
+at a nominal Po (`Controller.po_feedforward`) on a branch from the frictionless one (0)
+to the contracting one of eq. 5 (1) and a little beyond (`Controller.feedforward_friction`
+up to 1.2): beyond the branch the muscle would over-contract (the paper's "excessive
+contraction state", §4.1) by a share of the friction band, which grows with the load, so
+the Po that holds it back rises with the load (paper Fig. 15). docs/physics.md measures
+the readings.
 
 Gain units. The paper gives Kp = 0.1, Ki = 0.008, Kd = 0.004 without units. We keep its
 numbers, with the error in mm and time in s, and read the controller's output u in a
@@ -43,7 +44,8 @@ def pi_feedforward(muscle: MuscleModel, params: Params, x_ref: np.ndarray, load:
     """Pi command [Pa] that holds each x_ref [m] under `load` [N] at Po = `po` [Pa].
 
     The mechanical equilibrium model (paper eqs. 5-6) on the branch weighted by
-    `Controller.feedforward_friction` (0: frictionless; 1: contracting, eq. 5), clamped
+    `Controller.feedforward_friction` (0: frictionless; 1: contracting, eq. 5; above 1
+    beyond it), clamped
     to the regulator range.
     """
     pn = params.pneumatics

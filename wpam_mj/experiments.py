@@ -95,10 +95,14 @@ def drive_for_targets(params: Params, load: float, x_ref: np.ndarray, control: s
 
     Feedback runs assume Po = po_feedforward (with less Po the muscle over-contracts,
     paper §4.1) and start with the feedback holding that Po (`wpam_mj.control`); the
-    open-loop run assumes Po = 0, the only Po it has (paper Fig. 12).
+    open-loop run assumes Po = 0, the only Po it has (paper Fig. 12). The rig starts at
+    rest at the first target: regulators and chambers already at the first commands, as
+    the feedback's bumpless start assumes. From vented chambers the small inner bag fills
+    faster than the outer bag's litre, and the muscle would start over-contracted by up to
+    2 mm at its stop, a start-up transient the plateau errors would then carry.
     """
     pi_cmd, po_cmd = CONTROLLERS[check_control(control)].feedforward(params, load, x_ref, dt)
-    return Drive(pi_cmd=pi_cmd, po_cmd=po_cmd, x_ref=x_ref)
+    return Drive(pi_cmd=pi_cmd, po_cmd=po_cmd, x_ref=x_ref, start_at_rest=True)
 
 
 def step_run(params: Params, load: float, control: str, *, levels_mm=STEP_LEVELS_MM,

@@ -47,9 +47,11 @@ class RunConstants:
     critical_ratio: float
     tube_volume: float
     bag_volume: float
+    start_at_rest: int = 0  # 1: regulators and chambers start settled at the first commands
 
     @classmethod
-    def make(cls, params: Params, dt: float, record_dt: float) -> "RunConstants":
+    def make(cls, params: Params, dt: float, record_dt: float, *,
+             start_at_rest: bool = False) -> "RunConstants":
         record_every = round(record_dt / dt)
         if record_every < 1 or abs(record_every * dt - record_dt) > 1e-9 * record_dt:
             raise ParameterError(f"record_dt = {record_dt} s must be a whole multiple of "
@@ -64,4 +66,5 @@ class RunConstants:
             critical_ratio=p.critical_ratio,
             tube_volume=p.tube_volume,
             bag_volume=pn.outer_bag_volume(params.braid.outer_bag_length,
-                                           params.braid.outer_bag_diameter))
+                                           params.braid.outer_bag_diameter),
+            start_at_rest=int(start_at_rest))

@@ -207,10 +207,13 @@ class Controller(_Validated):
                                "calibrated protocol reading (the paper does not state it): "
                                "the Po the Pi feedforward assumes, between the regulator "
                                "minimum and below the cap", plausible=(0.005 * MPA, 0.06 * MPA))
-    feedforward_friction: float = _p(0.0, "1", 0.0, 1.0,
+    feedforward_friction: float = _p(0.0, "1", 0.0, 1.2,
                                      "calibrated protocol reading of §4.1: the share of the "
                                      "friction band the Pi feedforward adds (0 frictionless, "
-                                     "1 the contracting branch of eq. 5)", plausible=(0.0, 1.0))
+                                     "1 the contracting branch of eq. 5; above 1 a little "
+                                     "beyond it, the 'excessive contraction state' that Po "
+                                     "holds back; at most the few per cent to which the "
+                                     "friction is known)", plausible=(0.0, 1.05))
 
 
 @dataclass(frozen=True)

@@ -39,6 +39,16 @@ class Plant:
         """Regulator set pressures (Pi, Po) [Pa gauge]: what the regulators' gauges read."""
         return self.regulator_i.set_point, self.regulator_o.set_point
 
+    def rest(self, pi_cmd: float, po_cmd: float) -> None:
+        """Start at rest at the first commands [Pa gauge]: regulators settled on them and
+        chambers filled to their set points, as on a rig whose regulators have been holding
+        these pressures before the record starts (`wpam_mj.simulate`)."""
+        pa = self.k.atmosphere
+        self.regulator_i.rest(pi_cmd)
+        self.regulator_o.rest(po_cmd)
+        self.chamber_i.pressure = self.regulator_i.set_point + pa
+        self.chamber_o.pressure = self.regulator_o.set_point + pa
+
     def advance(self, x: float, v: float, pi_cmd: float, po_cmd: float) -> tuple[float, float]:
         """One step at contraction x [m], velocity v [m/s]; returns (tension, friction) [N].
 

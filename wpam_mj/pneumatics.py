@@ -127,6 +127,12 @@ class Regulator:
         self._queue = [0.0] * delay_steps
         self._head = 0
 
+    def rest(self, command: float) -> None:
+        """Settle at a held `command` [Pa]: every command in flight and the set point equal
+        to it (the regulator has been holding it since before the run)."""
+        self._queue = [command] * len(self._queue)
+        self.set_point = min(max(command, 0.0), self.p_max)
+
     def update(self, command: float) -> float:
         """Take this step's command [Pa]; return the new set point [Pa]."""
         if self._queue:

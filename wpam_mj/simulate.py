@@ -38,12 +38,15 @@ class Drive:
     pi_cmd: Pi command [Pa], shape (n,).
     po_cmd: Po command [Pa], shape (n,), used in open loop; ignored under feedback.
     x_ref: target contraction [m], shape (n,); NaN where there is none (open loop).
+    start_at_rest: True when the rig has been holding the first commands before the run
+      (regulators settled, chambers at their pressures); False: chambers vented at t = 0.
     """
 
     pi_cmd: np.ndarray
     po_cmd: np.ndarray
     x_ref: np.ndarray
     extra: dict = field(default_factory=dict)
+    start_at_rest: bool = False
 
     def __post_init__(self) -> None:
         n = len(self.pi_cmd)
@@ -79,7 +82,7 @@ def simulate(params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
         one-line notice on stderr when only the controller is missing).
     """
     load, dt = check_load(load), check_dt(dt)
-    k = RunConstants.make(params, dt, record_dt)
+    k = RunConstants.make(params, dt, record_dt, start_at_rest=drive.start_at_rest)
     controller = make_controller(control, params, dt)
     _check_commands(drive, params, dt, feedback=controller.feedback)
     if controller.feedback and not np.all(np.isfinite(drive.x_ref)):
@@ -162,6 +165,9 @@ def run_python(model, data, muscle: MuscleModel, controller: PoController, k: Ru
         pi_c = float(drive.pi_cmd[step])
         xr = float(drive.x_ref[step])
         po_c = controller.update(x, xr, float(drive.po_cmd[step]))
+        if step == 0 and k.start_at_rest:  # the first commands were held before the run
+            plant.rest(pi_c, po_c)
+            pi_gauge, po_gauge = plant.pressures
         try:
             tension, friction = plant.actuate(model, data, idx, x, v, pi_c, po_c)
         except SimulationDiverged as err:
