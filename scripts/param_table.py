@@ -27,12 +27,27 @@ def _num(value: float, unit: str) -> str:
     return f"{value:.4g}"
 
 
+AT_BOUND = 0.01  # within this share of its range of a bound: "at the bound"
+
+
+def at_bound(value: float, plausible: tuple[float, float] | None) -> str | None:
+    """"lower" or "upper" when `value` sits at that end of its plausible range."""
+    if plausible is None:
+        return None
+    lo, hi = plausible
+    if value <= lo + AT_BOUND * (hi - lo):
+        return "lower"
+    return "upper" if value >= hi - AT_BOUND * (hi - lo) else None
+
+
 def table() -> str:
     rows = ["| parameter | value | unit | plausible range | source |", "|---|---|---|---|---|"]
     for name, value, unit, plausible, source in describe_with_ranges(preset("wpam")):
         rng = "" if plausible is None else \
             f"{_num(plausible[0], unit)} – {_num(plausible[1], unit)}"
-        rows.append(f"| `{name}` | {_num(value, unit)} | {unit} | {rng} | {source} |")
+        end = at_bound(value, plausible)
+        mark = f" **(at the {end} bound)**" if end else ""
+        rows.append(f"| `{name}` | {_num(value, unit)}{mark} | {unit} | {rng} | {source} |")
     return "\n".join(rows)
 
 

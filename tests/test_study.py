@@ -21,7 +21,7 @@ from wpam_mj.studies import StepTask
 SMALL = {
     "experiment": "step",
     "batch_size": 2,
-    "fixed": {"duration": 2.2},
+    "fixed": {"duration": 22.0},
     "vary": {"method": "random", "n": 6, "seed": 7,
              "ranges": {"load": [50.0, 150.0], "muscle": {"damping": [300.0, 900.0]}},
              "values": {"controller": ["pi", "open"]}},
@@ -94,6 +94,7 @@ def test_diverged_and_infeasible_runs_are_flagged_rows(tmp_path):
             "vary": {"method": "list", "values": {
                 "pneumatics.inner_conductance": [1e-6, 3.851e-9, 3.851e-9],
                 "pneumatics.tube_volume": [1e-7, 2e-5, 2e-5],
+                "controller.po_feedforward": [5e3, 2e4, 5e3],
                 "controller.po_cap": [8e4, 8e3, 8e4]}}}  # 8 kPa < po_feedforward
     rows = _run(tmp_path, "out", Workers(None, 1, "here"), spec).rows
     assert [(r["diverged"], r["infeasible"]) for r in rows] == \
@@ -114,7 +115,7 @@ def test_identical_tables_from_one_two_jobs_and_dask(tmp_path):
             open_workers(1, cluster.scheduler_address) as w:
         assert w.slots == 2
         _run(tmp_path, "dask2", w)
-    assert len(one.rows) == 6 and not any(r["diverged"] for r in one.rows)
+    assert len(one.rows) == 6 and not any(r["diverged"] or r["error"] for r in one.rows)
     # the controller matters: open-loop plateaus miss by more than PI ones
     err = {c: max(r["plateau_error_rms_mm"] for r in one.rows if r["controller"] == c)
            for c in ("pi", "open")}

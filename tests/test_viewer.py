@@ -26,9 +26,10 @@ GAINS = {"ki": 10 * paper.KI}
 PARAMS = wpam_mj.preset().replace(controller=GAINS)
 PACKAGE_ROOT = str(Path(wpam_mj.__file__).resolve().parents[1])
 X_TOOLS = ("Xvfb", "xwd", "convert")
-# N along +z: a pull down on the 100 N load, from 2 to 3 s, as large as the load: the
-# muscle's dry friction (19.5 N + mu dP S, ~50 N here) holds a 50 N pull without moving
-PULL = -100.0
+# N along +z: a pull down on the 100 N load, from 2 to 3 s, twice the load: the muscle's
+# dry friction (30 N + mu dP S, ~60 N here) and the Po the integral gathers hold a 150 N
+# pull within 0.4 mm
+PULL = -200.0
 
 
 def pull(t: float) -> float:
@@ -172,8 +173,8 @@ def xvfb():
 
 # Runs in its own process: MUJOCO_GL must be chosen before mujoco is imported. The scripted
 # PULL from 2 to 3 s (`perturb`), then from 5 to 6 s a drag through the viewer's own
-# perturbation struct (what Ctrl + right drag fills in) towards a point 100 mm below the
-# load: MuJoCo's spring on the selected body then pulls with about the load's weight.
+# perturbation struct (what Ctrl + right drag fills in) towards a point 200 mm below the
+# load: MuJoCo's spring on the selected body then pulls with about twice the load's weight.
 VIEWER_SCRIPT = textwrap.dedent("""
     import json, subprocess, sys
     import mujoco
@@ -195,7 +196,7 @@ VIEWER_SCRIPT = textwrap.dedent("""
         if 5.0 <= t < 6.0 and not pert.active:
             pert.select, pert.localpos[:] = load, 0.0
             pert.localmass = handle.m.body_subtreemass[load]
-            pert.refselpos[:] = handle.d.xpos[load] - [0.0, 0.0, 0.10]
+            pert.refselpos[:] = handle.d.xpos[load] - [0.0, 0.0, 0.20]
             pert.active = int(mujoco.mjtPertBit.mjPERT_TRANSLATE)
         elif t >= 6.0:
             pert.active = 0

@@ -101,8 +101,7 @@ class FreeParameter:
         return self.hi - self.lo
 
     def value(self, params: Params) -> float:
-        section, key = self.name.split(".")
-        return float(getattr(getattr(params, section), key))
+        return float(params.value(self.name))
 
 
 def _check_name(name: str) -> None:

@@ -293,8 +293,6 @@ SWEEP_FINDINGS = (
             f"{FIG18_LOAD_N:g} N"),
 )
 
-# the two about Po's cap (Figs. 18-19), which `wpam_mj.calibrate` fits
-PO_CAP_FINDINGS = SWEEP_FINDINGS[-2:]
 
 # ---- Table 2 (on a `wpam_mj.study_results.Table2Result`)
 

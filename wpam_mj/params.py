@@ -204,9 +204,10 @@ class Controller(_Validated):
     derivative_filter: float = _p(0.02, "s", 0.0, 10.0, "our choice (first-order D filter)")
     po_cap: float = _p(paper.PO_CAP_MPA * MPA, "Pa", 0.0, 1.0 * MPA, "paper §4.2 (bag durability)")
     po_feedforward: float = _p(0.04 * MPA, "Pa", 0.0, 1.0 * MPA,
-                               "calibrated protocol reading (the paper does not state it): "
-                               "the Po the Pi feedforward assumes, between the regulator "
-                               "minimum and below the cap", plausible=(0.005 * MPA, 0.06 * MPA))
+                               "protocol reading (the paper does not state it): the Po the "
+                               "Pi feedforward assumes; the W-PAM calibration reads it as the "
+                               "regulator's minimum p_min, so that Pi sits on eq. 5's "
+                               "contracting branch at the least Po (docs/physics.md)")
     feedforward_friction: float = _p(0.0, "1", 0.0, 1.2,
                                      "calibrated protocol reading of §4.1: the share of the "
                                      "friction band the Pi feedforward adds (0 frictionless, "
@@ -252,6 +253,11 @@ class Params:
     def replace(self, **sections: Mapping[str, float]) -> "Params":
         """Copy with some fields changed: ``p.replace(muscle={"friction_coeff": 0})``."""
         return apply_overrides(self, sections)
+
+    def value(self, name: str) -> Any:
+        """The field named "section.field": ``p.value("muscle.damping")``."""
+        section, _, key = name.partition(".")
+        return getattr(getattr(self, section), key)
 
     def with_values(self, values: Mapping[str, Any]) -> "Params":
         """Copy with fields named "section.field" changed: ``{"muscle.damping": 30.0}``."""
