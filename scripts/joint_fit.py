@@ -6,13 +6,15 @@ category, and one cost adds (docs/physics.md): the squared log errors of Table 2
 "Po = 0.04" row; the PI step runs' settled plateau error beyond 0.45 mm and peak-to-peak
 beyond 0.18 mm (last 5 s of each plateau); the feedback row above 0.018, out of order or
 with 150 N below 3x 100 N; Po missing its cap at 150 N 0.5 Hz, reaching 0.068 MPa at 50 N
-0.1 Hz, or a plateau-mean Po falling with load. `wpam calibrate` fits in stages instead
-and does not see the step runs while it fits the static parameters.
+0.1 Hz, or a plateau-mean Po falling with load.
 
     python scripts/joint_fit.py [--seed 7] [--samples 150] [--nm-from 2] [--nm-evals 160]
 
-The shipped values came from this method with these defaults (about 40 minutes on two
-cores); it prints the best cost and writes calibrated-joint.toml in the current folder.
+With these defaults (about 40 minutes on the shared two cores) it wrote the values in
+docs/calibration_start.toml, where the shipped calibration starts (with the
+contracting-branch feedforward reading; docs/physics.md, Calibration). It prints the best
+cost and writes calibrated-joint.toml in the current folder. Its cost predates
+`wpam_mj.calibrate.PaperTargets`, which adds the PID steps and the whole sweep.
 """
 
 from __future__ import annotations
