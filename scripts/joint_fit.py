@@ -12,7 +12,9 @@ with 150 N below 3x 100 N; Po missing its cap at 150 N 0.5 Hz, reaching 0.068 MP
 
 With these defaults (about 40 minutes on the shared two cores) it wrote the values in
 docs/calibration_start.toml, where the shipped calibration starts (with the
-contracting-branch feedforward reading; docs/physics.md, Calibration). It prints the best
+contracting-branch feedforward reading; docs/physics.md, Calibration), before the step
+and sine runs started at rest: rerun today it searches a slightly different cost and need
+not land on those values. It prints the best
 cost and writes calibrated-joint.toml in the current folder. Its cost predates
 `wpam_mj.calibrate.PaperTargets`, which adds the PID steps and the whole sweep.
 """
