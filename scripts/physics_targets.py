@@ -8,7 +8,7 @@ plausible readings of the paper's unitless gains (`Controller.command_scale`).
 
     python scripts/physics_targets.py [--out DIR] [--jobs N] [--quick]
 
-Takes about 4 minutes on two cores (--quick: the readings table and dt check skipped).
+Takes about 20 s on two quiet cores (--quick: the readings table and dt check skipped).
 """
 
 from __future__ import annotations
