@@ -2,10 +2,12 @@
 
 Replay. Each experiment (`wpam_mj.measurements.Experiment`) runs through
 `wpam_mj.simulate.simulate` on a grid of step dt from PREROLL_S before its first sample
-to its last. The simulated muscle starts at rest with vented chambers; during the
-pre-roll the regulators are commanded to the pressures measured at the first sample, so
-the replay starts from the rig's first state (chambers vented or filled), not from a
-fill transient the rig did not record. From the first sample on, what drives it:
+to its last. The simulated rig starts at rest at the pressures measured at the first
+sample (regulators settled on them, chambers filled to them: `Drive.start_at_rest`) and
+holds them through the pre-roll, so the replay starts from the rig's first state, not
+from a fill transient the rig did not record (filling from vented chambers overshoots dP
+and leaves the muscle 1-2 mm off where the friction catches it). From the first sample
+on, what drives it:
 
   * both commands recorded (pi_cmd_mpa, po_cmd_mpa): the commands, through the modelled
     regulators (dead time, lag, line restriction); this identifies the regulator and
@@ -66,7 +68,8 @@ def replay_inputs(params: Params, exp: Experiment, dt: float) -> tuple[Params, D
     pi_cmd, po_cmd = np.clip(pi, 0.0, p_max), np.clip(po, 0.0, p_max)
     if not params.outer_chamber:
         po_cmd = np.zeros(n)  # the bare RLAM: nothing for Po to fill
-    return params, Drive(pi_cmd=pi_cmd, po_cmd=po_cmd, x_ref=np.full(n, np.nan)), grid
+    return params, Drive(pi_cmd=pi_cmd, po_cmd=po_cmd, x_ref=np.full(n, np.nan),
+                         start_at_rest=True), grid
 
 
 def replay(params: Params, exp: Experiment, dt: float = 1e-3, *,
