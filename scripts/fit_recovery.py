@@ -1,6 +1,6 @@
 """Recovery check of `wpam fit` (issue 13's target): synthesise measurements from
-parameters 20-40 % away from the shipped ones, fit them back from the shipped values,
-and compare.
+plant parameters 20-40 % away from the shipped ones (halfway to the farther bound where
+the plausible range is narrower), fit them back from the shipped values, and compare.
 
 Data: static ramps (Po = 0.04 MPa while Pi falls) and a PI staircase at 50/100/150 N,
 fitted; a PI sine run per load, held out. Noise 0.05 mm on x and 1 kPa on the gauges.
@@ -40,8 +40,9 @@ def true_values(shipped, free: tuple[fitting.FreeParameter, ...]) -> dict[str, f
             if p.lo <= v0 * (1.0 + rel) <= p.hi:
                 out[p.name] = v0 * (1.0 + rel)
                 break
-        else:
-            raise SystemExit(f"{p.name} = {v0:g}: no value 20-40 % away inside its range")
+        else:  # a narrow range (the braid angle's 18-25 deg): halfway to the farther bound
+            far = p.lo if v0 - p.lo >= p.hi - v0 else p.hi
+            out[p.name] = 0.5 * (v0 + far)
     return out
 
 
@@ -59,7 +60,10 @@ def main() -> int:
     args = ap.parse_args()
 
     shipped = preset("wpam")
-    free = tuple(fitting.FreeParameter.of(n) for n in fitting.default_free())
+    # The controller's readings (feedforward_friction) shape the synthetic runs but not
+    # their open-loop replay, so the data cannot show them: only the plant is recovered.
+    free = tuple(fitting.FreeParameter.of(n) for n in fitting.default_free()
+                 if not n.startswith("controller."))
     truth = true_values(shipped, free)
     hidden = fitting.with_values(shipped, free, [truth[p.name] for p in free])
     folder = args.keep or Path(tempfile.mkdtemp(prefix="wpam_recovery_"))
