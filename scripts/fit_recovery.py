@@ -60,10 +60,7 @@ def main() -> int:
     args = ap.parse_args()
 
     shipped = preset("wpam")
-    # The controller's readings (feedforward_friction) shape the synthetic runs but not
-    # their open-loop replay, so the data cannot show them: only the plant is recovered.
-    free = tuple(fitting.FreeParameter.of(n) for n in fitting.default_free()
-                 if not n.startswith("controller."))
+    free = tuple(fitting.FreeParameter.of(n) for n in fitting.default_free())
     truth = true_values(shipped, free)
     hidden = fitting.with_values(shipped, free, [truth[p.name] for p in free])
     folder = args.keep or Path(tempfile.mkdtemp(prefix="wpam_recovery_"))

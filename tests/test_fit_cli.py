@@ -35,8 +35,8 @@ def test_fit_writes_config_figures_and_ranges(synthetic, tmp_path, capsys):
     out = tmp_path / "fit" / "params.toml"
     ranges = tmp_path / "ranges.toml"
     lines = (synthetic / "static_50N.csv").read_text().splitlines()
-    rising = tmp_path / "static_50N.csv"  # the first 20 s: a shorter test
-    rising.write_text("\n".join(lines[:2 + 4000]) + "\n")
+    rising = tmp_path / "static_50N.csv"  # the first 40 s (the load lifts off at ~33 s)
+    rising.write_text("\n".join(lines[:2 + 8000]) + "\n")
     code, stdout, err = _run(capsys, "fit", "--data", rising,
                              "--holdout", synthetic / "holdout", "--free",
                              "muscle.friction_coeff", "--max-evals", "3", "--jobs", "1",

@@ -25,12 +25,12 @@ def test_scaling_is_log_for_wide_positive_ranges_and_round_trips():
                                                rel=1e-5)
 
 
-def test_default_free_set_is_the_plausible_ranges_minus_the_measured():
+def test_default_free_set_is_the_plausible_ranges_minus_the_measured_and_the_controller():
     ranged = {n for n, _, _, r, _ in describe_with_ranges(preset()) if r is not None}
     free = set(fitting.default_free())
     assert free < ranged
     assert ranged - free == {"muscle.damping", "pneumatics.time_constant",
-                             "pneumatics.dead_time"}
+                             "pneumatics.dead_time", "controller.feedforward_friction"}
 
 
 def test_unknown_names_and_bad_bounds_are_refused():

@@ -1,13 +1,13 @@
 """Fit the simulator to measured experiments (`wpam fit`): replay, residuals, report.
 
 Replay. Each experiment (`wpam_mj.measurements.Experiment`) runs through
-`wpam_mj.simulate.simulate` on a grid of step dt from PREROLL_S before its first sample
-to its last. The simulated rig starts at rest at the pressures measured at the first
-sample (regulators settled on them, chambers filled to them: `Drive.start_at_rest`) and
-holds them through the pre-roll, so the replay starts from the rig's first state, not
-from a fill transient the rig did not record (filling from vented chambers overshoots dP
-and leaves the muscle 1-2 mm off where the friction catches it). From the first sample
-on, what drives it:
+`wpam_mj.simulate.simulate` on a grid of step dt from its first sample to its last. The
+simulated rig starts at rest at its first inputs below (regulators settled on them,
+chambers filled to them: `Drive.start_at_rest`), the state the rig was in when its log
+began. (Filling vented chambers first would overshoot dP and leave the muscle
+1-2 mm off where the friction catches it; holding the first pressures for a while would
+let a muscle that the feedback was holding back creep off.) From the first sample on, what
+drives it:
 
   * both commands recorded (pi_cmd_mpa, po_cmd_mpa): the commands, through the modelled
     regulators (dead time, lag, line restriction); this identifies the regulator and
@@ -43,7 +43,6 @@ from wpam_mj.model import DT_RANGE_S, check_dt
 from wpam_mj.params import MM, Params, ParameterError
 from wpam_mj.simulate import Drive, simulate
 
-PREROLL_S = 2.0  # s of the first commands held before the first sample
 # The rough first pass of `fit_data` replays at this multiple of dt (a 2 ms replay of
 # 1 ms synthetic data biases the 7 default parameters by < 0.15 %). Both passes stop
 # when an iteration lowers the cost by less than RELATIVE_COST_TOL of itself.
@@ -53,18 +52,15 @@ RELATIVE_COST_TOL = 0.01
 
 def replay_inputs(params: Params, exp: Experiment, dt: float) -> tuple[Params, Drive, np.ndarray]:
     """(params to simulate with, the drive, its time grid [s]) for `exp` (module doc)."""
-    t0 = exp.time[0] - PREROLL_S
-    n = int(np.floor((exp.time[-1] - t0) / dt + 1e-9)) + 1
-    grid = t0 + np.arange(n) * dt
+    n = int(np.floor((exp.time[-1] - exp.time[0]) / dt + 1e-9)) + 1
+    grid = exp.time[0] + np.arange(n) * dt
     p_max = params.pneumatics.p_max
     if exp.has_commands:
         pi, po = exp.pi_cmd, exp.po_cmd
     else:
         pi, po = exp.pi, exp.po
         params = params.replace(pneumatics={"time_constant": 0.0, "dead_time": 0.0})
-    before = grid < exp.time[0]  # the pre-roll: hold the pressures of the first sample
-    pi = np.where(before, exp.pi[0], np.interp(grid, exp.time, pi))
-    po = np.where(before, exp.po[0], np.interp(grid, exp.time, po))
+    pi, po = np.interp(grid, exp.time, pi), np.interp(grid, exp.time, po)
     pi_cmd, po_cmd = np.clip(pi, 0.0, p_max), np.clip(po, 0.0, p_max)
     if not params.outer_chamber:
         po_cmd = np.zeros(n)  # the bare RLAM: nothing for Po to fill
@@ -91,7 +87,7 @@ class ReplayTask:
 
     @property
     def cost(self) -> float:
-        return (self.experiment.duration + PREROLL_S) / self.dt
+        return self.experiment.duration / self.dt
 
     def run(self) -> np.ndarray:
         return replay(self.params, self.experiment, self.dt)

@@ -112,12 +112,14 @@ def _check_name(name: str) -> None:
 
 
 def default_free() -> tuple[str, ...]:
-    """The parameters with a plausible range that are not measured directly: those the
-    paper does not give (damping and the regulators' lag and dead time are measurable on
-    a rig, so they stay fixed unless freed)."""
+    """The plant parameters with a plausible range that are not measured directly: those
+    the paper does not give (damping and the regulators' lag and dead time are measurable
+    on a rig, so they stay fixed unless freed). The controller's readings are left out: a
+    replay drives the muscle with the recorded commands, so it cannot see them."""
     measured = {"muscle.damping", "pneumatics.time_constant", "pneumatics.dead_time"}
     return tuple(name for name, _, _, plausible, _ in describe_with_ranges(Params())
-                 if plausible is not None and name not in measured)
+                 if plausible is not None and name not in measured
+                 and not name.startswith("controller."))
 
 
 def with_values(params: Params, free: Sequence[FreeParameter],
