@@ -100,3 +100,61 @@ def test_written_toml_reproduces_the_fitted_parameters(tmp_path, shipped):
     path.write_text(result.toml())
     assert apply_overrides(preset("wpam"), load_toml(path)) == params
     assert "Table 2 'Po = 0.04' row" in result.table()
+
+
+class _Values:
+    """A cheap stand-in for the simulator runs: the free values themselves."""
+
+    def __init__(self, params):
+        self.values = [params.value(n) for n in FREE]
+
+    def run(self):
+        return self.values
+
+
+class _Quadratic:
+    """A stand-in for PaperTargets whose optimum is known: each free parameter's scaled
+    distance from a target point; counts the parameter sets it is asked to run."""
+
+    runs = 0
+    stop_after: int | None = None
+
+    def __init__(self, dt):
+        self.target = [fitting.FreeParameter.of(n).from_z(0.3) for n in FREE]
+
+    def tasks(self, params):
+        type(self).runs += 1
+        if self.stop_after is not None and type(self).runs > self.stop_after:
+            raise KeyboardInterrupt  # Ctrl-C in the middle of the fit
+        return [_Values(params)]
+
+    def residuals(self, params, results):
+        free = [fitting.FreeParameter.of(n) for n in FREE]
+        return np.array([(v - t) / (p.hi - p.lo)
+                         for p, v, t in zip(free, results[0], self.target)])
+
+    def scores(self, params, results):
+        return "scores"
+
+
+def test_an_interrupted_calibration_resumes_from_its_journal(tmp_path, monkeypatch):
+    """Ctrl-C mid-fit keeps the journal; --resume replays it without running those sets
+    again and ends exactly where an uninterrupted calibration does."""
+    import wpam_mj.calibrate as cal
+
+    monkeypatch.setattr(cal, "PaperTargets", _Quadratic)
+    out = tmp_path / "fit.toml"
+    _Quadratic.runs, _Quadratic.stop_after = 0, 15
+    with pytest.raises(KeyboardInterrupt):
+        cal.calibrate(out=out, jobs=1, progress=False, max_nfev=4)
+    assert cal.journal_path(out).exists() and not out.exists()
+    journaled = fitting.Journal(cal.journal_path(out), keep=True).size
+    _Quadratic.runs, _Quadratic.stop_after = 0, None
+    resumed = cal.calibrate(out=out, jobs=1, progress=False, max_nfev=4, resume=True)
+    rerun = _Quadratic.runs
+    assert not cal.journal_path(out).exists()  # removed once the fit is written
+    _Quadratic.runs = 0
+    whole = cal.calibrate(out=tmp_path / "whole.toml", jobs=1, progress=False, max_nfev=4)
+    assert resumed.fitted == whole.fitted
+    assert out.read_text() == (tmp_path / "whole.toml").read_text()
+    assert rerun == _Quadratic.runs - journaled  # the journaled sets were not run again
