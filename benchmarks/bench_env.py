@@ -77,19 +77,20 @@ def time_dm_control(params, n: int) -> float:
     env = make_env(params, target=TARGET, load=LOAD, time_limit=n * SUBSTEPS * DT,
                    control_timestep=SUBSTEPS * DT, dt=DT, flat_observation=True)
     env.reset()
-    action = np.array([PO])
-    start = time.perf_counter()
-    for _ in range(n):
-        env.step(action)
-    return time.perf_counter() - start
+    return _time_steps(env.step, n)
 
 
 def _time_gym(env, n: int) -> float:
     env.reset(seed=0)
+    return _time_steps(env.step, n)
+
+
+def _time_steps(step, n: int) -> float:
+    """Wall time [s] of n calls of `step` with the constant Po action."""
     action = np.array([PO])
     start = time.perf_counter()
     for _ in range(n):
-        env.step(action)
+        step(action)
     return time.perf_counter() - start
 
 

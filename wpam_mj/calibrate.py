@@ -90,7 +90,12 @@ class Scores:
     step_pp_mm: dict[str, tuple[float, ...]]
     po_plateau_mpa: tuple[float, ...]  # PI staircase, mean over plateaus, per load
     po_max_mpa: dict[tuple[float, float], float]  # (load, freq) -> PI sine's Po max
-    sweep_failed: tuple[str, ...]  # the §4.2 findings that do not hold
+    sweep_checks: tuple[paper.Check, ...]  # the §4.2 findings checked on the sweep
+
+    @property
+    def sweep_failed(self) -> tuple[str, ...]:
+        """The §4.2 findings that do not hold."""
+        return tuple(c.finding for c in self.sweep_checks if c.passed is False)
 
     def text(self) -> str:
         row = [paper.TABLE2["open_po"][f] for f in paper.LOADS_N]
@@ -135,7 +140,10 @@ class PaperTargets:
         return table2, steps, sw.assemble(results[n + k:])
 
     def scores(self, params: Params, results: list) -> Scores:
-        table2, steps, sweep = self._assemble(params, results)
+        return self._scores(params, *self._assemble(params, results))
+
+    @staticmethod
+    def _scores(params: Params, table2, steps, sweep) -> Scores:
         loads = paper.LOADS_N
         return Scores(
             table2_po_row=tuple(table2.open_po[f] for f in loads),
@@ -147,30 +155,26 @@ class PaperTargets:
             po_plateau_mpa=tuple(float(np.mean(r.po_mean)) / MPA for r in steps["pi"]),
             po_max_mpa={(p.load, p.freq): p.po_max / MPA for p in sweep.points
                         if p.controller == "pi"},
-            sweep_failed=tuple(c.finding for c in self._sweep_checks(params, sweep)
-                               if c.passed is False))
-
-    @staticmethod
-    def _sweep_checks(params: Params, sweep):
-        return paper.check_all(paper.SWEEP_FINDINGS, sweep, params.controller.po_cap)
+            sweep_checks=tuple(paper.check_all(paper.SWEEP_FINDINGS, sweep,
+                                               params.controller.po_cap)))
 
     def residual_groups(self, params: Params, results: list) -> dict[str, np.ndarray]:
         """The residuals by target, in the order `residuals` concatenates them."""
         w = WEIGHTS
-        table2, _, sweep = self._assemble(params, results)
-        s = self.scores(params, results)
+        table2, steps, sweep = self._assemble(params, results)
+        s = self._scores(params, table2, steps, sweep)
         row = [paper.TABLE2["open_po"][f] for f in paper.LOADS_N]
-        steps = []
+        beyond = []
         for c in s.step_error_mm:
-            steps += [w.step * max(0.0, e - w.step_error_mm) for e in s.step_error_mm[c]]
-            steps += [w.step * max(0.0, p - w.step_pp_mm) for p in s.step_pp_mm[c]]
+            beyond += [w.step * max(0.0, e - w.step_error_mm) for e in s.step_error_mm[c]]
+            beyond += [w.step * max(0.0, p - w.step_pp_mm) for p in s.step_pp_mm[c]]
         po = s.po_plateau_mpa
         groups = {
             "table2": [w.table2 * math.log(v / p) for v, p in zip(s.table2_po_row, row)],
-            "steps": steps,
+            "steps": beyond,
             "feedback_row": w.feedback_row * paper.residuals(
                 paper.check_all(paper.TABLE2_FINDINGS[1:], table2, math.nan)),
-            "sweep": w.sweep * paper.residuals(self._sweep_checks(params, sweep)),
+            "sweep": w.sweep * paper.residuals(s.sweep_checks),
             "po_rise": [max(0.0, a - b) / w.po_rise_mpa for a, b in zip(po, po[1:])],
             "pressure": _pressure_walls(params)}
         return {k: np.asarray(v, dtype=float) for k, v in groups.items()}

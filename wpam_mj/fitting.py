@@ -324,13 +324,14 @@ class _Objective:
         r = self._many([np.asarray(z, dtype=float)])[0]
         cost = 0.5 * float(r @ r)
         self.nfev += 1
-        if self.progress:
-            spent = time.perf_counter() - self.started
-            left = spent / self.nfev * (self.max_nfev - self.nfev)
-            print(f"fit: step {self.nfev}/{self.max_nfev}: cost {cost:.6g}, "
-                  f"{spent / 60:.1f} min so far, at most {left / 60:.1f} min left",
-                  file=sys.stderr, flush=True)
-        if self.progress and cost < self.best:
+        if not self.progress:
+            return r
+        spent = time.perf_counter() - self.started
+        left = spent / self.nfev * (self.max_nfev - self.nfev)
+        print(f"fit: step {self.nfev}/{self.max_nfev}: cost {cost:.6g}, "
+              f"{spent / 60:.1f} min so far, at most {left / 60:.1f} min left",
+              file=sys.stderr, flush=True)
+        if cost < self.best:
             self.best = cost
             shown = ", ".join(f"{p.name.split('.')[1]}={p.from_z(zi):.4g}"
                               for p, zi in zip(self.free, z))
