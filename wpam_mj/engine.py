@@ -106,6 +106,7 @@ class PythonMuscle:
         self.dt = float(model.opt.timestep)
         self.muscle = MuscleModel.from_params(self.params)
         self.feedback = plugin.CONTROL_BY_NAME[config.control].feedback
+        self.friction_row = 0  # where the tendon's friction row was last step
         self.reset()
 
     def reset(self) -> None:
@@ -152,7 +153,7 @@ class PythonMuscle:
         self.record.update(x=x, velocity=v, x_ref=x_ref, pi=pi, po=po, pi_cmd=pi_cmd,
                            po_cmd=po_cmd, tension=tension, friction=friction)
         data.ctrl[self.force_actuator] = -tension  # along the tendon's length
-        set_friction_rows(data, self.tendon, friction)
+        self.friction_row = set_friction_rows(data, self.tendon, friction, self.friction_row)
         self.pending = (float(data.time), x, v, pi_cmd, po_cmd, ctl_state)
 
     def advance(self) -> None:
@@ -170,13 +171,24 @@ class PythonMuscle:
         self.record["pi_reg"], self.record["po_reg"] = self.plant.set_points
 
 
-def set_friction_rows(data: mujoco.MjData, tendon: int, friction: float) -> None:
-    """This step's friction level [N] into the tendon's friction row (made by MuJoCo
-    because the model's tendon_frictionloss is positive; the model stays untouched)."""
-    kind = mujoco.mjtConstraint.mjCNSTR_FRICTION_TENDON
-    for row in range(data.nefc):
-        if data.efc_type[row] == kind and data.efc_id[row] == tendon:
-            data.efc_frictionloss[row] = friction
+_FRICTION_TENDON = int(mujoco.mjtConstraint.mjCNSTR_FRICTION_TENDON)
+
+
+def set_friction_rows(data: mujoco.MjData, tendon: int, friction: float,
+                      row: int = 0) -> int:
+    """Write this step's friction level [N] into the tendon's friction row (made by MuJoCo
+    because the model's tendon_frictionloss is positive; the model stays untouched).
+    `row`: where to look first (the row keeps its place while the set of equality and
+    friction constraints before it does). Returns the row, -1 if there is none."""
+    kinds, ids = data.efc_type, data.efc_id
+    if not (row < data.nefc and kinds[row] == _FRICTION_TENDON and ids[row] == tendon):
+        rows = np.flatnonzero((kinds[:data.nefc] == _FRICTION_TENDON)
+                              & (ids[:data.nefc] == tendon))
+        if not rows.size:
+            return -1
+        row = int(rows[0])
+    data.efc_frictionloss[row] = friction
+    return row
 
 
 def python_model(spec: mujoco.MjSpec) -> tuple[mujoco.MjModel, list[PythonMuscle]]:
