@@ -40,6 +40,7 @@ from wpam_mj.params import ParameterError, Params, check_range, preset
 from wpam_mj.plant import Plant
 
 FEEDFORWARD_LOAD_RANGE_N = (0.0, 1e5)
+CONTRACTION0_RANGE_M = (-1.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -51,6 +52,7 @@ class InstanceConfig:
     control: str
     start_at_rest: bool
     feedforward_load: float  # [N]
+    contraction0: float  # contraction in the model's reference pose [m]
 
     @classmethod
     def from_config(cls, name: str, config: dict[str, str]) -> "InstanceConfig":
@@ -83,7 +85,9 @@ class InstanceConfig:
         load = check_range(f"wpam_mj.muscle instance '{name}': feedforward_load",
                            config.get("feedforward_load") or 0.0, *FEEDFORWARD_LOAD_RANGE_N,
                            "N")
-        return cls(name, params, control, start == "rest", load)
+        x0 = check_range(f"wpam_mj.muscle instance '{name}': contraction0",
+                         config.get("contraction0") or 0.0, *CONTRACTION0_RANGE_M, "m")
+        return cls(name, params, control, start == "rest", load, x0)
 
 
 def instance_configs(spec: mujoco.MjSpec) -> dict[str, InstanceConfig]:
@@ -140,7 +144,7 @@ class PythonMuscle:
         """The step's force and friction level; nothing kept but what advance needs."""
         if self.pending is not None and data.time != self.pending[0]:
             self.advance()  # a loop that only calls mj_step: the last step ends here
-        x = self.length0 - float(data.ten_length[self.tendon])
+        x = self.config.contraction0 + (self.length0 - float(data.ten_length[self.tendon]))
         v = -float(data.ten_velocity[self.tendon])
         x_ref, pi_cmd, po_in = self._inputs(data.ctrl)
         po_cmd, ctl_state = self.controller.evaluate(x, x_ref, po_in)

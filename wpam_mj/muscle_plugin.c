@@ -84,7 +84,8 @@ typedef struct {
   int control;                /* C_* */
   int start_at_rest;          /* 1: the first step's commands were held before the run */
   double feedforward_load;    /* load the Pi feedforward holds [N] */
-  double length0;             /* tendon length at which x = 0 [m] */
+  double length0;             /* tendon length at which x = contraction0 [m] */
+  double contraction0;        /* contraction in the model's reference pose [m] */
   int tendon;                 /* the muscle's tendon id */
   int channel[WPAM_MAX_CHANNELS]; /* actuator ids of the input channels */
   int nchannel;
@@ -352,6 +353,15 @@ static int parse_config(const mjModel* m, int instance, Constants* k, int channe
     return fail(err, nerr, msg);
   }
 
+  text = mj_getPluginConfig(m, instance, "contraction0");
+  k->contraction0 = 0.0;
+  if (text && text[0] && (!parse_number(text, &k->contraction0) || k->contraction0 < -1.0
+                          || k->contraction0 > 1.0)) {
+    snprintf(msg, sizeof(msg), "wpam_mj.muscle instance '%s': contraction0 = '%s' m is "
+             "outside the allowed range [-1, 1] m", name, text);
+    return fail(err, nerr, msg);
+  }
+
   /* the cross-field checks of wpam_mj.params */
   if (k->p[P_BRAID_MAX_DIAMETER] <= k->p[P_BRAID_NATURAL_DIAMETER])
     return fail(err, nerr, "wpam_mj.muscle: braid.max_diameter must exceed "
@@ -513,7 +523,7 @@ static void wpam_compute(const mjModel* m, mjData* d, int instance, int capabili
   double* s = d->plugin_state + m->plugin_stateadr[instance];
   const double* ctrl = d->ctrl;
   double pa = k->p[P_PNEUMATICS_ATMOSPHERE];
-  double x = k->length0 - d->ten_length[k->tendon];
+  double x = k->contraction0 + (k->length0 - d->ten_length[k->tendon]);
   double v = -d->ten_velocity[k->tendon];
   double x_ref = NAN, pi_cmd, po_cmd, pi, po, tension, friction;
   int i;

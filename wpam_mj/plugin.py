@@ -78,8 +78,10 @@ CONTROLS = (
 )
 CONTROL_BY_NAME = {c.name: c for c in CONTROLS}
 # Attributes besides the parameters (docs/plugin.md): preset, control mode, whether the
-# run starts at rest at its first commands, and the load the Pi feedforward holds [N].
-INSTANCE_KEYS = ("preset", "control", "start", "feedforward_load")
+# run starts at rest at its first commands, the load the Pi feedforward holds [N], and the
+# muscle's contraction in the model's reference pose [m] (x = contraction0 + tendon length
+# at qpos0 - tendon length; nonzero for muscles mounted pre-contracted, as in a pair).
+INSTANCE_KEYS = ("preset", "control", "start", "feedforward_load", "contraction0")
 
 
 def parameter_fields() -> list[tuple[str, dataclasses.Field]]:
