@@ -222,3 +222,25 @@ def test_halving_the_step_moves_the_sine_gain_and_lag_little():
                                          n_cycles=2))
     assert math.isclose(points[0].gain, points[1].gain, rel_tol=0.02), points
     assert abs(points[0].phase_lag_deg - points[1].phase_lag_deg) < 1.0, points
+
+
+def test_simulate_many_equals_simulate_at_any_thread_count():
+    """Runs of two layouts (PI and open loop) and three loads through mujoco.batch."""
+    from wpam_mj.simulate import Run, simulate_many  # noqa: PLC0415
+
+    params, dt = preset("wpam"), 1e-3
+    t = np.arange(1500) * dt
+    x_ref = step_targets(t, (0, 10), hold=0.75) * 1e-3
+    runs, singles = [], []
+    for load in (60.0, 100.0, 140.0):
+        feedback = drive_for_targets(params, load, x_ref, "pi", dt)
+        open_loop = Drive(np.full(len(t), 0.2 * MPA), np.zeros(len(t)), np.full(len(t), np.nan))
+        for control, drive in (("pi", feedback), ("open", open_loop)):
+            runs.append(Run.make(params, load, drive, dt=dt, control=control))
+            singles.append(simulate(params, load, drive, dt=dt, control=control,
+                                    engine="python"))
+    for nthread in (1, 2):
+        for got, ref in zip(simulate_many(runs, nthread=nthread), singles):
+            for field in REC_FIELDS:
+                np.testing.assert_array_equal(getattr(got, field), getattr(ref, field),
+                                              err_msg=f"{field}, {nthread} threads")

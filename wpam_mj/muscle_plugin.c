@@ -565,7 +565,9 @@ static void wpam_compute(const mjModel* m, mjData* d, int instance, int capabili
 }
 
 static void wpam_advance(const mjModel* m, mjData* d, int instance) {
-  const Constants* k = constants(m, d, instance);
+  /* compute ran on this model in this step: its constants are current */
+  const Cache* c = (const Cache*)d->plugin_data[instance];
+  const Constants* k = c->model == m ? &c->k[instance] : constants(m, d, instance);
   double* s = d->plugin_state + m->plugin_stateadr[instance];
   double pa = k->p[P_PNEUMATICS_ATMOSPHERE];
   double x = s[S_X], v = s[S_VELOCITY], set_i, set_o, area, vol;

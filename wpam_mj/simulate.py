@@ -68,6 +68,48 @@ class Drive:
                 raise ParameterError(f"drive.{name} contains NaN or infinite values")
 
 
+@dataclass(frozen=True)
+class Run:
+    """One validated run: the rig's spec, one row of input channels per step, and what
+    turns its record into a `SimResult`."""
+
+    spec: mujoco.MjSpec
+    inputs: np.ndarray  # (n steps, channels)
+    record_every: int
+    load: float
+    dt: float
+    control: str
+    preset: str
+
+    @classmethod
+    def make(cls, params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
+             control: str = "open", record_dt: float = 0.01) -> "Run":
+        """Validate a run (see `simulate` for the arguments) and build its model spec."""
+        load, dt = check_load(load), check_dt(dt)
+        k = RunConstants.make(params, dt, record_dt, start_at_rest=drive.start_at_rest)
+        controller = make_controller(control, params, dt)
+        _check_commands(drive, params, dt, feedback=controller.feedback)
+        if controller.feedback and not np.all(np.isfinite(drive.x_ref)):
+            raise ParameterError("feedback control needs a finite target x_ref at every step")
+        if not params.outer_chamber and (controller.feedback or np.any(drive.po_cmd > 0.0)):
+            raise ParameterError(f"the {params.preset} preset has no outer chamber: Po must "
+                                 "stay 0 (open loop with --po-down 0)")
+        spec = rig_spec(params, load, dt, control=control, start_at_rest=drive.start_at_rest)
+        inputs = np.column_stack([getattr(drive, name)
+                                  for name in plugin.CONTROL_BY_NAME[control].channels])
+        return cls(spec, inputs, k.record_every, load, dt, control, params.preset)
+
+    def result(self, rec: np.ndarray, failure: tuple[int, str] | None) -> SimResult:
+        """The run's `SimResult`; raises SimulationDiverged for a failure (step, reason)."""
+        if failure is not None:
+            step, what = failure
+            raise SimulationDiverged(f"simulation diverged at t = {step * self.dt:.4f} s: "
+                                     f"{what}; reduce dt or check the gains and pneumatic "
+                                     "parameters")
+        return SimResult(**dict(zip(REC_FIELDS, rec)), load=self.load, dt=self.dt,
+                         control=self.control, preset=self.preset)
+
+
 def simulate(params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
              control: str = "open", record_dt: float = 0.01,
              engine: str = "auto") -> SimResult:
@@ -84,26 +126,9 @@ def simulate(params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
       engine: "plugin", "python" or "auto" (see the module docstring; "c" is taken as
         "plugin").
     """
-    load, dt = check_load(load), check_dt(dt)
-    k = RunConstants.make(params, dt, record_dt, start_at_rest=drive.start_at_rest)
-    controller = make_controller(control, params, dt)
-    _check_commands(drive, params, dt, feedback=controller.feedback)
-    if controller.feedback and not np.all(np.isfinite(drive.x_ref)):
-        raise ParameterError("feedback control needs a finite target x_ref at every step")
-    if not params.outer_chamber and (controller.feedback or np.any(drive.po_cmd > 0.0)):
-        raise ParameterError(f"the {params.preset} preset has no outer chamber: Po must stay "
-                             "0 (open loop with --po-down 0)")
-    run = _select_engine(engine)
-    spec = rig_spec(params, load, dt, control=control, start_at_rest=drive.start_at_rest)
-    inputs = np.column_stack([getattr(drive, name)
-                              for name in plugin.CONTROL_BY_NAME[control].channels])
-    rec, failure = run(spec, inputs, k.record_every)
-    if failure is not None:
-        step, what = failure
-        raise SimulationDiverged(f"simulation diverged at t = {step * dt:.4f} s: {what}; "
-                                 "reduce dt or check the gains and pneumatic parameters")
-    return SimResult(**dict(zip(REC_FIELDS, rec)), load=load, dt=dt, control=control,
-                     preset=params.preset)
+    run_engine = _select_engine(engine)
+    run = Run.make(params, load, drive, dt=dt, control=control, record_dt=record_dt)
+    return run.result(*run_engine(run.spec, run.inputs, run.record_every))
 
 
 def _check_commands(drive: Drive, params: Params, dt: float, *, feedback: bool) -> None:
@@ -150,33 +175,67 @@ def _record_shape(n: int, record_every: int) -> tuple[int, int]:
 def run_plugin(spec: mujoco.MjSpec, inputs: np.ndarray, record_every: int):
     """Run the rig `spec` on the compiled plugin with one row of `inputs` (the instance's
     channels) per step. Returns (record, None) or (record so far, (step, reason))."""
-    model = spec.compile()
-    n = len(inputs)
-    rec = np.zeros(_record_shape(n, record_every))
-    state = slice(model.plugin_stateadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_PLUGIN,
-                                                          INSTANCE)], None)
+    return run_batch([spec.compile()], [inputs], record_every, nthread=1)[0]
+
+
+def run_batch(models: list[mujoco.MjModel], inputs: list[np.ndarray], record_every: int, *,
+              nthread: int = 1) -> list[tuple[np.ndarray, tuple[int, str] | None]]:
+    """Runs of rig models of one layout (same sizes) and one length on `mujoco.batch`,
+    `nthread` threads, in chunks of `CHUNK_STEPS` (results do not depend on nthread).
+    Returns (record, failure) per run, as `run_plugin`."""
+    n = len(inputs[0])
+    model = models[0]
     fields = {name: i for i, name in enumerate(plugin.STATE_FIELDS)}
-    status = fields["status"]
-    sim = mjbatch.Batch(model, 1, nthread=1)
+    adr = model.plugin_stateadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_PLUGIN, INSTANCE)]
+    recorded = slice(adr, adr + REC_ROWS - 1)
+    status = adr + fields["status"]
+    recs = [np.zeros(_record_shape(n, record_every)) for _ in models]
+    failures: list[tuple[int, str] | None] = [None] * len(models)
+    sim = mjbatch.Batch(model, len(models), nthread=nthread)
+    sim.set_models(models)
     sim.reset(stage=mujoco.mjtStage.mjSTAGE_NONE)
+    controls = np.stack(inputs)
     dt = model.opt.timestep
     for start in range(0, n, CHUNK_STEPS):
         stop = min(n, start + CHUNK_STEPS)
-        out = sim.rollout(stop - start, control=inputs[None, start:stop],
-                          record=("plugin_state",))
-        states = out["plugin_state"][0][:, state]
+        out = sim.rollout(stop - start, control=controls[:, start:stop],
+                          record=("plugin_state",))["plugin_state"]
         first = -start % record_every
         steps = np.arange(start + first, stop, record_every)
-        rec[0, steps // record_every] = steps * dt
-        rec[1:, steps // record_every] = states[first::record_every, :REC_ROWS - 1].T
-        bad = np.flatnonzero(states[:, status])
-        if bad.size:
-            row = states[bad[0]]
-            if row[status] == plugin.FAIL_CONTRACTION:
-                return rec, (start + bad[0], contraction_diverged(float(row[fields["x"]])))
-            return rec, (start + bad[0], pressure_diverged(float(row[fields["p_i"]]),
+        for i, rec in enumerate(recs):
+            if failures[i] is not None:
+                continue
+            rec[0, steps // record_every] = steps * dt
+            rec[1:, steps // record_every] = out[i, first::record_every, recorded].T
+            bad = np.flatnonzero(out[i, :, status])
+            if bad.size:
+                row = out[i, bad[0], adr:]
+                step = start + int(bad[0])
+                if row[fields["status"]] == plugin.FAIL_CONTRACTION:
+                    failures[i] = (step, contraction_diverged(float(row[fields["x"]])))
+                else:
+                    failures[i] = (step, pressure_diverged(float(row[fields["p_i"]]),
                                                            float(row[fields["p_o"]])))
-    return rec, None
+    return list(zip(recs, failures))
+
+
+def simulate_many(runs: list[Run], *, nthread: int = 1) -> list[SimResult]:
+    """Many validated runs on the plugin through `mujoco.batch` on `nthread` threads:
+    runs of one model layout and length share a batch. Bit-identical to `simulate` on
+    each run, at any thread count. Raises SimulationDiverged for the first failed run."""
+    if not plugin.available():
+        raise RuntimeError(f"the compiled plugin is unavailable ({plugin.unavailable_reason()})")
+    models = [run.spec.compile() for run in runs]
+    groups: dict[tuple, list[int]] = {}
+    for i, (run, model) in enumerate(zip(runs, models)):
+        key = (len(run.inputs), run.record_every, model.nu, model.npluginstate, model.nq)
+        groups.setdefault(key, []).append(i)
+    done: dict[int, tuple] = {}
+    for (_, record_every, *_), ids in groups.items():
+        outs = run_batch([models[i] for i in ids], [runs[i].inputs for i in ids],
+                         record_every, nthread=min(nthread, len(ids)))
+        done.update(zip(ids, outs))
+    return [run.result(*done[i]) for i, run in enumerate(runs)]
 
 
 def run_python(spec: mujoco.MjSpec, inputs: np.ndarray, record_every: int):
