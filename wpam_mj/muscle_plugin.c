@@ -405,6 +405,26 @@ static int parse_config(const mjModel* m, int instance, Constants* k, int channe
                            / k->p[P_CONTROLLER_KI]
                      : 0.0;
 
+  { /* pneumatics.stable_dt: the explicit chamber update is monotone for dt lambda <= 1 */
+    double b = k->p[P_PNEUMATICS_CRITICAL_RATIO], tube = k->p[P_PNEUMATICS_TUBE_VOLUME];
+    double v_i = geom_volume(k, 0.0) + tube;
+    double v_o = k->bag_volume + tube - geom_volume(k, k->max_contraction)
+                 - k->p[P_MUSCLE_AXIAL_AREA] * k->max_contraction;
+    double slope = WPAM_RHO_0 * iso6358_psi(WPAM_R_LAMINAR, b) / (1.0 - WPAM_R_LAMINAR);
+    double dt_i = v_i / (WPAM_RT0 * k->p[P_PNEUMATICS_INNER_CONDUCTANCE] * slope);
+    double dt_o = v_o / (WPAM_RT0 * k->p[P_PNEUMATICS_OUTER_CONDUCTANCE] * slope);
+    int inner = dt_i <= dt_o;
+    if (k->dt > (inner ? dt_i : dt_o)) {
+      snprintf(msg, sizeof(msg), "wpam_mj.muscle instance '%s': pneumatics.%s_conductance = "
+               "%g m^3/(s Pa) fills its chamber too fast for the timestep %g s (the explicit "
+               "chamber update would oscillate or diverge); use a timestep <= %.3g s", name,
+               inner ? "inner" : "outer",
+               k->p[inner ? P_PNEUMATICS_INNER_CONDUCTANCE : P_PNEUMATICS_OUTER_CONDUCTANCE],
+               k->dt, inner ? dt_i : dt_o);
+      return fail(err, nerr, msg);
+    }
+  }
+
   /* the channels: every actuator naming this instance, in model order */
   if (!channels) return 0;
   k->nchannel = 0;
