@@ -33,7 +33,7 @@ import mujoco
 import numpy as np
 
 from wpam_mj import plugin
-from wpam_mj.control import PoController, make_controller
+from wpam_mj.control import CONTROLLERS, PoController, make_controller
 from wpam_mj.loop_contract import RunConstants, SimulationDiverged, contraction_diverged
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import ParameterError, Params, check_range, preset
@@ -75,9 +75,9 @@ class InstanceConfig:
                                      "is not a number") from None
         params = params.with_values(values)
         control = config.get("control") or "open"
-        if control not in plugin.CONTROL_BY_NAME:
+        if control not in CONTROLLERS:
             raise ParameterError(f"wpam_mj.muscle instance '{name}': control = {control!r} "
-                                 f"is not one of: {', '.join(plugin.CONTROL_BY_NAME)}")
+                                 f"is not one of: {', '.join(CONTROLLERS)}")
         start = config.get("start") or "vented"
         if start not in ("vented", "rest"):
             raise ParameterError(f"wpam_mj.muscle instance '{name}': start = {start!r} is "
@@ -109,7 +109,7 @@ class PythonMuscle:
         self.length0 = float(model.tendon_length0[self.tendon])
         self.dt = float(model.opt.timestep)
         self.muscle = MuscleModel.from_params(self.params)
-        self.feedback = plugin.CONTROL_BY_NAME[config.control].feedback
+        self.feedback = plugin.control_mode(config.control).feedback
         self.friction_row = 0  # where the tendon's friction row was last step
         self.reset()
 
@@ -230,7 +230,7 @@ def python_model(spec: mujoco.MjSpec) -> tuple[mujoco.MjModel, list[PythonMuscle
     model = spec.compile()
     muscles = []
     for instance, config in configs.items():
-        control = plugin.CONTROL_BY_NAME[config.control]
+        control = plugin.control_mode(config.control)
         n = len(channel_names[instance])
         if not control.required <= n <= len(control.channels):
             raise ParameterError(f"wpam_mj.muscle instance '{instance}': control = "

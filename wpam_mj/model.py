@@ -87,7 +87,7 @@ def rig_spec(params: Params, load: float, dt: float = 1e-3, *, control: str = "o
     joint = spec.joint("contraction")
     joint.range = (0.0, BraidGeometry.from_params(params.braid).max_contraction)
     joint.damping[0] = params.muscle.damping
-    mode = plugin.CONTROL_BY_NAME[control]
+    mode = plugin.control_mode(control)
     instance = next(p for p in spec.plugins if p.name == INSTANCE)
     instance.config = {"preset": params.preset, "control": control,
                        "start": "rest" if start_at_rest else "vented",

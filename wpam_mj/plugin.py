@@ -77,6 +77,19 @@ CONTROLS = (
     Control("pi_ff", ("x_ref", "pi_cmd", "po_cmd"), 3, True),
 )
 CONTROL_BY_NAME = {c.name: c for c in CONTROLS}
+
+
+def control_mode(name: str) -> Control:
+    """The control mode `name`: the plugin's, or for a controller of
+    `wpam_mj.control.CONTROLLERS` that only the Python engine runs, the channels of the
+    plugin's most general mode of its kind (pi_ff under feedback, else open)."""
+    from wpam_mj.control import check_control, CONTROLLERS  # noqa: PLC0415 (no cycle at import)
+
+    if name in CONTROL_BY_NAME:
+        return CONTROL_BY_NAME[name]
+    feedback = CONTROLLERS[check_control(name)].feedback
+    like = CONTROL_BY_NAME["pi_ff" if feedback else "open"]
+    return Control(name, like.channels, like.required, feedback)
 # Attributes besides the parameters (docs/plugin.md): preset, control mode, whether the
 # run starts at rest at its first commands, the load the Pi feedforward holds [N], and the
 # muscle's contraction in the model's reference pose [m] (x = contraction0 + tendon length

@@ -98,7 +98,7 @@ class Run:
                                  "stay 0 (open loop with --po-down 0)")
         spec = rig_spec(params, load, dt, control=control, start_at_rest=drive.start_at_rest)
         inputs = np.column_stack([getattr(drive, name)
-                                  for name in plugin.CONTROL_BY_NAME[control].channels])
+                                  for name in plugin.control_mode(control).channels])
         return cls(spec, inputs, k.record_every, load, dt, control, params.preset)
 
     def result(self, rec: np.ndarray, failure: tuple[int, str] | None) -> SimResult:
@@ -128,7 +128,7 @@ def simulate(params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
       engine: "plugin", "python" or "auto" (see the module docstring; "c" is taken as
         "plugin").
     """
-    run_engine = _select_engine(engine)
+    run_engine = _select_engine(engine, control)
     run = Run.make(params, load, drive, dt=dt, control=control, record_dt=record_dt)
     return run.result(*run_engine(run.spec, run.inputs, run.record_every))
 
@@ -160,9 +160,17 @@ def _check_commands(drive: Drive, params: Params, dt: float, *, feedback: bool) 
 _noticed: set[str] = set()  # Python fallbacks already announced (once per process)
 
 
-def _select_engine(engine: str):
-    """The runner for `engine` (see `simulate`)."""
+def _select_engine(engine: str, control: str = "open"):
+    """The runner for `engine` and the controller named `control` (see `simulate`)."""
     if engine == "python":
+        return run_python
+    if control not in plugin.CONTROL_BY_NAME:  # a controller only Python defines
+        if engine != "auto":
+            raise ParameterError(f"controller {control!r} runs on the Python engine only")
+        if control not in _noticed:
+            _noticed.add(control)
+            print(f"wpam_mj: controller {control!r} has no compiled form; running the Python"
+                  " engine (about 6x slower)", file=sys.stderr)
         return run_python
     if engine in ("plugin", "c"):
         if not plugin.available():
