@@ -67,8 +67,8 @@ class PoController:
     po_feedforward, else Po = 0), `for_run(params, dt)` (the controller as `simulate`
     runs it), `reset()` (back to the state at the start of a run) and
     `update(x, x_ref, po_cmd)` -> Po command [Pa]. A new controller is one subclass here
-    plus its entry in `CONTROLLERS`; the compiled loop runs only the names it declares
-    (`wpam_mj.fastloop.compiled_controllers`), any other runs in the Python loop.
+    plus its entry in `CONTROLLERS`; the plugin runs the names of `wpam_mj.plugin.CONTROLS`,
+    any other runs on the Python engine (`wpam_mj.engine`).
     """
 
     name: ClassVar[str]

@@ -34,7 +34,8 @@ def pressure_diverged(p_i: float, p_o: float) -> str:
 
 @dataclass(frozen=True)
 class RunConstants:
-    """Per-run constants of the step, the same for the Python and compiled loops."""
+    """Per-run constants of the step, of the Python engine's pieces
+    (the plugin derives the same values from its attributes)."""
 
     dt: float
     record_every: int

@@ -1,10 +1,10 @@
 """The plant: regulators, chambers and muscle force, everything but the load's motion.
 
-`Plant.advance` is called once per physics step with the current contraction and
-velocity. It composes the pieces of `wpam_mj.pneumatics` (two `Regulator`s, two
-`Chamber`s) with `wpam_mj.muscle.MuscleModel`; `wpam_mj/_fastloop.c` has the same
-`plant_advance`, piece for piece. Pressures: regulator set points gauge [Pa], chamber
-pressures absolute [Pa].
+Per physics step the Python engine (`wpam_mj.engine`) takes `Plant.forces` at the current
+contraction, then `Plant.step` after MuJoCo's step. It composes the pieces of
+`wpam_mj.pneumatics` (two `Regulator`s, two `Chamber`s) with `wpam_mj.muscle.MuscleModel`;
+`wpam_mj/muscle_plugin.c` has the same compute and advance, piece for piece. Pressures:
+regulator set points gauge [Pa], chamber pressures absolute [Pa].
 """
 
 from __future__ import annotations

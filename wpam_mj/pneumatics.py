@@ -1,8 +1,8 @@
 """Regulators and chambers: ITV2031-like pressure sources behind a flow restriction.
 
-The two state-holding pieces the simulation loop calls once per physics step are
+The two state-holding pieces the muscle advances once per physics step are
 `Regulator` (command -> set pressure) and `Chamber` (set pressure -> chamber pressure).
-`wpam_mj/_fastloop.c` mirrors each of them one to one (same names, same order of
+`wpam_mj/muscle_plugin.c` mirrors each of them one to one (same names, same order of
 operations); a change here is a change there.
 
 Each regulator (SMC ITV2031: 0.005-0.5 MPa) is modelled as
