@@ -13,7 +13,7 @@ from pathlib import Path
 
 import mujoco
 
-from wpam_mj import engine, plugin
+from wpam_mj import engine, plugin, pneumatics
 from wpam_mj.geometry import BraidGeometry
 from wpam_mj.params import STANDARD_GRAVITY, ParameterError, Params, check_range
 from wpam_mj.paths import MODEL_XML
@@ -61,6 +61,16 @@ class MuscleIndex:
 INSTANCE = "muscle"  # the rig's plugin instance
 
 
+def check_chamber_step(params: Params, dt: float) -> None:
+    """Refuse a dt [s] at which the explicit chamber update would be unstable
+    (`wpam_mj.pneumatics.stable_dt`), naming the conductance and the dt it needs."""
+    limit, name = pneumatics.stable_dt(params)
+    if dt > limit:
+        raise ParameterError(f"{name} = {params.value(name):g} m^3/(s Pa) fills its chamber "
+                             f"too fast for dt = {dt:g} s (the explicit chamber update "
+                             f"would oscillate or diverge); use dt <= {limit:.3g} s")
+
+
 def rig_spec(params: Params, load: float, dt: float = 1e-3, *, control: str = "open",
              start_at_rest: bool = False, feedforward_load: float = 0.0,
              xml: str | Path = MODEL_XML) -> mujoco.MjSpec:
@@ -79,6 +89,7 @@ def rig_spec(params: Params, load: float, dt: float = 1e-3, *, control: str = "o
     """
     load = check_load(load)
     dt = check_dt(dt)
+    check_chamber_step(params, dt)
     engine.register_stand_in()
     spec = mujoco.MjSpec.from_file(str(xml))
     spec.option.timestep = dt
@@ -108,8 +119,8 @@ def rig_spec(params: Params, load: float, dt: float = 1e-3, *, control: str = "o
 
 def build_model(params: Params, load: float, dt: float = 1e-3, *, xml: str | Path = MODEL_XML,
                 **run) -> mujoco.MjModel:
-    """The rig compiled for the Python engine (plain motors; `MuscleIndex` finds the
-    muscle): for callers that step the muscle themselves (`wpam_mj.plant.Plant.actuate`).
-    `run`: the keyword settings of `rig_spec`."""
+    """The rig compiled as the Python engine sees it (plain motors; `MuscleIndex` finds
+    the muscle): for readers of its mechanics (the linear model) and the bare-step
+    benchmark. `run`: the keyword settings of `rig_spec`."""
     model, _ = engine.python_model(rig_spec(params, load, dt, xml=xml, **run))
     return model

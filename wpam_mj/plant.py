@@ -9,16 +9,9 @@ regulator set points gauge [Pa], chamber pressures absolute [Pa].
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
-import mujoco
-
 from wpam_mj.loop_contract import RunConstants, SimulationDiverged, pressure_diverged
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.pneumatics import Chamber, Regulator, chamber_volumes
-
-if TYPE_CHECKING:  # model.py imports the engine, which imports this module
-    from wpam_mj.model import MuscleIndex
 
 
 class Plant:
@@ -73,20 +66,3 @@ class Plant:
         p_o = self.chamber_o.step(set_o + pa, v_o, -(area + muscle.axial_area), v, k.dt)
         if not (p_i > 0.0 and p_o > 0.0):
             raise SimulationDiverged(pressure_diverged(p_i, p_o))
-
-    def advance(self, x: float, v: float, pi_cmd: float, po_cmd: float) -> tuple[float, float]:
-        """`forces` then `step`: one step at contraction x [m], velocity v [m/s]; returns
-        (tension, friction) [N]. Raises SimulationDiverged."""
-        tension, friction = self.forces(x)
-        self.step(x, v, pi_cmd, po_cmd)
-        return tension, friction
-
-    def actuate(self, model: mujoco.MjModel, data: mujoco.MjData, idx: MuscleIndex,
-                x: float, v: float, pi_cmd: float, po_cmd: float) -> tuple[float, float]:
-        """`advance`, write the tension (actuator ctrl) and friction level (tendon
-        frictionloss) into the model, then `mj_step`; returns (tension, friction) [N]."""
-        tension, friction = self.advance(x, v, pi_cmd, po_cmd)
-        data.ctrl[idx.actuator] = -tension
-        model.tendon_frictionloss[idx.tendon] = friction
-        mujoco.mj_step(model, data)
-        return tension, friction

@@ -23,7 +23,6 @@ import numpy as np
 from mujoco import batch as mjbatch
 
 from wpam_mj import engine as pyengine
-from wpam_mj import pneumatics
 from wpam_mj import plugin
 from wpam_mj.control import make_controller
 from wpam_mj.loop_contract import (REC_FIELDS, REC_ROWS, RunConstants, SimulationDiverged,
@@ -87,7 +86,6 @@ class Run:
              control: str = "open", record_dt: float = 0.01) -> "Run":
         """Validate a run (see `simulate` for the arguments) and build its model spec."""
         load, dt = check_load(load), check_dt(dt)
-        check_chamber_step(params, dt)
         k = RunConstants.make(params, dt, record_dt, start_at_rest=drive.start_at_rest)
         controller = make_controller(control, params, dt)
         _check_commands(drive, params, dt, feedback=controller.feedback)
@@ -131,16 +129,6 @@ def simulate(params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
     run_engine = _select_engine(engine, control)
     run = Run.make(params, load, drive, dt=dt, control=control, record_dt=record_dt)
     return run.result(*run_engine(run.spec, run.inputs, run.record_every))
-
-
-def check_chamber_step(params: Params, dt: float) -> None:
-    """Refuse a dt [s] at which the explicit chamber update would be unstable
-    (`wpam_mj.pneumatics.stable_dt`), naming the conductance and the dt it needs."""
-    limit, name = pneumatics.stable_dt(params)
-    if dt > limit:
-        raise ParameterError(f"{name} = {params.value(name):g} m^3/(s Pa) fills its chamber "
-                             f"too fast for dt = {dt:g} s (the explicit chamber update "
-                             f"would oscillate or diverge); use dt <= {limit:.3g} s")
 
 
 def _check_commands(drive: Drive, params: Params, dt: float, *, feedback: bool) -> None:
