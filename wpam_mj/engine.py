@@ -296,7 +296,7 @@ def register_stand_in() -> None:
     compiled plugin is registered."""
     if plugin.available() or _keep:
         return
-    names = [*plugin.INSTANCE_KEYS, *(key for key, _ in plugin.parameter_fields())]
+    names = plugin.attribute_names()
     attributes = (ctypes.c_char_p * len(names))(*[n.encode() for n in names])
     callbacks = (_NSTATE(lambda m, i: 0), _INIT(lambda m, d, i: 0),
                  _RESET(lambda m, s, p, i: None), _COMPUTE(lambda m, d, i, c: None))

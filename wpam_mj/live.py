@@ -18,7 +18,7 @@ import mujoco
 
 from wpam_mj import engine, plugin
 from wpam_mj.loop_contract import SimulationDiverged, contraction_diverged, pressure_diverged
-from wpam_mj.model import INSTANCE, rig_spec
+from wpam_mj.model import INSTANCE, check_chamber_step, rig_spec
 from wpam_mj.params import Params
 from wpam_mj.paths import MODEL_XML
 
@@ -40,6 +40,7 @@ class LiveRig:
     @classmethod
     def build(cls, params: Params, load: float, dt: float, *,
               xml: str | Path = MODEL_XML) -> "LiveRig":
+        check_chamber_step(params, dt)
         spec = rig_spec(params, load, dt, control="open", xml=xml)
         names = [f"{INSTANCE}_{c}" for c in plugin.CONTROL_BY_NAME["open"].channels]
         if plugin.available():

@@ -103,6 +103,19 @@ def parameter_fields() -> list[tuple[str, dataclasses.Field]]:
             for f in dataclasses.fields(cls)]
 
 
+def attribute_names() -> tuple[str, ...]:
+    """Every configuration attribute of the plugin, in its declared order."""
+    return (*INSTANCE_KEYS, *(key for key, _ in parameter_fields()))
+
+
+def config_of(model, instance: int) -> dict[str, str]:
+    """The attributes an instance of a compiled model was given ({} entries left out):
+    MuJoCo stores one NUL-terminated value per declared attribute."""
+    raw = model.plugin_attr.tobytes()[model.plugin_attradr[instance]:]
+    values = raw.split(b"\0")[:len(attribute_names())]
+    return {k: v.decode() for k, v in zip(attribute_names(), values) if v}
+
+
 def _c(value: float) -> str:
     """A double as an exact C99 hex literal."""
     return "INFINITY" if value == float("inf") else float(value).hex()

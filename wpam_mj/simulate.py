@@ -27,7 +27,7 @@ from wpam_mj import plugin
 from wpam_mj.control import make_controller
 from wpam_mj.loop_contract import (REC_FIELDS, REC_ROWS, RunConstants, SimulationDiverged,
                                    contraction_diverged, pressure_diverged)
-from wpam_mj.model import INSTANCE, check_dt, check_load, rig_spec
+from wpam_mj.model import INSTANCE, check_chamber_step, check_dt, check_load, rig_spec
 from wpam_mj.params import MPA, Params, ParameterError
 from wpam_mj.results import SimResult
 
@@ -86,6 +86,7 @@ class Run:
              control: str = "open", record_dt: float = 0.01) -> "Run":
         """Validate a run (see `simulate` for the arguments) and build its model spec."""
         load, dt = check_load(load), check_dt(dt)
+        check_chamber_step(params, dt)
         k = RunConstants.make(params, dt, record_dt, start_at_rest=drive.start_at_rest)
         controller = make_controller(control, params, dt)
         _check_commands(drive, params, dt, feedback=controller.feedback)
