@@ -26,6 +26,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import math
+import sys
 from dataclasses import dataclass
 from typing import Iterator
 
@@ -289,6 +290,13 @@ _COMPUTE = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int
 _keep: list = []  # the registration's C objects live as long as the process
 
 
+def _refuse(model, data, instance) -> int:
+    print(f"wpam_mj: the compiled plugin is unavailable ({plugin.unavailable_reason()}); "
+          "run such a model on the Python engine (wpam_mj.engine.python_model)",
+          file=sys.stderr)
+    return -1
+
+
 def register_stand_in() -> None:
     """Register a ``wpam_mj.muscle`` that declares the plugin's attributes and computes
     nothing, so that an MJCF naming the plugin parses where the compiled plugin cannot be
@@ -298,7 +306,8 @@ def register_stand_in() -> None:
         return
     names = plugin.attribute_names()
     attributes = (ctypes.c_char_p * len(names))(*[n.encode() for n in names])
-    callbacks = (_NSTATE(lambda m, i: 0), _INIT(lambda m, d, i: 0),
+    # init fails: a model compiled with the stand-in itself has no muscle and must not run
+    callbacks = (_NSTATE(lambda m, i: 0), _INIT(_refuse),
                  _RESET(lambda m, s, p, i: None), _COMPUTE(lambda m, d, i, c: None))
     stand_in = _MjpPlugin(name=plugin.NAME.encode(), nattribute=len(names),
                           attributes=ctypes.cast(attributes, ctypes.POINTER(ctypes.c_char_p)),
