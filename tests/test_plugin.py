@@ -259,3 +259,34 @@ def test_a_conductance_too_fast_for_the_step_is_refused_naming_the_dt_it_needs()
     with pytest.raises(ValueError, match=r"use dt <= 7.96e-05 s"):
         simulate(params, 100.0, drive, dt=1e-3)
     assert simulate(params, 100.0, drive, dt=5e-5, record_dt=5e-5).pi.min() >= 0.0
+
+
+def test_rk4_is_refused_naming_the_integrators_that_work():
+    xml = user_model({}).replace('<option timestep="0.001"', '<option integrator="RK4" '
+                                 'timestep="0.001"')
+    with pytest.raises(ValueError, match="RK4 integrator .* use Euler, implicit"):
+        mujoco.MjModel.from_xml_string(xml)
+
+
+def test_mujoco_rollout_on_two_threads_equals_one_and_carries_the_state():
+    from mujoco import rollout  # noqa: PLC0415
+
+    model = mujoco.MjModel.from_xml_string(user_model({"start": "rest"}))
+    nbatch, nstep = 4, 300
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    data = mujoco.MjData(model)
+    initial = np.empty(mujoco.mj_stateSize(model, spec))
+    mujoco.mj_getState(model, data, initial, spec)
+    ctrl = np.stack([np.full((nstep, 2), (0.1 + 0.05 * i) * MPA) * (1, 0.1)
+                     for i in range(nbatch)])
+    one = rollout.rollout(model, mujoco.MjData(model), np.tile(initial, (nbatch, 1)), ctrl)[0]
+    two = rollout.rollout(model, [mujoco.MjData(model), mujoco.MjData(model)],
+                          np.tile(initial, (nbatch, 1)), ctrl)[0]
+    np.testing.assert_array_equal(one, two)
+    data.ctrl[:] = ctrl[2, 0]
+    mujoco.mj_step(model, data, nstep=nstep)
+    final = np.empty(mujoco.mj_stateSize(model, spec))
+    mujoco.mj_getState(model, data, final, spec)
+    np.testing.assert_array_equal(one[2, -1], final)  # plugin state included
+    state = plugin.state_of(model, data, "m")
+    assert state["pi_cmd"] == ctrl[2, 0, 0] and state["tension"] > 0.0

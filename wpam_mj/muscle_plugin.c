@@ -375,6 +375,10 @@ static int parse_config(const mjModel* m, int instance, Constants* k, int channe
 
   /* derived constants, each as its Python original computes it */
   k->dt = m->opt.timestep;
+  if (m->opt.integrator == mjINT_RK4)
+    return fail(err, nerr, "wpam_mj.muscle: the RK4 integrator evaluates each step four "
+                "times; use Euler, implicit or implicitfast (the pneumatics advance once per "
+                "step)");
   if (!(k->dt > 0.0) || k->p[P_PNEUMATICS_DEAD_TIME] / k->dt > 1e6)
     return fail(err, nerr, "wpam_mj.muscle: the timestep must be positive and at least "
                 "1e-6 of pneumatics.dead_time");

@@ -116,6 +116,17 @@ def config_of(model, instance: int) -> dict[str, str]:
     return {k: v.decode() for k, v in zip(attribute_names(), values) if v}
 
 
+def state_of(model, data, instance: int | str = 0) -> dict[str, float]:
+    """The named fields of a muscle's state (`STATE_FIELDS`; SI, pressures `pi`, `po` gauge
+    and `p_i`, `p_o` absolute [Pa]) in `data`, the instance given by id or name."""
+    import mujoco  # noqa: PLC0415
+
+    if isinstance(instance, str):
+        instance = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_PLUGIN, instance)
+    start = model.plugin_stateadr[instance]
+    return dict(zip(STATE_FIELDS, map(float, data.plugin_state[start:start + len(STATE_FIELDS)])))
+
+
 def _c(value: float) -> str:
     """A double as an exact C99 hex literal."""
     return "INFINITY" if value == float("inf") else float(value).hex()
