@@ -17,7 +17,8 @@ Subcommands (each has --help):
 Units at this edge: loads in N, pressures in MPa, lengths in mm, times in s, frequencies
 in Hz (the library is SI inside). Exit status: 0 success, 1 the run failed (simulation
 diverged, rendering or file system error), 2 bad arguments (one line on stderr), 130
-interrupted (Ctrl-C), 143 terminated (SIGTERM), 141 stdout closed early (e.g. `| head`).
+interrupted (Ctrl-C), 143 terminated (SIGTERM), 129 hung up (SIGHUP), 141 stdout closed
+early (e.g. `| head`).
 static, step, table2, sweep, linear, reproduce and render write `manifest-<run id>.json`
 beside their files (`wpam_mj.manifest`).
 """
@@ -32,6 +33,7 @@ import os
 import sys
 import tempfile
 import time
+from concurrent.futures import BrokenExecutor
 from pathlib import Path
 from typing import Sequence
 
@@ -45,7 +47,8 @@ from wpam_mj.params import (MM, MPA, PRESETS, ParameterError, Params,
                             apply_overrides, check_range, describe, load_toml, preset)
 from wpam_mj.results import write_text_atomic
 from wpam_mj.simulate import SimulationDiverged
-from wpam_mj.termination import Terminated, remove_dead_temporaries, terminate_on_sigterm
+from wpam_mj.termination import (Interrupted, exit_now, handle_signals, remove_dead_temporaries,
+                                 stopped_by_signal)
 
 RECORD_DT_S = 0.01  # the period every run records at (`wpam_mj.simulate.simulate`)
 JOBS_PER_CPU = 4  # --jobs above this many per CPU is refused: no run gains from it
@@ -837,21 +840,28 @@ def _one_line(err: BaseException) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the `wpam` command line; returns the exit status."""
+    with handle_signals():  # also over the cleanup: a second signal cannot interrupt it
+        code = _main(argv)
+    if argv is None and stopped_by_signal():  # the process's own command line
+        exit_now(code)  # cleanup is done; skip the interpreter's ~1 s teardown
+    return code
+
+
+def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     args = None
     try:
-        with terminate_on_sigterm():
-            args = parser.parse_args(argv)
-            args.argv = list(sys.argv[1:] if argv is None else argv)
-            code = args.handler(args)
-            sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
-            return code
+        args = parser.parse_args(argv)
+        args.argv = list(sys.argv[1:] if argv is None else argv)
+        code = args.handler(args)
+        sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+        return code
     except SystemExit as exc:  # --help, --version
         return exc.code if isinstance(exc.code, int) else 0
     except (UsageError, ParameterError) as err:
         print(f"wpam: error: {_one_line(err)}", file=sys.stderr)
         return 2
-    except (SimulationDiverged, RunFailed) as err:
+    except (SimulationDiverged, RunFailed, BrokenExecutor) as err:
         print(f"wpam: error: {_one_line(err)}", file=sys.stderr)
         return 1
     except BrokenPipeError:  # stdout piped into e.g. `head`, which has exited: quietly,
@@ -861,14 +871,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as err:
         print(f"wpam: error: {_one_line(err)}", file=sys.stderr)
         return 1
-    except Terminated:
+    except KeyboardInterrupt as stop:  # SIGINT, SIGTERM, SIGHUP (`wpam_mj.termination`)
+        stop = stop if isinstance(stop, Interrupted) else Interrupted()
         _remove_temporaries(args)
-        print("wpam: terminated", file=sys.stderr)
-        return 143
-    except KeyboardInterrupt:
-        _remove_temporaries(args)
-        print("wpam: interrupted", file=sys.stderr)
-        return 130
+        print(f"wpam: {stop.message}", file=sys.stderr)
+        return stop.status
 
 
 def _remove_temporaries(args: argparse.Namespace | None) -> None:

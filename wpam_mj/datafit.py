@@ -30,7 +30,6 @@ in mm, every sample of every fitted file.
 
 from __future__ import annotations
 
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -41,6 +40,7 @@ from wpam_mj import fitting
 from wpam_mj.measurements import Experiment
 from wpam_mj.model import DT_RANGE_S, check_dt
 from wpam_mj.params import MM, Params, ParameterError
+from wpam_mj.pool import WorkerPool
 from wpam_mj.simulate import Drive, simulate
 
 # The rough first pass of `fit_data` replays at this multiple of dt (a 2 ms replay of
@@ -180,7 +180,7 @@ def fit_data(start: Params, experiments: Sequence[Experiment],
     coarse = DataModel(tuple(open_loop), min(COARSE_DT_FACTOR * dt, DT_RANGE_S[1]))
     model = DataModel(tuple(experiments), dt)
     everything = DataModel((*experiments, *holdout), dt)
-    own = ProcessPoolExecutor(jobs) if executor is None and jobs > 1 else None
+    own = WorkerPool(jobs) if executor is None and jobs > 1 else None
     ex = executor or own
     try:
         rough = fitting.fit(coarse, start, free, executor=ex, max_nfev=max_nfev,
