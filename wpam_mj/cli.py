@@ -31,13 +31,12 @@ import json
 import math
 import os
 import sys
-import tempfile
 import time
 from concurrent.futures import BrokenExecutor
 from pathlib import Path
 from typing import Sequence
 
-from wpam_mj import __version__, paper, pool, studies
+from wpam_mj import __version__, outputs, paper, pool, studies
 from wpam_mj.feasibility import check_liftable, load_moved
 from wpam_mj.control import CONTROLS, check_control
 from wpam_mj.experiments import (EXPERIMENTS, SINE_AMPLITUDE_MM, SINE_MEAN_MM, STATIC_RAMP_S,
@@ -372,15 +371,9 @@ def _run_options(args: argparse.Namespace) -> _Run:
 
 
 def _writable_dir(path: Path) -> Path:
-    """Create `path` if needed and make sure files can be written in it."""
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=path):
-            pass
-    except OSError as err:
-        raise ParameterError(f"--out {path}: cannot write there "
-                             f"({err.strerror or err})") from None
-    return path
+    """Create `path` if needed, make sure files can be written in it, and hold it for this
+    command alone (`wpam_mj.outputs`: removed again if the command fails unused)."""
+    return outputs.claim(path)
 
 
 def _out_dir(args: argparse.Namespace) -> Path:
@@ -725,11 +718,11 @@ def _add_fit_parser(add) -> None:
     p.add_argument("--bounds", type=_name_list, default=(), metavar="NAME=LO:HI,...",
                    help="override the bounds of free parameters [SI] (default: their "
                         "plausible ranges, docs/fitting.md)")
-    p.add_argument("--out", type=Path, default=Path("out") / "fit" / "params.toml",
+    p.add_argument("--out", type=_out_path, default=Path("out") / "fit" / "params.toml",
                    metavar="FILE.toml",
                    help="fitted parameters, a --config file for the same --preset; the "
                         "figures go next to it (default: out/fit/params.toml)")
-    p.add_argument("--randomize-out", type=Path, metavar="FILE.toml",
+    p.add_argument("--randomize-out", type=_out_path, metavar="FILE.toml",
                    help="also write domain-randomisation ranges (estimate +- k sigma) for "
                         "wpam_mj.env.make_env(randomize=FILE)")
     p.add_argument("--randomize-k", type=float, default=2.0, metavar="K",
@@ -805,7 +798,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 def _add_synth_parser(add) -> None:
     p = add("synth", "write synthetic measurements (the CSV format of `wpam fit`) from the "
             "simulator: static ramps and PI staircases, PI sine runs in holdout/", _cmd_synth)
-    p.add_argument("--out", type=Path, default=Path("out") / "synth", metavar="DIR",
+    p.add_argument("--out", type=_out_path, default=Path("out") / "synth", metavar="DIR",
                    help="output folder (default: out/synth)")
     p.add_argument("--loads", type=_float_list, default=paper.LOADS_N, metavar="N,N,...",
                    help="hanging loads [N] (default: 50,100,150)")
@@ -840,8 +833,12 @@ def _one_line(err: BaseException) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the `wpam` command line; returns the exit status."""
+    code = 1
     with handle_signals():  # also over the cleanup: a second signal cannot interrupt it
-        code = _main(argv)
+        try:
+            code = _main(argv)
+        finally:
+            outputs.release(failed=code != 0)
     if argv is None and stopped_by_signal():  # the process's own command line
         exit_now(code)  # cleanup is done; skip the interpreter's ~1 s teardown
     return code
