@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
+import numpy as np
+
 from wpam_mj import paper
 from wpam_mj.paths import MODELS_DIR
 from wpam_mj.units import MM, MPA  # noqa: F401 (MM re-exported: modules take units from here)
@@ -43,19 +45,30 @@ def _p(default: float, unit: str, lo: float, hi: float, source: str, *,
                                                 lo_open=lo_open, plausible=plausible))
 
 
+def shown(value: Any) -> str:
+    """A value as a message shows it: numpy scalars as the Python number they hold
+    (-100.0, not np.float64(-100.0)), anything else as its repr."""
+    if isinstance(value, np.generic):
+        value = value.item()
+    return repr(value)
+
+
 def check_range(name: str, value: float, lo: float, hi: float, unit: str = "", *,
                 lo_open: bool = False) -> float:
-    """Return ``float(value)`` or raise ParameterError naming the value and the range."""
+    """Return ``float(value)`` or raise ParameterError naming the value and the range
+    (or saying that no value is allowed when a computed range is empty)."""
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise ParameterError(f"{name} = {value!r} is not a number") from None
+        raise ParameterError(f"{name} = {shown(value)} is not a number") from None
+    if not lo <= hi:
+        raise ParameterError(f"{name} = {shown(value)} {unit}: no value is allowed (the "
+                             f"lower bound {lo:g} is above the upper {hi:g})")
     below = v <= lo if lo_open else v < lo
     if not math.isfinite(v) or below or v > hi:
         bracket = "(" if lo_open else "["
-        raise ParameterError(
-            f"{name} = {value!r} {unit} is outside the allowed range "
-            f"{bracket}{lo:g}, {hi:g}] {unit}".replace("  ", " "))
+        raise ParameterError(f"{name} = {shown(value)} {unit} is outside the allowed range "
+                             f"{bracket}{lo:g}, {hi:g}] {unit}".replace("  ", " "))
     return v
 
 

@@ -19,7 +19,7 @@ import numpy as np
 from tqdm import tqdm
 
 from wpam_mj import termination
-from wpam_mj.params import ParameterError
+from wpam_mj.params import ParameterError, shown
 
 _PR_SET_PDEATHSIG = 1  # prctl option (linux/prctl.h): signal this process when its parent dies
 _STOP_GRACE_S = 0.5  # our choice: a worker still alive this long after SIGTERM is killed
@@ -28,7 +28,7 @@ _STOP_GRACE_S = 0.5  # our choice: a worker still alive this long after SIGTERM 
 def check_jobs(jobs: int) -> int:
     """Process-pool size: an integer >= 1."""
     if isinstance(jobs, bool) or not isinstance(jobs, (int, np.integer)) or jobs < 1:
-        raise ParameterError(f"jobs = {jobs!r} must be an integer >= 1")
+        raise ParameterError(f"jobs = {shown(jobs)} must be an integer >= 1")
     return int(jobs)
 
 
