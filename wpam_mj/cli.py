@@ -46,6 +46,7 @@ from wpam_mj.params import (MM, MPA, PRESETS, ParameterError, Params,
                             apply_overrides, check_range, describe, load_toml, preset)
 from wpam_mj.results import write_text_atomic
 from wpam_mj.simulate import SimulationDiverged
+from wpam_mj.streams import reopen_closed
 from wpam_mj.termination import (Interrupted, exit_now, handle_signals, remove_dead_temporaries,
                                  stopped_by_signal)
 
@@ -429,7 +430,7 @@ def _manifest(args: argparse.Namespace, out: Path, rid: str, params: Params, set
 
 
 def _flag_still(what: Sequence[tuple[str, bool]], to_stderr: bool) -> None:
-    """One line for each open-loop run whose load never moved (its numbers mean nothing)."""
+    """One line for each run whose load never moved (its numbers mean nothing)."""
     from wpam_mj.feasibility import MOVE_MIN_MM  # noqa: PLC0415
     for name, moved in what:
         if not moved:
@@ -499,8 +500,7 @@ def _cmd_step(args: argparse.Namespace) -> int:
                                                            res.pi_mean, res.po_mean)]})
     else:
         print(summaries.step_text(res))
-    if control == "open":
-        _flag_still([(f"step {res.preset} {load:g} N open loop", moved)], args.json)
+    _flag_still([(f"step {res.preset} {load:g} N {control}", moved)], args.json)
     if not args.json:
         _wrote([*written, manifest])
     return 0
@@ -565,6 +565,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     else:
         print(summaries.sweep_text(sw))
         print(summaries.checks_text(paper.sweep_checks(sw, po_cap)))
+    _flag_still([(f"sweep {point}", False) for point in writers.still_points(sw)], args.json)
+    if not args.json:
         _wrote([*written, manifest])
     return 0
 
@@ -833,12 +835,15 @@ def _one_line(err: BaseException) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the `wpam` command line; returns the exit status."""
+    closed = reopen_closed()  # `wpam ... >&-`: before any file takes descriptor 1
     code = 1
     with handle_signals():  # also over the cleanup: a second signal cannot interrupt it
         try:
             code = _main(argv)
         finally:
             outputs.release(failed=code != 0)
+    if code == 0 and "stdout" in closed:
+        code = 141  # as for a reader gone before the first line (below)
     if argv is None and stopped_by_signal():  # the process's own command line
         exit_now(code)  # cleanup is done; skip the interpreter's ~1 s teardown
     return code

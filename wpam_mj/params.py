@@ -18,6 +18,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+import os
+import stat
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -309,14 +311,54 @@ def apply_overrides(params: Params, overrides: Mapping[str, Any]) -> Params:
     return dataclasses.replace(params, **new)
 
 
-MAX_TOML_BYTES = 1_000_000  # a parameter file is a few hundred bytes; refuse /dev/zero
+MAX_TOML_BYTES = 1_000_000  # a parameter file is a few hundred bytes
+
+
+def file_kind(path: str | Path) -> str:
+    """"file", "folder", "missing", or what else `path` is (a named pipe, a device, a
+    socket): read only a "file" (opening a named pipe waits for a writer; a device may
+    never end)."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return "missing"
+    except OSError as err:
+        return f"unreadable ({err.strerror or err})"
+    if stat.S_ISREG(mode):
+        return "file"
+    if stat.S_ISDIR(mode):
+        return "folder"
+    if stat.S_ISFIFO(mode):
+        return "named pipe"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "device"
+    return "socket" if stat.S_ISSOCK(mode) else "special file"
+
+
+def check_regular_file(path: str | Path, what: str) -> Path:
+    """`path` if it is a regular file, else ParameterError saying what it is."""
+    kind = file_kind(path)
+    if kind == "missing":
+        raise ParameterError(f"{what} {path}: no such file")
+    if kind != "file":
+        raise ParameterError(f"{what} {path} is a {kind}, not a regular file")
+    return Path(path)
+
+
+def check_int(name: str, value: Any, lo: int, hi: int) -> int:
+    """An integer (not a bool) in [lo, hi], else ParameterError naming it and the range."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or \
+            not lo <= value <= hi:
+        raise ParameterError(f"{name} = {shown(value)} must be an integer in [{lo}, {hi}]")
+    return int(value)
 
 
 def load_toml(path: str | Path) -> dict[str, Any]:
     """Read a parameter TOML file (sections as in `Params`, SI values, UTF-8, <= 1 MB)."""
+    check_regular_file(path, "parameter file")
     try:
         with open(path, "rb") as fh:
-            data = fh.read(MAX_TOML_BYTES + 1)  # bounded: devices and huge files stop here
+            data = fh.read(MAX_TOML_BYTES + 1)  # bounded: a huge file stops here
     except OSError as err:
         raise ParameterError(f"cannot read parameter file {path}: "
                              f"{err.strerror or err}") from None

@@ -169,7 +169,8 @@ class SweepPoint:
     load [N]; freq [Hz]; gain [1]; phase_lag_deg [deg], positive = lag; po_max: highest
     Po read by the regulator's own gauge over the analysed cycles [Pa] (what the paper
     plots, §2.3); po_chamber_max: highest Po inside the outer chamber, behind the line
-    restriction [Pa]; po_cmd_max: highest Po command (capped at po_cap) [Pa].
+    restriction [Pa]; po_cmd_max: highest Po command (capped at po_cap) [Pa]; load_moved:
+    whether x spanned `feasibility.MOVE_MIN_MM` (else the gain and lag mean nothing).
     """
 
     load: float
@@ -180,11 +181,12 @@ class SweepPoint:
     po_max: float
     po_chamber_max: float = float("nan")
     po_cmd_max: float = float("nan")
+    load_moved: bool = True
 
     def as_json(self) -> dict:
         return {"load_n": self.load, "freq_hz": self.freq, "controller": self.controller,
                 "gain": self.gain, "phase_lag_deg": self.phase_lag_deg,
-                "po_max_mpa": self.po_max / MPA}
+                "po_max_mpa": self.po_max / MPA, "load_moved": self.load_moved}
 
 
 SweepKey = tuple[float, float, str]  # (load [N], freq [Hz], controller)
