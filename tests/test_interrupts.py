@@ -97,6 +97,43 @@ def test_a_signal_ends_the_command_at_once_with_its_status(tmp_path, sig, argv, 
 
 
 @needs_proc
+def test_ctrl_c_to_the_process_group_of_reproduce_never_hangs(tmp_path):
+    """Ctrl-C reaches the command and its workers at once (before: "Exception in thread",
+    workers alive, the command hung)."""
+    proc = subprocess.Popen([sys.executable, "-m", "wpam_mj", "reproduce", "--jobs", "2",
+                             "--out", "o", "--dt", "0.002"], cwd=tmp_path,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)},
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)
+    assert _wait_until(lambda: len(_children(proc.pid)) >= 2, 120), "the pool never started"
+    workers = _children(proc.pid)
+    time.sleep(0.5)
+    sent = time.monotonic()
+    os.killpg(proc.pid, signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert time.monotonic() - sent < EXIT_WITHIN_S
+    assert (proc.returncode, err) == (130, "wpam: interrupted\n")
+    assert _wait_until(lambda: not any(_alive(w) for w in workers), 2.0), "workers survived"
+    assert not list((tmp_path / "o").rglob(".*")), "temporary files left"
+
+
+def test_temporary_files_of_stopped_workers_go_with_the_command(tmp_path):
+    """A worker stopped mid-write leaves its hidden temporary file; the command removes
+    it as it ends (`outputs.release`), and never touches a live writer's."""
+    from wpam_mj import outputs  # noqa: PLC0415
+    outputs.claim(tmp_path / "o")
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True).stdout.strip()
+    (tmp_path / "o" / "parts").mkdir()
+    stale = tmp_path / "o" / "parts" / f".runs.csv.wpam{dead}-x1.csv"
+    live = tmp_path / "o" / f".study.csv.wpam{os.getpid()}-x2.csv"
+    for path in (stale, live):
+        path.write_text("partial")
+    outputs.release(failed=True)
+    assert not stale.exists() and live.exists()
+
+
+@needs_proc
 @pytest.mark.parametrize("argv", [STATIC, ("study", "spec.toml", "--jobs", "2", "--out", "o")],
                          ids=["static", "study"])
 def test_pool_workers_exit_when_the_parent_is_killed(tmp_path, argv):

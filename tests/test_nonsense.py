@@ -72,6 +72,17 @@ def test_a_study_row_at_an_absurd_frequency_is_infeasible_not_a_crash():
         study.run_metrics("sine", PARAMS, inputs, 1e-3)
 
 
+@pytest.mark.parametrize("line, text", [
+    ("frequency = [0.5, 1e-6]", "at most 10000 s"),
+    ("duration = [110, 36000]", "duration = 36000 s is outside the allowed range [1, 10000] s"),
+], ids=["frequency", "duration"])
+def test_a_study_file_asking_for_absurd_runs_is_refused_when_read(here, capsys, line, text):
+    experiment = "sine" if "frequency" in line else "step"
+    (here / "s.toml").write_text(f'experiment = "{experiment}"\n[vary.values]\n{line}\n')
+    assert text in _refused(capsys, "study", "s.toml", "--out", "o")
+    assert not (here / "o").exists()
+
+
 def test_a_measurement_spanning_absurd_time_is_refused_on_reading(tmp_path):
     exp = _experiment(t_end=10.0, n=12)
     exp = Experiment(**{**exp.__dict__, "time": np.r_[exp.time[:-1], 5e6]})

@@ -47,8 +47,7 @@ from wpam_mj.params import (MM, MPA, PRESETS, ParameterError, Params,
 from wpam_mj.results import write_text_atomic
 from wpam_mj.simulate import SimulationDiverged
 from wpam_mj.streams import reopen_closed
-from wpam_mj.termination import (Interrupted, exit_now, handle_signals, remove_dead_temporaries,
-                                 stopped_by_signal)
+from wpam_mj.termination import Interrupted, exit_now, handle_signals, stopped_by_signal
 
 RECORD_DT_S = 0.01  # the period every run records at (`wpam_mj.simulate.simulate`)
 JOBS_PER_CPU = 4  # --jobs above this many per CPU is refused: no run gains from it
@@ -378,9 +377,7 @@ def _writable_dir(path: Path) -> Path:
 
 
 def _out_dir(args: argparse.Namespace) -> Path:
-    args.written_to = _writable_dir(args.out if args.out is not None
-                                    else Path("out") / args.command)
-    return args.written_to
+    return _writable_dir(args.out if args.out is not None else Path("out") / args.command)
 
 
 def _out_file(path: Path) -> Path:
@@ -644,7 +641,6 @@ def _cmd_render(args: argparse.Namespace) -> int:
         raise ParameterError(f"--out {out}: the video must end in .mp4 or .gif")
     fps = check_fps(args.fps, out.suffix.lower())
     _out_file(out)
-    args.written_to = out.parent
     result = simulate_for_render(run.params, load, args.experiment, control, spec,
                                  duration, run.dt)
     settings = {"load_n": load, "experiment": args.experiment, "control": control,
@@ -875,16 +871,8 @@ def _main(argv: Sequence[str] | None) -> int:
         return 1
     except KeyboardInterrupt as stop:  # SIGINT, SIGTERM, SIGHUP (`wpam_mj.termination`)
         stop = stop if isinstance(stop, Interrupted) else Interrupted()
-        _remove_temporaries(args)
         print(f"wpam: {stop.message}", file=sys.stderr)
         return stop.status
-
-
-def _remove_temporaries(args: argparse.Namespace | None) -> None:
-    """Temporary files the stopped workers were writing in the output folder."""
-    folder = getattr(args, "written_to", None)
-    if folder is not None:
-        remove_dead_temporaries(folder)
 
 
 if __name__ == "__main__":

@@ -7,8 +7,9 @@ listing the other run's CSV). `claim` takes an exclusive lock on the folder itse
 and then writes its whole set after the first. The kernel drops the lock when the
 process dies, however it dies.
 
-A command refused or failed must not leave an empty folder behind: `claim` remembers the
-folders it had to create, and `release(failed=True)` removes those still empty.
+A command refused, failed or stopped must leave neither temporary files nor an empty
+folder behind: `claim` remembers the folders it had to create, and `release(failed=True)`
+removes the dead writers' temporary files and those folders still empty.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ import tempfile
 from pathlib import Path
 
 from wpam_mj.params import ParameterError
+from wpam_mj.termination import remove_dead_temporaries
 
 _held: dict[Path, int] = {}  # resolved folder -> its open descriptor holding the lock
 _created: list[Path] = []  # folders claim made, parents before children
@@ -41,8 +43,12 @@ def claim(path: str | Path, name: str = "--out") -> Path:
 
 
 def release(failed: bool) -> None:
-    """Unlock every claimed folder; after a failure, remove the created ones still empty."""
-    for fd in _held.values():
+    """Unlock every claimed folder; after a failure (or a signal), first remove the
+    temporary files of writers that died (stopped pool workers), then the folders this
+    command created that are still empty."""
+    for folder, fd in _held.items():
+        if failed:
+            remove_dead_temporaries(folder)
         os.close(fd)  # closing the last descriptor drops the flock
     _held.clear()
     if failed:

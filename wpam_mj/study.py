@@ -51,6 +51,7 @@ import numpy as np
 from tqdm import tqdm
 
 from wpam_mj.analysis import frequency_response, loop_area, steady_state_means
+from wpam_mj.budget import MAX_RUN_S
 from wpam_mj.control import CONTROLS, check_control
 from wpam_mj.executors import Workers
 from wpam_mj.feasibility import MOVE_MIN_MM, check_liftable, load_moved
@@ -233,12 +234,12 @@ def _check_value(name: str, value: Any, base: Params) -> Any:
         raise ParameterError(f"{name} = {value!r} is not a number")
     if name == "load":
         return check_load(value)
-    if name == "frequency":
-        return check_range("frequency", value, 0.0, 20.0, "Hz", lo_open=True)
+    if name == "frequency":  # SineSpec: its range, and a run of bounded length
+        return SineSpec(value).freq
     if name == "amplitude":
         return SineSpec(1.0, amplitude=value).amplitude
     if name == "duration":
-        return check_range("duration", value, 1.0, 36000.0, "s")
+        return check_range("duration", value, 1.0, MAX_RUN_S, "s")
     if name == "po_down":
         return check_po("po_down", value, base)
     md = _param_field(name).metadata

@@ -154,10 +154,13 @@ def _quiet_broken_pool(hook_args) -> None:
 
 
 def remove_dead_temporaries(folder: str | Path) -> list[Path]:
-    """Delete write_atomic's temporary files under `folder` whose writer has exited;
-    returns them. A live process's file is kept (a concurrent run is not disturbed)."""
+    """Delete write_atomic's temporary files in `folder` and its subfolders (one level,
+    where the commands write: parts/, plots/, holdout/) whose writer has exited; returns
+    them. A live process's file is kept (a concurrent run is not disturbed). Not deeper:
+    `folder` may be a large tree (calibrate writes into the current folder)."""
     removed = []
-    for path in Path(folder).rglob(".*.wpam*"):
+    folder = Path(folder)
+    for path in (*folder.glob(".*.wpam*"), *folder.glob("*/.*.wpam*")):
         match = _TEMPORARY.fullmatch(path.name)
         if match and path.is_file() and not _process_exists(int(match.group(1))):
             path.unlink(missing_ok=True)
