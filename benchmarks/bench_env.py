@@ -4,10 +4,11 @@ Every row advances the same physics: the hung muscle at 100 N, 1 ms physics step
 control step, Pi from the feedforward for a 20 mm target and a constant Po command (no
 policy, so only the layers differ). Figures in control steps per second of wall time
 (best of --repeats, interleaved):
-  direct Python loop     `Plant.actuate` called 10 times per control step on a bare
-                         model, as `wpam_mj.simulate.run_python` does; the reference
-  compiled loop          `simulate(engine="c")` for the same physics steps (model build and
-                         result assembly included); information
+  direct rig steps       `wpam_mj.live.LiveRig`: commands set, then 10 physics steps of the
+                         plugin (what the environments call), no environment layers; the
+                         reference
+  simulate               `simulate(engine="plugin")` for the same physics steps (model build
+                         and result assembly included); information
   dm_control env.step    `wpam_mj.env.make_env(flat_observation=True)`
   gymnasium env.step     `wpam_mj.gym_env.WPAMEnv`, bare
   gymnasium.make         the same through `gymnasium.make` (its order-enforcing and
@@ -31,11 +32,9 @@ import wpam_mj
 from wpam_mj.control import pi_feedforward
 from wpam_mj.env import make_env
 from wpam_mj.gym_env import ENV_ID, WPAMEnv
-from wpam_mj.model import MuscleIndex, build_model
+from wpam_mj.live import LiveRig
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM, MPA
-from wpam_mj.loop_contract import RunConstants
-from wpam_mj.plant import Plant
 from wpam_mj.simulate import Drive, simulate
 
 LOAD = 100.0  # N, the paper's nominal load (§4.1)
@@ -43,7 +42,7 @@ DT = 1e-3  # s, physics step
 SUBSTEPS = 10  # physics steps per 10 ms control step
 TARGET = 20 * MM  # m
 PO = 0.03 * MPA  # Pa, constant Po command
-REFERENCE = "direct Python loop"
+REFERENCE = "direct rig steps"
 
 
 def _pi(params) -> float:
@@ -52,16 +51,13 @@ def _pi(params) -> float:
 
 
 def time_direct(params, n: int) -> float:
-    model = build_model(params, LOAD, DT)
-    data = mujoco.MjData(model)
-    idx = MuscleIndex.of(model)
-    plant = Plant(MuscleModel.from_params(params), RunConstants.make(params, DT, DT))
+    rig = LiveRig.build(params, LOAD, DT)
+    data = mujoco.MjData(rig.model)
     pi = _pi(params)
     start = time.perf_counter()
     for _ in range(n):
-        for _ in range(SUBSTEPS):
-            plant.actuate(model, data, idx, float(data.qpos[idx.qpos]),
-                          float(data.qvel[idx.dof]), pi, PO)
+        rig.set_commands(data, pi, PO)
+        rig.step(data, SUBSTEPS)
     return time.perf_counter() - start
 
 
@@ -69,7 +65,8 @@ def time_compiled(params, n: int) -> float:
     steps = n * SUBSTEPS + 1
     drive = Drive(np.full(steps, _pi(params)), np.full(steps, PO), np.full(steps, np.nan))
     start = time.perf_counter()
-    simulate(params, LOAD, drive, dt=DT, control="open", record_dt=SUBSTEPS * DT, engine="c")
+    simulate(params, LOAD, drive, dt=DT, control="open", record_dt=SUBSTEPS * DT,
+             engine="plugin")
     return time.perf_counter() - start
 
 
@@ -105,7 +102,7 @@ def time_gym_make(params, n: int) -> float:
                      n)
 
 
-ROWS = {REFERENCE: time_direct, 'compiled loop (simulate engine="c")': time_compiled,
+ROWS = {REFERENCE: time_direct, 'simulate engine="plugin"': time_compiled,
         "dm_control env.step": time_dm_control, "gymnasium env.step": time_gym,
         "gymnasium.make(...).step": time_gym_make}
 

@@ -148,11 +148,29 @@ def test_pi_policy_reaches_a_step_target(target, load) -> None:
     assert np.ptp(xs[-200:]) < 0.2 * MM, "settled, not hunting, over the last 2 s"
 
 
-def test_divergence_ends_the_episode_cleanly() -> None:
-    """Explicit Euler of a chamber with a 1e-6 m^3/(s Pa) valve at dt = 5 ms is unstable."""
+def test_a_chamber_too_fast_for_dt_is_refused_naming_the_dt_it_needs() -> None:
     params = PARAMS.replace(pneumatics={"inner_conductance": 1e-6})
-    env = WPAMEnv(params, action="both", frame_skip=1, dt=5e-3)
+    with pytest.raises(ParameterError, match=r"use dt <= 7.96e-05 s"):
+        WPAMEnv(params, action="both", frame_skip=1, dt=5e-3)
+
+
+def test_divergence_ends_the_episode_cleanly(monkeypatch) -> None:
+    """A divergence reported by the physics step (stood in for: the step raises after
+    20 steps) ends the episode with the last valid observation."""
+    from wpam_mj import live  # noqa: PLC0415
+    from wpam_mj.loop_contract import SimulationDiverged  # noqa: PLC0415
+
+    real_step, calls = live.LiveRig.step, []
+
+    def failing(self, data, nstep=1):
+        calls.append(nstep)
+        if len(calls) > 20:
+            raise SimulationDiverged("chamber pressure Pi = -1 Pa (stand-in)")
+        real_step(self, data, nstep)
+
+    env = WPAMEnv(PARAMS, action="both", frame_skip=1)
     last, _ = env.reset(seed=0)
+    monkeypatch.setattr(live.LiveRig, "step", failing)
     for _ in range(100):
         obs, reward, terminated, truncated, info = env.step([0.5 * MPA, 0.05 * MPA])
         if terminated:
@@ -164,6 +182,7 @@ def test_divergence_ends_the_episode_cleanly() -> None:
     assert obs in env.observation_space
     with pytest.raises(RuntimeError, match="diverged .* call reset"):
         env.step([0.5 * MPA, 0.05 * MPA])
+    monkeypatch.setattr(live.LiveRig, "step", real_step)
     env.reset()
     env.step([0.1 * MPA, 0.05 * MPA])  # a new episode runs
 

@@ -67,8 +67,8 @@ class PoController:
     po_feedforward, else Po = 0), `for_run(params, dt)` (the controller as `simulate`
     runs it), `reset()` (back to the state at the start of a run) and
     `update(x, x_ref, po_cmd)` -> Po command [Pa]. A new controller is one subclass here
-    plus its entry in `CONTROLLERS`; the compiled loop runs only the names it declares
-    (`wpam_mj.fastloop.compiled_controllers`), any other runs in the Python loop.
+    plus its entry in `CONTROLLERS`; the plugin runs the names of `wpam_mj.plugin.CONTROLS`,
+    any other runs on the Python engine (`wpam_mj.engine`).
     """
 
     name: ClassVar[str]
@@ -113,6 +113,12 @@ class OpenLoop(PoController):
     def update(self, x: float, x_ref: float, po_cmd: float = 0.0) -> float:
         return po_cmd
 
+    def evaluate(self, x: float, x_ref: float, po_cmd: float = 0.0) -> tuple[float, None]:
+        return po_cmd, None
+
+    def commit(self, state: None) -> None:
+        """Nothing to keep."""
+
 
 class PoFeedback(PoController):
     """PI or PID on the contraction error, output Po command [Pa] (see the module doc)."""
@@ -146,25 +152,37 @@ class PoFeedback(PoController):
 
     def update(self, x: float, x_ref: float, po_cmd: float = 0.0) -> float:
         """Advance one step with contraction x and target x_ref [m]; return Po [Pa]."""
+        u, state = self.evaluate(x, x_ref, po_cmd)
+        self.commit(state)
+        return u
+
+    def evaluate(self, x: float, x_ref: float,
+                 po_cmd: float = 0.0) -> tuple[float, tuple[float, float, float]]:
+        """This step's Po command [Pa] and the state `commit` would keep, without keeping
+        it: an engine may evaluate a step more than once (`wpam_mj.engine`)."""
         po_ff = po_cmd if self.adds_drive_po else 0.0
         e = (x - x_ref) / MM
         e_prev = e if self.e_prev is None else self.e_prev
-        self.derivative = (self.tf * self.derivative + (e - e_prev)) / (self.tf + self.dt)
+        derivative = (self.tf * self.derivative + (e - e_prev)) / (self.tf + self.dt)
         integral = self.integral + e * self.dt
-        u = (self.kp * e + self.ki * integral + self.kd * self.derivative) * self.pa_per_unit \
+        u = (self.kp * e + self.ki * integral + self.kd * derivative) * self.pa_per_unit \
             + po_ff
+        integral_next = self.integral
         if u > self.hi:
             u = self.hi
             if e < 0.0:
-                self.integral = integral
+                integral_next = integral
         elif u < self.lo:
             u = self.lo
             if e > 0.0:
-                self.integral = integral
+                integral_next = integral
         else:
-            self.integral = integral
-        self.e_prev = e
-        return u
+            integral_next = integral
+        return u, (integral_next, derivative, e)
+
+    def commit(self, state: tuple[float, float, float]) -> None:
+        """Keep the (integral, derivative, error) of an `evaluate`."""
+        self.integral, self.derivative, self.e_prev = state
 
 
 class PIControl(PoFeedback):

@@ -7,21 +7,12 @@
 
 Built on dm_control's `rl.control.Environment` with a `Task` (reward, observations,
 random targets and loads) and a `dm_control.mujoco.Physics` subclass, `MusclePhysics`,
-whose `step` IS the project's physics step. Why a Physics subclass and not the Task hooks:
-the muscle is not a plain actuator: every physics step the regulators, chambers and
-muscle force (`wpam_mj.plant.Plant`) must be advanced at the current state, and the
-tendon's friction level rewritten before MuJoCo builds its constraints. dm_control's
-default (legacy) `Physics.step` runs `mj_step2` on a state whose constraints `mj_step1`
-already built, so a friction level written in `Task.before_step` would act one step late,
-and `Task.before_step/after_step` run once per control step, not per physics step.
-`MusclePhysics.step(n)` therefore runs, n times, exactly the loop of
-`wpam_mj.simulate.run_python`:
-
-    tension, friction = plant.advance(x, v, Pi_cmd, Po_cmd)   # once per physics step
-    ctrl[muscle] = -tension;  tendon_frictionloss[muscle] = friction;  mj_step
-
-so an episode reproduces `wpam_mj.simulate.simulate(..., control="open")` driven by the
-same commands exactly (tests/test_env.py checks this), and no force code is duplicated.
+whose `step` is the project's physics step: the muscle is the rig's `wpam_mj.muscle`
+actuator plugin (docs/plugin.md), whose input channels are the two regulator commands, and
+`MusclePhysics.step(n)` runs n full `mj_step`s (dm_control's default legacy step would run
+`mj_step2` on constraints `mj_step1` already built), so an episode reproduces
+`wpam_mj.simulate.simulate(..., control="open")` driven by the same commands exactly
+(tests/test_env.py checks this), and no force code is duplicated.
 
 Observations (each a float64 array of shape (1,), SI units, named with their unit):
     x_m           contraction x [m] (positive = shorter muscle)
@@ -55,7 +46,6 @@ until `reset()`: the state it would continue from has no meaning.
 from __future__ import annotations
 
 import collections
-import copy
 from pathlib import Path
 
 import mujoco
@@ -69,11 +59,11 @@ from dm_env import specs
 from wpam_mj.control import pi_feedforward
 from wpam_mj.experiments import SineSpec
 from wpam_mj.geometry import BraidGeometry
-from wpam_mj.model import MuscleIndex, build_model, check_dt, check_load
+from wpam_mj.live import LiveRig
+from wpam_mj.model import check_dt, check_load
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM, STANDARD_GRAVITY, ParameterError, Params, check_range, preset
-from wpam_mj.loop_contract import RunConstants, SimulationDiverged
-from wpam_mj.plant import Plant
+from wpam_mj.loop_contract import SimulationDiverged
 from wpam_mj.randomize import ParameterRanges
 
 ACTIONS = ("po", "both")
@@ -92,56 +82,48 @@ OBSERVATIONS = ("x_m", "velocity_m_s", "pi_pa", "po_pa", "target_m", "load_n")
 class MusclePhysics(engine.Physics):
     """dm_control Physics of the hung muscle whose `step` is the project's physics step.
 
-    Holds the pneumatic state (`Plant`) next to MuJoCo's mechanical state; `reset` resets
-    both. Set the regulator commands with `set_commands` before stepping.
+    The muscle is the rig's `wpam_mj.muscle` plugin (or the Python engine where it is
+    unavailable), stepped by `wpam_mj.live.LiveRig`: its pneumatic state lives in MuJoCo's
+    data, so `reset` and `copy` carry it. Set the regulator commands with `set_commands`
+    before stepping.
     """
 
     @classmethod
     def create(cls, params: Params, dt: float = 1e-3, load: float = 100.0) -> MusclePhysics:
         """Build the MJCF model for `params`, physics step `dt` [s], `load` [N]."""
         dt = check_dt(dt)
-        physics = cls(wrapper.MjData(mujoco.MjData(build_model(params, load, dt))))
-        physics._setup(params, dt)
+        rig = LiveRig.build(params, load, dt)
+        physics = cls(wrapper.MjData(mujoco.MjData(rig.model)))
+        physics._setup(params, rig)
         return physics
 
-    def _setup(self, params: Params, dt: float) -> None:
-        m = self.model.ptr
+    def _setup(self, params: Params, rig: LiveRig) -> None:
         self.params = params
-        self.muscle = MuscleModel.from_params(params)
-        self.constants = RunConstants.make(params, dt, record_dt=dt)
-        self._idx = MuscleIndex.of(m)
-        self._load_body = m.body("load").id
+        self.rig = rig
+        self._load_body = rig.model.body("load").id
         self.pi_cmd = self.po_cmd = 0.0
-        self.plant = Plant(self.muscle, self.constants)
         self.diverged: str | None = None
 
     def reset(self, keyframe_id=None) -> None:
         """Reset MuJoCo's state and the pneumatics (chambers vented, regulators at 0)."""
         super().reset(keyframe_id)
-        self.plant = Plant(self.muscle, self.constants)
+        self.rig.reset()
         self.pi_cmd = self.po_cmd = 0.0
         self.diverged = None
-
-    _STATE = ("params", "muscle", "constants", "_idx",
-              "_load_body", "pi_cmd", "po_cmd", "diverged")
 
     def copy(self, share_model: bool = False) -> MusclePhysics:
         """A copy with its own MuJoCo data and pneumatic state."""
         new = super().copy(share_model)
-        for name in self._STATE:
-            setattr(new, name, getattr(self, name))
-        new.plant = copy.deepcopy(self.plant)
+        new._setup(self.params, self.rig.copy())
+        new.pi_cmd, new.po_cmd, new.diverged = self.pi_cmd, self.po_cmd, self.diverged
         return new
 
     def set_params(self, params: Params) -> None:
-        """Use `params` from the next step on (domain randomisation): the model fields
-        `build_model` derives from them (stroke, slide damping) and the pneumatics; the
-        load and the state are kept."""
-        m = self.model.ptr
-        joint = m.joint("contraction")
-        joint.range[:] = (0.0, BraidGeometry.from_params(params.braid).max_contraction)
-        m.dof_damping[self._idx.dof] = params.muscle.damping
-        self._setup(params, self.constants.dt)
+        """Use `params` from now on (domain randomisation, at the start of an episode): the
+        model is rebuilt for them with the same load and time step, from rest."""
+        rig = LiveRig.build(params, self.load(), self.rig.model.opt.timestep)
+        self._reload_from_data(wrapper.MjData(mujoco.MjData(rig.model)))
+        self._setup(params, rig)
 
     def set_load(self, load: float) -> None:
         """Hang `load` [N]: the load body's mass becomes load / g."""
@@ -157,36 +139,31 @@ class MusclePhysics(engine.Physics):
 
     def contraction(self) -> float:
         """x [m]."""
-        return float(self.data.ptr.qpos[self._idx.qpos])
+        return self.rig.contraction(self.data.ptr)
 
     def velocity(self) -> float:
         """dx/dt [m/s]."""
-        return float(self.data.ptr.qvel[self._idx.dof])
+        return self.rig.velocity(self.data.ptr)
 
     def pressures(self) -> tuple[float, float]:
         """Chamber gauge pressures (Pi, Po) [Pa]."""
-        return self.plant.pressures
+        return self.rig.pressures(self.data.ptr)
 
     def step(self, nstep: int = 1) -> None:
-        """Advance `nstep` physics steps: plant once, then `mj_step`, per step.
-
-        The same `Plant.actuate` step as `wpam_mj.simulate.run_python`. Ends with
-        `mj_step1` so that positions, sensors and rendering match the new state (as
-        dm_control's own step).
-        """
+        """Advance `nstep` physics steps of the muscle and the load (`LiveRig.step`: the
+        physics step of `wpam_mj.simulate`), ending with `mj_step1` so that positions,
+        sensors and rendering match the new state (as dm_control's own step)."""
         if self.diverged is not None:  # the state is meaningless until reset
             raise control.PhysicsError(f"the muscle diverged ({self.diverged}); call reset() "
                                        "before stepping again")
-        m, d, idx = self.model.ptr, self.data.ptr, self._idx
+        d = self.data.ptr
         try:
             with self.check_invalid_state():
-                for _ in range(nstep):
-                    try:
-                        self.plant.actuate(m, d, idx, float(d.qpos[idx.qpos]),
-                                           float(d.qvel[idx.dof]), self.pi_cmd, self.po_cmd)
-                    except SimulationDiverged as err:
-                        raise control.PhysicsError(f"at t = {d.time:.4f} s: {err}") from err
-                mujoco.mj_step1(m, d)
+                self.rig.set_commands(d, self.pi_cmd, self.po_cmd)
+                try:
+                    self.rig.step(d, nstep)
+                except SimulationDiverged as err:
+                    raise control.PhysicsError(f"at t = {d.time:.4f} s: {err}") from err
         except control.PhysicsError as err:
             self.diverged = str(err)
             raise

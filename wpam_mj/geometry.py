@@ -13,7 +13,7 @@ turns a pressure difference into axial tension (paper eq. 3). The bag cannot gro
 its maximum diameter, which bounds the contraction at `max_contraction` (a hard stop).
 
 Methods take floats (inside the per-step loop) or numpy arrays (feedforward, plots);
-np.sqrt of a float is the correctly rounded IEEE sqrt, like C's (see `wpam_mj.fastloop`).
+np.sqrt of a float is the correctly rounded IEEE sqrt, like C's (see `wpam_mj/muscle_plugin.c`).
 """
 
 from __future__ import annotations

@@ -1,7 +1,6 @@
-"""The contract between the two simulation loops (Python `wpam_mj.simulate.run_python`,
-compiled `wpam_mj.fastloop.run_compiled`): what they record, the per-run constants they
-share, and how they report a divergence. Both loops import this module; neither imports
-the other.
+"""What both engines of the muscle share (the compiled plugin and the Python engine, see
+`wpam_mj.simulate`): what a run records, the per-run constants of the Python pieces, and
+how a divergence is reported.
 """
 
 from __future__ import annotations
@@ -11,10 +10,11 @@ from dataclasses import dataclass
 
 from wpam_mj import pneumatics as pn
 from wpam_mj.params import Params, ParameterError
+from wpam_mj.plugin import STATE_FIELDS
 
-# Rows of the recording array, in this order; `SimResult` has a field of each name.
-REC_FIELDS = ("time", "x", "velocity", "x_ref", "pi", "po", "pi_cmd", "po_cmd", "tension",
-              "friction", "pi_reg", "po_reg")
+# Rows of the recording array, in this order: the time, then the plugin state's recorded
+# fields; `SimResult` has a field of each name.
+REC_FIELDS = ("time", *STATE_FIELDS[:STATE_FIELDS.index("po_reg") + 1])
 REC_ROWS = len(REC_FIELDS)
 
 
@@ -34,7 +34,8 @@ def pressure_diverged(p_i: float, p_o: float) -> str:
 
 @dataclass(frozen=True)
 class RunConstants:
-    """Per-run constants of the step, the same for the Python and compiled loops."""
+    """Per-run constants of the step, of the Python engine's pieces
+    (the plugin derives the same values from its attributes)."""
 
     dt: float
     record_every: int

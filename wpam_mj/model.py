@@ -1,4 +1,10 @@
-"""Load the shipped MJCF and apply a parameter set to it by small, named edits."""
+"""Load the shipped rig MJCF and apply a parameter set and run to it by small, named edits.
+
+`rig_spec` is the rig as an MjSpec: its ``wpam_mj.muscle`` instance configured with every
+parameter (exactly: floats as their shortest round-trip text), the control mode and its
+input channels, the load mass, stroke and slide damping. `build_model` compiles it for the
+compiled plugin, or for the Python engine (`wpam_mj.engine.python_model`).
+"""
 
 from __future__ import annotations
 
@@ -7,6 +13,7 @@ from pathlib import Path
 
 import mujoco
 
+from wpam_mj import engine, plugin, pneumatics
 from wpam_mj.geometry import BraidGeometry
 from wpam_mj.params import STANDARD_GRAVITY, ParameterError, Params, check_range
 from wpam_mj.paths import MODEL_XML
@@ -37,37 +44,83 @@ def check_dt(dt: float, *, divides: float | None = None, name: str = "dt") -> fl
 
 @dataclass(frozen=True)
 class MuscleIndex:
-    """Where the muscle lives in a compiled model, looked up by name (never raw indices)."""
+    """Where the muscle lives in a model made for the Python engine (by name)."""
 
     qpos: int  # the contraction joint's qpos address
     dof: int  # its dof address (qvel, damping)
-    actuator: int  # the tendon motor carrying -tension
+    actuator: int  # the force motor carrying -tension
     tendon: int  # the tendon carrying the friction level
 
     @classmethod
     def of(cls, model: mujoco.MjModel) -> "MuscleIndex":
         joint = model.joint("contraction")
-        return cls(int(joint.qposadr[0]), int(joint.dofadr[0]), model.actuator("muscle").id,
-                   model.tendon("muscle").id)
+        return cls(int(joint.qposadr[0]), int(joint.dofadr[0]),
+                   model.actuator(f"{INSTANCE}_force").id, model.tendon("muscle").id)
 
 
-def build_model(params: Params, load: float, dt: float = 1e-3, *,
-                xml: str | Path = MODEL_XML) -> mujoco.MjModel:
-    """Compile the hung-muscle MJCF and set load mass, stops, damping and time step.
+INSTANCE = "muscle"  # the rig's plugin instance
+
+
+def check_chamber_step(params: Params, dt: float) -> None:
+    """Refuse a dt [s] at which the explicit chamber update would be unstable
+    (`wpam_mj.pneumatics.stable_dt`), naming the conductance and the dt it needs."""
+    limit, name = pneumatics.stable_dt(params)
+    if dt > limit:
+        raise ParameterError(f"{name} = {params.value(name):g} m^3/(s Pa) fills its chamber "
+                             f"too fast for dt = {dt:g} s (the explicit chamber update "
+                             f"would oscillate or diverge); use dt <= {limit:.3g} s")
+
+
+def rig_spec(params: Params, load: float, dt: float = 1e-3, *, control: str = "open",
+             start_at_rest: bool = False, feedforward_load: float = 0.0,
+             xml: str | Path = MODEL_XML) -> mujoco.MjSpec:
+    """The hung-muscle MJCF with a parameter set and a run's settings applied.
 
     Args:
-      params: muscle parameters (SI).
+      params: muscle parameters (SI), written into the instance's configuration.
       load: hanging load [N]; the load mass is load / g.
       dt: physics time step [s].
+      control: the plugin's control mode; the instance gets every input channel of it
+        (`wpam_mj.plugin.CONTROLS`), one actuator each, named after the channel.
+      start_at_rest: the regulators and chambers start settled at the first commands.
+      feedforward_load: the load [N] the in-plugin Pi feedforward holds (used only when no
+        Pi command channel is given; the rig always gives one).
       xml: MJCF file (the scene file for rendering).
     """
     load = check_load(load)
     dt = check_dt(dt)
-    model = mujoco.MjModel.from_xml_path(str(xml))
-    model.opt.timestep = dt
-    model.opt.gravity[:] = (0.0, 0.0, -STANDARD_GRAVITY)
-    model.body("load").mass[0] = load / STANDARD_GRAVITY
-    model.joint("contraction").range[:] = (
-        0.0, BraidGeometry.from_params(params.braid).max_contraction)
-    model.dof_damping[MuscleIndex.of(model).dof] = params.muscle.damping
+    check_chamber_step(params, dt)
+    engine.register_stand_in()
+    spec = mujoco.MjSpec.from_file(str(xml))
+    spec.option.timestep = dt
+    spec.option.gravity = (0.0, 0.0, -STANDARD_GRAVITY)
+    spec.geom("load_mass").mass = load / STANDARD_GRAVITY
+    joint = spec.joint("contraction")
+    joint.range = (0.0, BraidGeometry.from_params(params.braid).max_contraction)
+    joint.damping[0] = params.muscle.damping
+    mode = plugin.control_mode(control)
+    instance = next(p for p in spec.plugins if p.name == INSTANCE)
+    instance.config = {"preset": params.preset, "control": control,
+                       "start": "rest" if start_at_rest else "vented",
+                       "feedforward_load": repr(float(feedforward_load)),
+                       **{key: repr(float(params.value(key)))
+                          for key, _ in plugin.parameter_fields()}}
+    shipped = [a for a in spec.actuators if a.plugin.name == INSTANCE]
+    for act in shipped:
+        act.name = ""  # free the names for the run's channels
+    for channel in mode.channels:
+        act = spec.add_actuator(name=f"{INSTANCE}_{channel}", target="muscle",
+                                trntype=mujoco.mjtTrn.mjTRN_TENDON)
+        act.plugin = shipped[0].plugin  # the reference to the instance, as parsed
+    for act in shipped:
+        spec.delete(act)
+    return spec
+
+
+def build_model(params: Params, load: float, dt: float = 1e-3, *, xml: str | Path = MODEL_XML,
+                **run) -> mujoco.MjModel:
+    """The rig compiled as the Python engine sees it (plain motors; `MuscleIndex` finds
+    the muscle): for readers of its mechanics (the linear model) and the bare-step
+    benchmark. `run`: the keyword settings of `rig_spec`."""
+    model, _ = engine.python_model(rig_spec(params, load, dt, xml=xml, **run))
     return model

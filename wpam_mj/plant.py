@@ -1,18 +1,15 @@
 """The plant: regulators, chambers and muscle force, everything but the load's motion.
 
-`Plant.advance` is called once per physics step with the current contraction and
-velocity. It composes the pieces of `wpam_mj.pneumatics` (two `Regulator`s, two
-`Chamber`s) with `wpam_mj.muscle.MuscleModel`; `wpam_mj/_fastloop.c` has the same
-`plant_advance`, piece for piece. Pressures: regulator set points gauge [Pa], chamber
-pressures absolute [Pa].
+Per physics step the Python engine (`wpam_mj.engine`) takes `Plant.forces` at the current
+contraction, then `Plant.step` after MuJoCo's step. It composes the pieces of
+`wpam_mj.pneumatics` (two `Regulator`s, two `Chamber`s) with `wpam_mj.muscle.MuscleModel`;
+`wpam_mj/muscle_plugin.c` has the same compute and advance, piece for piece. Pressures:
+regulator set points gauge [Pa], chamber pressures absolute [Pa].
 """
 
 from __future__ import annotations
 
-import mujoco
-
 from wpam_mj.loop_contract import RunConstants, SimulationDiverged, pressure_diverged
-from wpam_mj.model import MuscleIndex
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.pneumatics import Chamber, Regulator, chamber_volumes
 
@@ -49,20 +46,19 @@ class Plant:
         self.chamber_i.pressure = self.regulator_i.set_point + pa
         self.chamber_o.pressure = self.regulator_o.set_point + pa
 
-    def advance(self, x: float, v: float, pi_cmd: float, po_cmd: float) -> tuple[float, float]:
-        """One step at contraction x [m], velocity v [m/s]; returns (tension, friction) [N].
+    def forces(self, x: float) -> tuple[float, float]:
+        """(tension, friction level) [N] at contraction x [m] from the chamber pressures at
+        the start of the step."""
+        pi, po = self.pressures
+        return self.muscle.tension(x, pi, po), self.muscle.friction(x, pi, po)
 
-        The force uses the chamber pressures at the start of the step; the regulators and
-        chambers are then advanced to the end of it. Raises SimulationDiverged.
-        """
+    def step(self, x: float, v: float, pi_cmd: float, po_cmd: float) -> None:
+        """Advance the regulators, then the chambers (volumes and dV/dx at x [m], velocity
+        v [m/s]), by one step. Raises SimulationDiverged."""
         k, muscle, geom = self.k, self.muscle, self.muscle.geometry
         set_i = self.regulator_i.update(pi_cmd)
         set_o = self.regulator_o.update(po_cmd)
         pa = k.atmosphere
-        pi, po = self.pressures
-        tension = muscle.tension(x, pi, po)
-        friction = muscle.friction(x, pi, po)
-        # chamber volumes and dV/dx (wpam_mj.pneumatics)
         area = geom.area(x)
         vol = geom.volume(x)
         v_i, v_o = chamber_volumes(vol, x, muscle.axial_area, k.bag_volume, k.tube_volume)
@@ -70,14 +66,3 @@ class Plant:
         p_o = self.chamber_o.step(set_o + pa, v_o, -(area + muscle.axial_area), v, k.dt)
         if not (p_i > 0.0 and p_o > 0.0):
             raise SimulationDiverged(pressure_diverged(p_i, p_o))
-        return tension, friction
-
-    def actuate(self, model: mujoco.MjModel, data: mujoco.MjData, idx: MuscleIndex,
-                x: float, v: float, pi_cmd: float, po_cmd: float) -> tuple[float, float]:
-        """`advance`, write the tension (actuator ctrl) and friction level (tendon
-        frictionloss) into the model, then `mj_step`; returns (tension, friction) [N]."""
-        tension, friction = self.advance(x, v, pi_cmd, po_cmd)
-        data.ctrl[idx.actuator] = -tension
-        model.tendon_frictionloss[idx.tendon] = friction
-        mujoco.mj_step(model, data)
-        return tension, friction

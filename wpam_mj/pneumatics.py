@@ -1,8 +1,8 @@
 """Regulators and chambers: ITV2031-like pressure sources behind a flow restriction.
 
-The two state-holding pieces the simulation loop calls once per physics step are
+The two state-holding pieces the muscle advances once per physics step are
 `Regulator` (command -> set pressure) and `Chamber` (set pressure -> chamber pressure).
-`wpam_mj/_fastloop.c` mirrors each of them one to one (same names, same order of
+`wpam_mj/muscle_plugin.c` mirrors each of them one to one (same names, same order of
 operations); a change here is a change there.
 
 Each regulator (SMC ITV2031: 0.005-0.5 MPa) is modelled as
@@ -105,6 +105,31 @@ def chamber_volumes_of(params: Params, x: np.ndarray) -> tuple[np.ndarray, np.nd
     return chamber_volumes(BraidGeometry.from_params(b).volume(x), x, params.muscle.axial_area,
                            outer_bag_volume(b.outer_bag_length, b.outer_bag_diameter),
                            params.pneumatics.tube_volume)
+
+
+def max_flow_slope(conductance: float, b: float) -> float:
+    """Largest |d m_dot / d p_chamber| [kg/(s Pa)] of `mass_flow` at a fixed source: the
+    slope of its laminar-linearised region, C rho_0 psi(R_LAMINAR) / (1 - R_LAMINAR)."""
+    return conductance * RHO_0 * iso6358_psi(R_LAMINAR, b) / (1.0 - R_LAMINAR)
+
+
+def stable_dt(params: Params) -> tuple[float, str]:
+    """The largest time step [s] at which `Chamber.step` (explicit Euler) is stable and
+    does not oscillate for this parameter set, and the conductance that sets it.
+
+    Near equilibrium dp/dt = R T_0 m_dot(p) / V is linear with rate
+    lambda = R T_0 max_flow_slope / V; explicit Euler decays monotonically for
+    dt lambda <= 1. V is each chamber's smallest volume over the stroke: the inner one at
+    x = 0, the outer one at the full contraction.
+    """
+    pn, b = params.pneumatics, params.braid
+    x_max = BraidGeometry.from_params(b).max_contraction
+    v_i, _ = chamber_volumes_of(params, 0.0)
+    _, v_o = chamber_volumes_of(params, x_max)
+    limits = [(float(v) / (RT0 * max_flow_slope(c, pn.critical_ratio)), name)
+              for v, c, name in ((v_i, pn.inner_conductance, "pneumatics.inner_conductance"),
+                                 (v_o, pn.outer_conductance, "pneumatics.outer_conductance"))]
+    return min(limits)
 
 
 def outer_bag_volume(length: float, diameter: float) -> float:

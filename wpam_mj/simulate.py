@@ -1,15 +1,16 @@
-"""The simulation loop: MuJoCo moves the load, wpam_mj computes the muscle every step.
+"""One run of the rig: a `Drive` of commands through the muscle, recorded.
 
-Per physics step k (state x_k, v_k read straight from qpos/qvel, so nothing is a step old):
-  1. controller (`wpam_mj.control.PoController`): the Po command; Pi command given;
-  2. `wpam_mj.plant.Plant.advance`: regulators (dead time + first-order lag) and chambers
-     (explicit Euler of dp/dt with the flow through the restriction and the volume
-     change), both from `wpam_mj.pneumatics`; tension T(x_k, Pi_k, Po_k) -> actuator ctrl
-     and friction level -> tendon frictionloss (stiction through MuJoCo's no-slip solver);
-  3. mj_step: semi-implicit Euler of the load.
-The record layout and per-run constants are `wpam_mj.loop_contract`, shared with the
-compiled twin of `run_python` (`wpam_mj.fastloop`). No global MuJoCo callback is
-installed, so nothing leaks into other models.
+The muscle is the ``wpam_mj.muscle`` actuator of the rig's MJCF (`wpam_mj.model.rig_spec`):
+each physics step it reads the contraction x and velocity from the tendon, runs its Po
+controller, computes the tension and friction level from the chamber pressures, and
+after MuJoCo's step advances the regulators and chambers (docs/plugin.md). Two engines
+compute it, with bit-identical results (tests/test_plugin.py):
+  "plugin": the compiled plugin (`wpam_mj.plugin`), stepped by `mujoco.batch` in chunks
+    of `CHUNK_STEPS`, so that Ctrl-C and SIGTERM act within a fraction of a second;
+  "python": the readable definition (`wpam_mj.engine`), a MuJoCo control callback.
+"auto" takes the plugin when it is available, else Python with a one-line notice.
+The recorded series are the first fields of the plugin's state (`wpam_mj.plugin.
+STATE_FIELDS`), sampled every `record_dt`.
 """
 
 from __future__ import annotations
@@ -19,16 +20,19 @@ from dataclasses import dataclass, field
 
 import mujoco
 import numpy as np
+from mujoco import batch as mjbatch
 
-from wpam_mj import fastloop
-from wpam_mj.control import PoController, make_controller
+from wpam_mj import engine as pyengine
+from wpam_mj import plugin
+from wpam_mj.control import make_controller
 from wpam_mj.loop_contract import (REC_FIELDS, REC_ROWS, RunConstants, SimulationDiverged,
-                                   contraction_diverged)
-from wpam_mj.model import MuscleIndex, build_model, check_dt, check_load
-from wpam_mj.muscle import MuscleModel
+                                   contraction_diverged, pressure_diverged)
+from wpam_mj.model import INSTANCE, check_dt, check_load, rig_spec
 from wpam_mj.params import MPA, Params, ParameterError
-from wpam_mj.plant import Plant
 from wpam_mj.results import SimResult
+
+CHUNK_STEPS = 2000  # plugin steps per batch call: ~3 ms of wall time between signal checks
+ENGINES = ("auto", "plugin", "python")
 
 
 @dataclass(frozen=True)
@@ -64,6 +68,48 @@ class Drive:
                 raise ParameterError(f"drive.{name} contains NaN or infinite values")
 
 
+@dataclass(frozen=True)
+class Run:
+    """One validated run: the rig's spec, one row of input channels per step, and what
+    turns its record into a `SimResult`."""
+
+    spec: mujoco.MjSpec
+    inputs: np.ndarray  # (n steps, channels)
+    record_every: int
+    load: float
+    dt: float
+    control: str
+    preset: str
+
+    @classmethod
+    def make(cls, params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
+             control: str = "open", record_dt: float = 0.01) -> "Run":
+        """Validate a run (see `simulate` for the arguments) and build its model spec."""
+        load, dt = check_load(load), check_dt(dt)
+        k = RunConstants.make(params, dt, record_dt, start_at_rest=drive.start_at_rest)
+        controller = make_controller(control, params, dt)
+        _check_commands(drive, params, dt, feedback=controller.feedback)
+        if controller.feedback and not np.all(np.isfinite(drive.x_ref)):
+            raise ParameterError("feedback control needs a finite target x_ref at every step")
+        if not params.outer_chamber and (controller.feedback or np.any(drive.po_cmd > 0.0)):
+            raise ParameterError(f"the {params.preset} preset has no outer chamber: Po must "
+                                 "stay 0 (open loop with --po-down 0)")
+        spec = rig_spec(params, load, dt, control=control, start_at_rest=drive.start_at_rest)
+        inputs = np.column_stack([getattr(drive, name)
+                                  for name in plugin.control_mode(control).channels])
+        return cls(spec, inputs, k.record_every, load, dt, control, params.preset)
+
+    def result(self, rec: np.ndarray, failure: tuple[int, str] | None) -> SimResult:
+        """The run's `SimResult`; raises SimulationDiverged for a failure (step, reason)."""
+        if failure is not None:
+            step, what = failure
+            raise SimulationDiverged(f"simulation diverged at t = {step * self.dt:.4f} s: "
+                                     f"{what}; reduce dt or check the gains and pneumatic "
+                                     "parameters")
+        return SimResult(**dict(zip(REC_FIELDS, rec)), load=self.load, dt=self.dt,
+                         control=self.control, preset=self.preset)
+
+
 def simulate(params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
              control: str = "open", record_dt: float = 0.01,
              engine: str = "auto") -> SimResult:
@@ -75,34 +121,14 @@ def simulate(params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
       drive: commands sampled at `dt` (see `Drive`).
       dt: physics time step [s].
       control: a name of `wpam_mj.control.CONTROLLERS`: "open" (Po from drive.po_cmd),
-        "pi" or "pid" (Po from feedback on x_ref).
+        "pi" or "pid" (Po from feedback on x_ref), "pi_ff" (PI plus drive.po_cmd).
       record_dt: sample period of the returned series [s], a multiple of dt.
-      engine: "python" (reference loop), "c" (compiled loop, same results), or "auto"
-        (compiled when available and it implements `control`; otherwise Python, with a
-        one-line notice on stderr when only the controller is missing).
+      engine: "plugin", "python" or "auto" (see the module docstring; "c" is taken as
+        "plugin").
     """
-    load, dt = check_load(load), check_dt(dt)
-    k = RunConstants.make(params, dt, record_dt, start_at_rest=drive.start_at_rest)
-    controller = make_controller(control, params, dt)
-    _check_commands(drive, params, dt, feedback=controller.feedback)
-    if controller.feedback and not np.all(np.isfinite(drive.x_ref)):
-        raise ParameterError("feedback control needs a finite target x_ref at every step")
-    if not params.outer_chamber and (controller.feedback or np.any(drive.po_cmd > 0.0)):
-        raise ParameterError(f"the {params.preset} preset has no outer chamber: Po must stay "
-                             "0 (open loop with --po-down 0)")
-    model = build_model(params, load, dt)
-    data = mujoco.MjData(model)
-    muscle = MuscleModel.from_params(params)
-    n = len(drive.pi_cmd)
-    rec = np.zeros((REC_ROWS, (n - 1) // k.record_every + 1))
-    run = _select_engine(engine, control)
-    status = run(model, data, muscle, controller, k, drive, rec)
-    if status is not None:
-        step, what = status
-        raise SimulationDiverged(f"simulation diverged at t = {step * dt:.4f} s: {what}; "
-                                 "reduce dt or check the gains and pneumatic parameters")
-    return SimResult(**dict(zip(REC_FIELDS, rec)), load=load, dt=dt, control=control,
-                     preset=params.preset)
+    run_engine = _select_engine(engine, control)
+    run = Run.make(params, load, drive, dt=dt, control=control, record_dt=record_dt)
+    return run.result(*run_engine(run.spec, run.inputs, run.record_every))
 
 
 def _check_commands(drive: Drive, params: Params, dt: float, *, feedback: bool) -> None:
@@ -122,58 +148,124 @@ def _check_commands(drive: Drive, params: Params, dt: float, *, feedback: bool) 
 _noticed: set[str] = set()  # Python fallbacks already announced (once per process)
 
 
-def _python_fallback(key: str, why: str):
-    """The Python loop, saying once per process why it runs instead of the compiled one."""
-    if key not in _noticed:
-        _noticed.add(key)
-        print(f"wpam_mj: {why}; running the Python loop (about 6x slower, same physics)",
-              file=sys.stderr)
+def _select_engine(engine: str, control: str = "open"):
+    """The runner for `engine` and the controller named `control` (see `simulate`)."""
+    if engine == "python":
+        return run_python
+    if control not in plugin.CONTROL_BY_NAME:  # a controller only Python defines
+        if engine != "auto":
+            raise ParameterError(f"controller {control!r} runs on the Python engine only")
+        if control not in _noticed:
+            _noticed.add(control)
+            print(f"wpam_mj: controller {control!r} has no compiled form; running the Python"
+                  " engine (about 6x slower)", file=sys.stderr)
+        return run_python
+    if engine in ("plugin", "c"):
+        if not plugin.available():
+            raise RuntimeError(f"the compiled plugin is unavailable "
+                               f"({plugin.unavailable_reason()}); use engine='python'")
+        return run_plugin
+    if engine != "auto":
+        raise ParameterError(f"unknown engine {engine!r}; valid: {', '.join(ENGINES)}")
+    if plugin.available():
+        return run_plugin
+    if not plugin.disabled() and "" not in _noticed:  # WPAM_MJ_NO_COMPILE=1: quietly
+        _noticed.add("")
+        print(f"wpam_mj: the compiled plugin is unavailable ({plugin.unavailable_reason()});"
+              " running the Python engine (about 6x slower, same physics)", file=sys.stderr)
     return run_python
 
 
-def _select_engine(engine: str, control: str):
-    """The loop for `engine` and the controller named `control`."""
-    if engine == "python":
-        return run_python
-    if engine == "c":
-        return fastloop.run_compiled
-    if engine != "auto":
-        raise ParameterError(f"unknown engine {engine!r}; valid: auto, python, c")
-    if not fastloop.available():
-        if fastloop.disabled():  # the user asked for it (WPAM_MJ_NO_COMPILE=1)
-            return run_python
-        return _python_fallback("", f"the compiled loop is unavailable "
-                                    f"({fastloop.unavailable_reason()})")
-    if control not in fastloop.compiled_controllers():
-        return _python_fallback(control, f"controller {control!r} has no compiled loop")
-    return fastloop.run_compiled
+def _record_shape(n: int, record_every: int) -> tuple[int, int]:
+    return REC_ROWS, (n - 1) // record_every + 1
 
 
-def run_python(model, data, muscle: MuscleModel, controller: PoController, k: RunConstants,
-               drive: Drive, rec: np.ndarray):
-    """Reference loop in plain Python floats; returns None or (step, reason)."""
-    plant = Plant(muscle, k)
-    idx = MuscleIndex.of(model)
-    qpos, qvel = data.qpos, data.qvel
+def run_plugin(spec: mujoco.MjSpec, inputs: np.ndarray, record_every: int):
+    """Run the rig `spec` on the compiled plugin with one row of `inputs` (the instance's
+    channels) per step. Returns (record, None) or (record so far, (step, reason))."""
+    return run_batch([spec.compile()], [inputs], record_every, nthread=1)[0]
+
+
+def run_batch(models: list[mujoco.MjModel], inputs: list[np.ndarray], record_every: int, *,
+              nthread: int = 1) -> list[tuple[np.ndarray, tuple[int, str] | None]]:
+    """Runs of rig models of one layout (same sizes) and one length on `mujoco.batch`,
+    `nthread` threads, in chunks of `CHUNK_STEPS` (results do not depend on nthread).
+    Returns (record, failure) per run, as `run_plugin`."""
+    n = len(inputs[0])
+    model = models[0]
+    fields = {name: i for i, name in enumerate(plugin.STATE_FIELDS)}
+    adr = model.plugin_stateadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_PLUGIN, INSTANCE)]
+    recorded = slice(adr, adr + REC_ROWS - 1)
+    status = adr + fields["status"]
+    recs = [np.zeros(_record_shape(n, record_every)) for _ in models]
+    failures: list[tuple[int, str] | None] = [None] * len(models)
+    sim = mjbatch.Batch(model, len(models), nthread=nthread)
+    sim.set_models(models)
+    sim.reset(stage=mujoco.mjtStage.mjSTAGE_NONE)
+    controls = np.stack(inputs)
+    dt = model.opt.timestep
+    for start in range(0, n, CHUNK_STEPS):
+        stop = min(n, start + CHUNK_STEPS)
+        out = sim.rollout(stop - start, control=controls[:, start:stop],
+                          record=("plugin_state",))["plugin_state"]
+        first = -start % record_every
+        steps = np.arange(start + first, stop, record_every)
+        for i, rec in enumerate(recs):
+            if failures[i] is not None:
+                continue
+            rec[0, steps // record_every] = steps * dt
+            rec[1:, steps // record_every] = out[i, first::record_every, recorded].T
+            bad = np.flatnonzero(out[i, :, status])
+            if bad.size:
+                row = out[i, bad[0], adr:]
+                step = start + int(bad[0])
+                if row[fields["status"]] == plugin.FAIL_CONTRACTION:
+                    failures[i] = (step, contraction_diverged(float(row[fields["x"]])))
+                else:
+                    failures[i] = (step, pressure_diverged(float(row[fields["p_i"]]),
+                                                           float(row[fields["p_o"]])))
+    return list(zip(recs, failures))
+
+
+def simulate_many(runs: list[Run], *, nthread: int = 1) -> list[SimResult]:
+    """Many validated runs on the plugin through `mujoco.batch` on `nthread` threads:
+    runs of one model layout and length share a batch. Bit-identical to `simulate` on
+    each run, at any thread count. Raises SimulationDiverged for the first failed run."""
+    if not plugin.available():
+        raise RuntimeError(f"the compiled plugin is unavailable ({plugin.unavailable_reason()})")
+    models = [run.spec.compile() for run in runs]
+    groups: dict[tuple, list[int]] = {}
+    for i, (run, model) in enumerate(zip(runs, models)):
+        key = (len(run.inputs), run.record_every, model.nu, model.npluginstate, model.nq)
+        groups.setdefault(key, []).append(i)
+    done: dict[int, tuple] = {}
+    for (_, record_every, *_), ids in groups.items():
+        outs = run_batch([models[i] for i in ids], [runs[i].inputs for i in ids],
+                         record_every, nthread=min(nthread, len(ids)))
+        done.update(zip(ids, outs))
+    return [run.result(*done[i]) for i, run in enumerate(runs)]
+
+
+def run_python(spec: mujoco.MjSpec, inputs: np.ndarray, record_every: int):
+    """`run_plugin` on the Python engine (`wpam_mj.engine`): the reference."""
+    model, (muscle,) = pyengine.python_model(spec)
+    data = mujoco.MjData(model)
+    n = len(inputs)
+    rec = np.zeros(_record_shape(n, record_every))
+    channels = muscle.channels
+    ctrl, dt, record = data.ctrl, model.opt.timestep, muscle.record
+    names = REC_FIELDS[1:]
     j = 0
-    for step in range(len(drive.pi_cmd)):
-        x = float(qpos[idx.qpos])
-        v = float(qvel[idx.dof])
-        if not -1.0 < x < 1.0:
-            return step, contraction_diverged(x)
-        pi_gauge, po_gauge = plant.pressures
-        pi_c = float(drive.pi_cmd[step])
-        xr = float(drive.x_ref[step])
-        po_c = controller.update(x, xr, float(drive.po_cmd[step]))
-        if step == 0 and k.start_at_rest:  # the first commands were held before the run
-            plant.rest(pi_c, po_c)
-            pi_gauge, po_gauge = plant.pressures
-        try:
-            tension, friction = plant.actuate(model, data, idx, x, v, pi_c, po_c)
-        except SimulationDiverged as err:
-            return step, str(err)
-        if step % k.record_every == 0:  # the state at the start of this step
-            rec[:, j] = (step * k.dt, x, v, xr, pi_gauge, po_gauge, pi_c, po_c, tension,
-                         friction, *plant.set_points)
-            j += 1
-    return None
+    with pyengine.stepping(model, [muscle]):
+        for step in range(n):
+            for channel, value in zip(channels, inputs[step]):
+                ctrl[channel] = value
+            mujoco.mj_step(model, data)
+            muscle.advance()
+            if muscle.status:
+                return rec, (step, muscle.status)
+            if step % record_every == 0:
+                rec[0, j] = step * dt
+                rec[1:, j] = [record[name] for name in names]
+                j += 1
+    return rec, None

@@ -44,12 +44,11 @@ import numpy as np
 from wpam_mj.control import CONTROLLERS, check_control, pi_feedforward
 from wpam_mj.experiments import STEP_LEVELS_MM, SineSpec
 from wpam_mj.geometry import BraidGeometry
-from wpam_mj.model import MuscleIndex, build_model, check_dt, check_load
+from wpam_mj.live import LiveRig as _Stepper
+from wpam_mj.model import check_dt, check_load
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM, MPA, Params, ParameterError, check_range
 from wpam_mj.paths import SCENE_XML
-from wpam_mj.loop_contract import RunConstants
-from wpam_mj.plant import Plant
 
 TARGET_MODES = ("step", "sine", "fixed")
 STEP_HOLD_S = 4.0  # s per staircase level: livelier than the paper's 10 s (settles in ~2 s)
@@ -102,13 +101,12 @@ class LiveRig:
     def __init__(self, params: Params, load: float, control: str, target: str | float,
                  dt: float = 1e-3) -> None:
         self.params, self.load, self.dt = params, check_load(load), check_dt(dt)
-        self.model = build_model(params, self.load, self.dt, xml=SCENE_XML)
+        self.stepper = _Stepper.build(params, self.load, self.dt, xml=SCENE_XML)
+        self.model = self.stepper.model
         self.data = mujoco.MjData(self.model)
         self.x_max = BraidGeometry.from_params(params.braid).max_contraction
-        self._idx = MuscleIndex.of(self.model)
         self.load_body = self.model.body("load").id
         self._muscle = MuscleModel.from_params(params)
-        self.plant = Plant(self._muscle, RunConstants.make(params, self.dt, self.dt))
         self.po_cmd = 0.0
         self.pi_cmd = 0.0
         self.push = 0.0  # N along +z: the mouse's force on the load, read at each sync
@@ -134,7 +132,11 @@ class LiveRig:
     @property
     def x(self) -> float:
         """Contraction [m]."""
-        return float(self.data.qpos[self._idx.qpos])
+        return self.stepper.contraction(self.data)
+
+    def pressures(self) -> tuple[float, float]:
+        """Chamber gauge pressures (Pi, Po) [Pa]."""
+        return self.stepper.pressures(self.data)
 
     def target(self, t: float) -> float:
         """Target contraction x_r [m] at time t [s]."""
@@ -187,24 +189,25 @@ class LiveRig:
     def advance(self, until: float, perturb: Callable[[float], float] | None = None) -> float:
         """Step to simulated time `until` [s]; returns the external force along +z [N]
         at the last step. `perturb(t)` [N] is added to `push`, the viewer's (mouse) force."""
-        m, d, idx = self.model, self.data, self._idx
+        d, stepper = self.data, self.stepper
         force = self.push
         while d.time < until - 0.5 * self.dt:
             t = float(d.time)
             if perturb is not None:
                 force = self.push + float(perturb(t))
                 d.xfrc_applied[self.load_body, 2] = force
-            x, v = float(d.qpos[idx.qpos]), float(d.qvel[idx.dof])
+            x = stepper.contraction(d)
             x_ref = self.target(t)
             pi = self._pi_command(x_ref)
             self.po_cmd = 0.0 if self._feedback is None else self._feedback.update(x, x_ref)
-            self.plant.actuate(m, d, idx, x, v, pi, self.po_cmd)
+            stepper.set_commands(d, pi, self.po_cmd)
+            stepper.step(d, 1)
         return force
 
     def texts(self) -> list[tuple]:
         """Overlay text for `mujoco.viewer.Handle.set_texts`: state (top left), keys
         (bottom left)."""
-        pi, po = self.plant.pressures
+        pi, po = self.pressures()
         x_ref = self.target(self.time)
         push = float(self.data.xfrc_applied[self.load_body, 2])  # mouse and script
         state = ("t\nx\ntarget\nerror\nPi\nPo\ncontrol\nload\npush",
@@ -293,7 +296,7 @@ def view(params: Params, *, load: float = 100.0, control: str = "pi",
             if time.perf_counter() - texts_at >= TEXT_PERIOD_S:
                 handle.set_texts(rig.texts())
                 texts_at = time.perf_counter()
-            pi, po = rig.plant.pressures
+            pi, po = rig.pressures()
             rows.append((rig.time, rig.x, rig.target(rig.time), pi, po, force))
             if on_frame is not None:
                 on_frame(rig.time, handle)

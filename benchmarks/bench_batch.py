@@ -1,0 +1,68 @@
+"""Many short runs through `mujoco.batch` (`wpam_mj.simulate.simulate_many`): threads.
+
+100 PI runs of 20 s (a 0 -> 10 -> 20 mm staircase, loads spread over 50-150 N), each on
+its own model, stepped by one batch on 1 and on 2 threads (best of --repeats). Figures:
+runs/s on each, the speed-up (target >= 1.8x on 2 threads; it needs two idle cores, so
+`parallel_capacity` is printed beside it), and whether the records are bit-identical.
+
+Run: python benchmarks/bench_batch.py [--runs N] [--duration S] [--repeats R]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from common import Figure, parallel_capacity, print_table
+from wpam_mj import plugin, preset
+from wpam_mj.experiments import drive_for_targets, step_targets
+from wpam_mj.simulate import Run, simulate_many
+
+DT = 1e-3  # s
+TARGET_SPEEDUP = 1.8  # 2 threads / 1 thread
+
+
+def make_runs(n: int, duration: float) -> list[Run]:
+    params = preset("wpam")
+    t = np.arange(round(duration / DT)) * DT
+    x_ref = step_targets(t, (0, 10, 20), hold=duration / 3) * 1e-3
+    runs = []
+    for load in np.linspace(50.0, 150.0, n):
+        drive = drive_for_targets(params, load, x_ref, "pi", DT)
+        runs.append(Run.make(params, load, drive, dt=DT, control="pi"))
+    return runs
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=int, default=100, help="runs per batch (default 100)")
+    parser.add_argument("--duration", type=float, default=20.0, help="seconds per run")
+    parser.add_argument("--repeats", type=int, default=3, help="best of (default 3)")
+    args = parser.parse_args(argv)
+    if not plugin.available():
+        print(f"plugin unavailable: {plugin.unavailable_reason()}")
+        return 1
+    runs = make_runs(args.runs, args.duration)
+    best, results = {1: np.inf, 2: np.inf}, {}
+    for _ in range(args.repeats):
+        for nthread in (1, 2):
+            start = time.perf_counter()
+            results[nthread] = simulate_many(runs, nthread=nthread)
+            best[nthread] = min(best[nthread], time.perf_counter() - start)
+    same = all(np.array_equal(a.x, b.x) and np.array_equal(a.po, b.po)
+               for a, b in zip(results[1], results[2]))
+    print(f"{args.runs} PI runs of {args.duration:g} s, dt {DT * 1e3:g} ms, best of "
+          f"{args.repeats}; parallel capacity of this machine now: {parallel_capacity():.2f}"
+          " cores")
+    ok = print_table([Figure("1 thread [runs/s]", args.runs / best[1], ""),
+                      Figure("2 threads [runs/s]", args.runs / best[2], ""),
+                      Figure("speed-up, 2 threads [x]", best[1] / best[2], ">=",
+                             TARGET_SPEEDUP),
+                      Figure("records identical (1 = yes)", float(same), ">=", 1.0)])
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

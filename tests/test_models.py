@@ -1,0 +1,57 @@
+"""Every shipped model compiles and steps with the plugin, and the two that only reuse it
+(the antagonistic arm, the McKibben elbow) do what their files say."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pytest
+
+import wpam_mj  # noqa: F401 (registers the plugin)
+from wpam_mj import arm, plugin
+from wpam_mj.geometry import BraidGeometry
+from wpam_mj.params import MPA, preset
+from wpam_mj.paths import MODELS_DIR
+
+pytestmark = pytest.mark.skipif(not plugin.available(),
+                                reason=f"plugin unavailable: {plugin.unavailable_reason()}")
+MODELS = sorted(MODELS_DIR.glob("*/*.xml"))
+
+
+@pytest.mark.parametrize("path", MODELS, ids=lambda p: f"{p.parent.name}/{p.name}")
+def test_every_model_compiles_and_steps_a_second_without_warnings(path):
+    model = mujoco.MjModel.from_xml_path(str(path))
+    data = mujoco.MjData(model)
+    for _ in range(round(1.0 / model.opt.timestep)):
+        mujoco.mj_step(model, data)
+    assert not any(w.number for w in data.warning), [w.number for w in data.warning]
+    recorded = np.delete(data.plugin_state, plugin.STATE_FIELDS.index("x_ref"))  # NaN: open
+    assert np.all(np.isfinite(recorded))
+
+
+def test_the_arm_tracks_angle_steps_within_half_a_degree_without_hunting():
+    _, plateaus = arm.step_response(arm.Pair.load())
+    for p in plateaus:
+        assert abs(p.error_deg) < 0.5, p
+        assert p.peak_to_peak_deg < 0.05, p  # settled: no limit cycle
+
+
+def test_the_arm_follows_a_slow_sine():
+    _, point = arm.sine_response(arm.Pair.load())
+    assert 0.9 < point.gain < 1.1 and 0.0 < point.phase_lag_deg < 20.0, point
+
+
+def test_the_mckibben_elbow_flexes_more_with_more_pressure_and_stops_at_the_full_bag():
+    model = mujoco.MjModel.from_xml_path(str(MODELS_DIR / "elbow" / "elbow.xml"))
+    data = mujoco.MjData(model)
+    x = plugin.STATE_FIELDS.index("x")
+    angles, contractions = [], []
+    for pi in (0.03, 0.06, 0.1, 0.5):
+        data.ctrl[:] = (pi * MPA, 0.0)
+        for _ in range(3000):
+            mujoco.mj_step(model, data)
+        angles.append(data.qpos[0])
+        contractions.append(data.plugin_state[x])
+    assert np.all(np.diff(angles) > 0), angles
+    stop = BraidGeometry.from_params(preset("mckibben").braid).max_contraction
+    assert abs(contractions[-1] - stop) < 0.2e-3, (contractions, stop)
