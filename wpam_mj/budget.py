@@ -15,7 +15,7 @@ from wpam_mj.params import ParameterError
 
 MAX_RUN_S = 10_000.0  # our choice: the longest protocol (two 3600 s static ramps) with room
 MAX_RUN_BYTES = 2 * 1024 ** 3  # our choice: one run per worker fits a small machine's memory
-DRIVE_BYTES_PER_STEP = 64  # measured: 34-58 B per physics step (commands, targets, temporaries)
+DRIVE_BYTES_PER_STEP = 80  # measured 34-61 B per physics step (commands, targets, temporaries)
 RECORD_BYTES_PER_SAMPLE = 12 * 8  # the record's 12 float64 fields (loop_contract.REC_FIELDS)
 
 
