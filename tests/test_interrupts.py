@@ -96,6 +96,25 @@ def test_a_signal_ends_the_command_at_once_with_its_status(tmp_path, sig, argv, 
     assert not list((tmp_path / "o").rglob(".*")), "temporary files left"
 
 
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=lambda s: s.name)
+def test_a_signal_during_one_long_run_in_this_process_acts_at_once(tmp_path, sig):
+    """One 7,200 s run without a pool: the engine returns between chunks of steps, where
+    the signal is raised (before: only when the whole run had finished)."""
+    proc = subprocess.Popen([sys.executable, "-m", "wpam_mj", "static", "--load", "100",
+                             "--ramp-time", "3600", "--jobs", "1", "--out", "o"],
+                            cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(ROOT)},
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # the output folder is claimed just before the run starts
+    assert _wait_until(lambda: (tmp_path / "o").exists() or proc.poll() is not None, 120)
+    time.sleep(1.0)  # into the run
+    sent = time.monotonic()
+    proc.send_signal(sig)
+    out, err = proc.communicate(timeout=60)
+    assert (proc.returncode, err) == (STATUS[sig], f"wpam: {MESSAGE[sig]}\n")
+    assert time.monotonic() - sent < EXIT_WITHIN_S
+    assert not (tmp_path / "o").exists(), "the empty output folder is removed"
+
+
 @needs_proc
 def test_ctrl_c_to_the_process_group_of_reproduce_never_hangs(tmp_path):
     """Ctrl-C reaches the command and its workers at once (before: "Exception in thread",
