@@ -209,3 +209,15 @@ def test_check_raises_a_pending_signal_once_and_later_signals_only_record():
         time.sleep(0.05)
         termination.check()
     assert termination.stopped_by_signal()
+
+
+def test_leaving_dask_workers_on_an_exception_cancels_instead_of_waiting():
+    distributed = pytest.importorskip("distributed")
+    from wpam_mj.executors import open_workers  # noqa: PLC0415
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        start = time.monotonic()
+        with pytest.raises(ZeroDivisionError), open_workers(1, cluster.scheduler_address) as w:
+            w.executor.submit(time.sleep, 30)
+            1 / 0
+        assert time.monotonic() - start < 10.0  # not the task's 30 s

@@ -70,7 +70,12 @@ def _dask_executor(address: str) -> Iterator[Workers]:
                              f"({' '.join(str(err).split())})") from None
     try:
         slots = sum(client.nthreads().values())  # threads of the workers connected now
-        with client.get_executor() as executor:
+        executor = client.get_executor()
+        try:
             yield Workers(executor, max(slots, 1), f"Dask at {address}")
+        except BaseException:
+            executor.shutdown(wait=False)  # cancel the cluster's tasks; do not wait for them
+            raise
+        executor.shutdown(wait=True)
     finally:
         client.close()
