@@ -66,6 +66,14 @@ def test_a_run_needing_more_memory_than_the_bound_is_refused_before_it_starts(he
     assert not (here / "o").exists()
 
 
+def test_a_gif_that_would_not_fit_in_memory_is_refused_before_rendering(here, capsys):
+    err = _refused(capsys, "render", "--out", "v/x.gif", "--fps", "50", "--size", "1280x960",
+                   "--dt", "0.005")
+    assert "5500 frames" in err and "at most 2 GB" in err
+    assert not (here / "v").exists()
+    budget.check_video(3600.0, 120.0, (4096, 4096), ".mp4")  # streamed: no bound
+
+
 def test_a_study_row_at_an_absurd_frequency_is_infeasible_not_a_crash():
     inputs = {"load": 100.0, "frequency": 1e-6, "amplitude": 0.025, "controller": "pi"}
     with pytest.raises(ParameterError, match="at most 10000 s"):

@@ -46,3 +46,19 @@ def check_run(what: str, duration: float, dt: float, record_dt: float = 0.01) ->
             f"{MAX_RUN_BYTES / 1024 ** 3:g} GB ({most:g} s at this dt): use a larger dt or "
             "a shorter run")
     return duration
+
+
+def check_video(duration: float, fps: float, size: tuple[int, int], suffix: str) -> None:
+    """A video of `duration` [s] at `fps` and `size` (width, height) [px]: a GIF holds
+    every frame in memory (one byte per pixel) before it is written, so it is bounded as
+    one run is; an MP4 is streamed to its encoder."""
+    if suffix.lower() != ".gif":
+        return
+    frames = math.floor(duration * fps) + 1
+    need = frames * size[0] * size[1]
+    if need > MAX_RUN_BYTES:
+        most = MAX_RUN_BYTES / (fps * size[0] * size[1])
+        raise ParameterError(
+            f"a GIF of {frames} frames of {size[0]}x{size[1]} px needs about "
+            f"{need / 1024 ** 3:.3g} GB; at most {MAX_RUN_BYTES / 1024 ** 3:g} GB "
+            f"({most:.4g} s at {fps:g} fps): use --duration, a smaller --size or .mp4")

@@ -37,6 +37,7 @@ from pathlib import Path
 from typing import Sequence
 
 from wpam_mj import __version__, outputs, paper, pool, studies
+from wpam_mj.budget import check_video
 from wpam_mj.feasibility import check_liftable, load_moved
 from wpam_mj.control import CONTROLS, check_control
 from wpam_mj.experiments import (EXPERIMENTS, SINE_AMPLITUDE_MM, SINE_MEAN_MM, STATIC_RAMP_S,
@@ -643,6 +644,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
     _out_file(out)
     result = simulate_for_render(run.params, load, args.experiment, control, spec,
                                  duration, run.dt)
+    check_video(result.time[-1] - result.time[0], fps, args.size, out.suffix)
     settings = {"load_n": load, "experiment": args.experiment, "control": control,
                 "freq_hz": spec.freq, "duration_s": duration, "fps": fps, "size": args.size,
                 "dt_s": run.dt}
