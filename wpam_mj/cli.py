@@ -517,6 +517,7 @@ def _cmd_table2(args: argparse.Namespace) -> int:
     written = writers.write_table2_outputs(out, t2, run_id=rid)
     still = [(f"table2 open loop {lp.load:g} N, Po = {lp.po_down / MPA:g} MPa while Pi falls",
               load_moved(lp.result)) for lp in (*t2.open_loops, *t2.po_loops)]
+    still += [(f"table2 PI {f.load:g} N", load_moved(f.result)) for f in t2.feedback_runs]
     moved = {name: m for name, m in still}
     written = {path: ({"load_moved": moved} if path.suffix in (".json", ".csv") else meta)
                for path, meta in written.items()}
