@@ -353,23 +353,24 @@ def check_int(name: str, value: Any, lo: int, hi: int) -> int:
     return int(value)
 
 
-def load_toml(path: str | Path) -> dict[str, Any]:
-    """Read a parameter TOML file (sections as in `Params`, SI values, UTF-8, <= 1 MB)."""
-    check_regular_file(path, "parameter file")
+def load_toml(path: str | Path, what: str = "parameter file") -> dict[str, Any]:
+    """Read a TOML file (UTF-8, <= 1 MB): a parameter file (sections as in `Params`, SI
+    values) unless `what` names another kind (for messages, e.g. "study file")."""
+    check_regular_file(path, what)
     try:
         with open(path, "rb") as fh:
             data = fh.read(MAX_TOML_BYTES + 1)  # bounded: a huge file stops here
     except OSError as err:
-        raise ParameterError(f"cannot read parameter file {path}: "
+        raise ParameterError(f"cannot read {what} {path}: "
                              f"{err.strerror or err}") from None
     if len(data) > MAX_TOML_BYTES:
-        raise ParameterError(f"parameter file {path} is larger than the allowed "
+        raise ParameterError(f"{what} {path} is larger than the allowed "
                              f"{MAX_TOML_BYTES / 1e6:g} MB")
     try:
         return tomllib.loads(data.decode("utf-8"))
     except UnicodeDecodeError as err:
         line = data[:err.start].count(b"\n") + 1
-        raise ParameterError(f"parameter file {path} is not UTF-8 text: byte "
+        raise ParameterError(f"{what} {path} is not UTF-8 text: byte "
                              f"0x{data[err.start]:02x} on line {line}") from None
     except tomllib.TOMLDecodeError as err:
         raise ParameterError(f"malformed TOML in {path}: {err}") from None

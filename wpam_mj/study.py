@@ -339,7 +339,7 @@ def parse_spec(data: Mapping[str, Any], where: str = "study") -> StudySpec:
 
 def load_spec(path: str | Path) -> StudySpec:
     """Read and validate a study file."""
-    data = load_toml(path)  # its errors name the file
+    data = load_toml(path, "study file")  # its errors name the file
     try:
         return parse_spec(data, str(path))
     except ParameterError as err:
