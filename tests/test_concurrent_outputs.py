@@ -128,3 +128,19 @@ def test_claim_names_the_folder_it_cannot_write(tmp_path):
     with pytest.raises(ParameterError, match=r"--out .*file/sub: cannot write there"):
         outputs.claim(tmp_path / "file" / "sub")
     outputs.release(failed=True)
+
+
+def test_a_folder_that_cannot_be_locked_is_still_written_with_a_note(tmp_path, monkeypatch,
+                                                                      capsys):
+    import errno  # noqa: PLC0415
+    import fcntl  # noqa: PLC0415
+
+    def no_locks(fd, op):
+        raise OSError(errno.ENOLCK, os.strerror(errno.ENOLCK))
+
+    monkeypatch.setattr(fcntl, "flock", no_locks)
+    try:
+        assert outputs.claim(tmp_path / "nfs") == tmp_path / "nfs"
+    finally:
+        outputs.release(failed=False)
+    assert "cannot lock" in capsys.readouterr().err

@@ -23,7 +23,8 @@ from pathlib import Path
 from wpam_mj.params import ParameterError
 from wpam_mj.termination import remove_dead_temporaries
 
-_held: dict[Path, int] = {}  # resolved folder -> its open descriptor holding the lock
+_held: dict[Path, int | None] = {}  # resolved folder -> the descriptor holding its lock
+# (None: a folder that cannot be locked)
 _created: list[Path] = []  # folders claim made, parents before children
 
 
@@ -49,7 +50,8 @@ def release(failed: bool) -> None:
     for folder, fd in _held.items():
         if failed:
             remove_dead_temporaries(folder)
-        os.close(fd)  # closing the last descriptor drops the flock
+        if fd is not None:
+            os.close(fd)  # closing the last descriptor drops the flock
     _held.clear()
     if failed:
         for folder in reversed(_created):
@@ -71,7 +73,11 @@ def _lock(path: Path) -> None:
     key = path.resolve()
     if key in _held:  # a second file of this command in the same folder
         return
-    fd = os.open(key, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        fd = os.open(key, os.O_RDONLY | os.O_DIRECTORY)
+    except OSError as err:  # e.g. a folder we may write but not list
+        _held[key] = _unlocked(path, err)
+        return
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -79,7 +85,17 @@ def _lock(path: Path) -> None:
             print(f"wpam: waiting for another wpam command writing to {path}",
                   file=sys.stderr, flush=True)
             fcntl.flock(fd, fcntl.LOCK_EX)  # a signal interrupts the wait (PEP 475)
+    except OSError as err:  # no locks on this file system (e.g. some NFS mounts)
+        os.close(fd)
+        _held[key] = _unlocked(path, err)
+        return
     except BaseException:
         os.close(fd)
         raise
     _held[key] = fd
+
+
+def _unlocked(path: Path, err: OSError) -> None:
+    """Write without the lock where the folder cannot be locked: say so; None."""
+    print(f"wpam: note: cannot lock {path} ({err.strerror or err}); another command "
+          "writing there at the same time could mix its files with these", file=sys.stderr)
