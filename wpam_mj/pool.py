@@ -45,8 +45,8 @@ def _worker_init(parent: int) -> None:
     (SIGKILL included); a parent gone before that was set up ends the worker here.
     """
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    signal.signal(signal.SIGHUP, signal.SIG_DFL)
+    for stop in termination.STOP_SIGNALS:
+        signal.signal(stop, signal.SIG_DFL)
     if sys.platform.startswith("linux"):
         libc = ctypes.CDLL(None, use_errno=True)
         libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)

@@ -50,8 +50,10 @@ class HungUp(Interrupted):
     status, message = 129, "hung up"
 
 
-_EXCEPTIONS = {signal.SIGINT: Interrupted, signal.SIGTERM: Terminated,
-               signal.SIGHUP: HungUp}
+_EXCEPTIONS = {getattr(signal, name): exc for name, exc in  # no SIGHUP on Windows
+               (("SIGINT", Interrupted), ("SIGTERM", Terminated), ("SIGHUP", HungUp))
+               if hasattr(signal, name)}
+STOP_SIGNALS = tuple(sig for sig in _EXCEPTIONS if sig != signal.SIGINT)
 
 
 class _State:
