@@ -128,7 +128,7 @@ def test_sweep_json(files, capsys):
     assert code == 0, err
     (point,) = json.loads(out)
     assert set(point) == {"load_n", "freq_hz", "controller", "gain", "phase_lag_deg",
-                          "po_max_mpa"}
+                          "po_max_mpa", "load_moved"}
     assert (point["load_n"], point["freq_hz"], point["controller"]) == (100.0, 0.5, "pi")
     assert 0.0 < point["gain"] <= 1.2
     assert point["phase_lag_deg"] > 0.0

@@ -53,7 +53,8 @@ def test_sweep_pool_equals_serial(params):
 def test_table2_json_structure(table2_pair):
     t2 = table2_pair[0]
     doc = json.loads(json.dumps(t2.as_json()))  # plain JSON types only
-    assert set(doc) == {"open_po", "feedback", "paper"}
+    assert set(doc) == {"open_po", "feedback", "load_moved", "paper"}
+    assert doc["load_moved"] == {"100": True}
     assert set(doc["open_po"]) == set(doc["feedback"]) == {"100"}
     assert doc["open_po"]["100"] > 0.0 and doc["feedback"]["100"] >= 0.0
     assert doc["paper"]["open_po"] == {"100": 0.1899}  # paper Table 2

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from wpam_mj.params import ParameterError
+from wpam_mj.params import ParameterError, shown
 
 LOOP_AREA_METHODS = ("branches", "shoelace")
 
@@ -238,9 +238,9 @@ def frequency_response(t: npt.ArrayLike, x_ref: npt.ArrayLike, x: npt.ArrayLike,
     _same_length(t=t, x_ref=x_ref, x=x)
     freq = _positive("freq", freq, "Hz")
     if int(settle_cycles) != settle_cycles or settle_cycles < 0:
-        raise ParameterError(f"settle_cycles = {settle_cycles!r} must be an integer >= 0")
+        raise ParameterError(f"settle_cycles = {shown(settle_cycles)} must be an integer >= 0")
     if int(n_cycles) != n_cycles or n_cycles < 1:
-        raise ParameterError(f"n_cycles = {n_cycles!r} must be an integer >= 1")
+        raise ParameterError(f"n_cycles = {shown(n_cycles)} must be an integer >= 1")
     if np.any(np.diff(t) <= 0.0):
         raise ParameterError("t must be strictly increasing")
     period = 1.0 / freq

@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 import sys
 import time
-from concurrent.futures import Executor, ProcessPoolExecutor
+from concurrent.futures import Executor
 from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,7 +44,8 @@ import numpy as np
 from wpam_mj import fitting, paper
 from wpam_mj.experiments import STATIC_TOP_MM, static_top_pressure
 from wpam_mj.muscle import MuscleModel
-from wpam_mj.params import MM, MPA, Params, ParameterError, check_range, preset
+from wpam_mj.params import MM, MPA, Params, ParameterError, check_int, check_range, preset
+from wpam_mj.pool import WorkerPool
 from wpam_mj.results import write_text_atomic
 from wpam_mj.studies import PLATEAU_SETTLE_S, StepTask, sweep_batch, table2_batch
 
@@ -287,7 +288,7 @@ def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
     """
     check_range("samples", samples, *SAMPLES_RANGE, "")
     check_range("max_nfev", max_nfev, *NFEV_RANGE, "")
-    check_range("seed", seed, 0, 2**32 - 1, "")
+    check_int("seed", seed, 0, 2**32 - 1)
     params = start if start is not None else preset("wpam")
     journal_file = None if out is None else journal_path(Path(out))
     if resume and (journal_file is None or not journal_file.exists()):
@@ -295,7 +296,7 @@ def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
     journal = fitting.Journal(journal_file, keep=resume)
     model = PaperTargets(dt)
     started = time.perf_counter()
-    with ProcessPoolExecutor(jobs) if jobs > 1 else nullcontext() as ex:
+    with WorkerPool(jobs) if jobs > 1 else nullcontext() as ex:
         if samples:
             params = _best_start(model, random_starts(params, samples, seed), ex, journal,
                                  progress)

@@ -17,7 +17,8 @@ Subcommands (each has --help):
 Units at this edge: loads in N, pressures in MPa, lengths in mm, times in s, frequencies
 in Hz (the library is SI inside). Exit status: 0 success, 1 the run failed (simulation
 diverged, rendering or file system error), 2 bad arguments (one line on stderr), 130
-interrupted (Ctrl-C), 143 terminated (SIGTERM), 141 stdout closed early (e.g. `| head`).
+interrupted (Ctrl-C), 143 terminated (SIGTERM), 129 hung up (SIGHUP), 141 stdout closed
+early (e.g. `| head`).
 static, step, table2, sweep, linear, reproduce and render write `manifest-<run id>.json`
 beside their files (`wpam_mj.manifest`).
 """
@@ -30,12 +31,13 @@ import json
 import math
 import os
 import sys
-import tempfile
 import time
+from concurrent.futures import BrokenExecutor
 from pathlib import Path
 from typing import Sequence
 
-from wpam_mj import __version__, paper, pool, studies
+from wpam_mj import __version__, outputs, paper, pool, studies
+from wpam_mj.budget import check_video
 from wpam_mj.feasibility import check_liftable, load_moved
 from wpam_mj.control import CONTROLS, check_control
 from wpam_mj.experiments import (EXPERIMENTS, SINE_AMPLITUDE_MM, SINE_MEAN_MM, STATIC_RAMP_S,
@@ -45,7 +47,8 @@ from wpam_mj.params import (MM, MPA, PRESETS, ParameterError, Params,
                             apply_overrides, check_range, describe, load_toml, preset)
 from wpam_mj.results import write_text_atomic
 from wpam_mj.simulate import SimulationDiverged
-from wpam_mj.termination import Terminated, remove_dead_temporaries, terminate_on_sigterm
+from wpam_mj.streams import reopen_closed
+from wpam_mj.termination import Interrupted, exit_now, handle_signals, stopped_by_signal
 
 RECORD_DT_S = 0.01  # the period every run records at (`wpam_mj.simulate.simulate`)
 JOBS_PER_CPU = 4  # --jobs above this many per CPU is refused: no run gains from it
@@ -369,21 +372,13 @@ def _run_options(args: argparse.Namespace) -> _Run:
 
 
 def _writable_dir(path: Path) -> Path:
-    """Create `path` if needed and make sure files can be written in it."""
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=path):
-            pass
-    except OSError as err:
-        raise ParameterError(f"--out {path}: cannot write there "
-                             f"({err.strerror or err})") from None
-    return path
+    """Create `path` if needed, make sure files can be written in it, and hold it for this
+    command alone (`wpam_mj.outputs`: removed again if the command fails unused)."""
+    return outputs.claim(path)
 
 
 def _out_dir(args: argparse.Namespace) -> Path:
-    args.written_to = _writable_dir(args.out if args.out is not None
-                                    else Path("out") / args.command)
-    return args.written_to
+    return _writable_dir(args.out if args.out is not None else Path("out") / args.command)
 
 
 def _out_file(path: Path) -> Path:
@@ -433,7 +428,7 @@ def _manifest(args: argparse.Namespace, out: Path, rid: str, params: Params, set
 
 
 def _flag_still(what: Sequence[tuple[str, bool]], to_stderr: bool) -> None:
-    """One line for each open-loop run whose load never moved (its numbers mean nothing)."""
+    """One line for each run whose load never moved (its numbers mean nothing)."""
     from wpam_mj.feasibility import MOVE_MIN_MM  # noqa: PLC0415
     for name, moved in what:
         if not moved:
@@ -503,8 +498,7 @@ def _cmd_step(args: argparse.Namespace) -> int:
                                                            res.pi_mean, res.po_mean)]})
     else:
         print(summaries.step_text(res))
-    if control == "open":
-        _flag_still([(f"step {res.preset} {load:g} N open loop", moved)], args.json)
+    _flag_still([(f"step {res.preset} {load:g} N {control}", moved)], args.json)
     if not args.json:
         _wrote([*written, manifest])
     return 0
@@ -523,6 +517,7 @@ def _cmd_table2(args: argparse.Namespace) -> int:
     written = writers.write_table2_outputs(out, t2, run_id=rid)
     still = [(f"table2 open loop {lp.load:g} N, Po = {lp.po_down / MPA:g} MPa while Pi falls",
               load_moved(lp.result)) for lp in (*t2.open_loops, *t2.po_loops)]
+    still += [(f"table2 PI {f.load:g} N", load_moved(f.result)) for f in t2.feedback_runs]
     moved = {name: m for name, m in still}
     written = {path: ({"load_moved": moved} if path.suffix in (".json", ".csv") else meta)
                for path, meta in written.items()}
@@ -569,6 +564,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     else:
         print(summaries.sweep_text(sw))
         print(summaries.checks_text(paper.sweep_checks(sw, po_cap)))
+    _flag_still([(f"sweep {point}", False) for point in writers.still_points(sw)], args.json)
+    if not args.json:
         _wrote([*written, manifest])
     return 0
 
@@ -646,9 +643,9 @@ def _cmd_render(args: argparse.Namespace) -> int:
         raise ParameterError(f"--out {out}: the video must end in .mp4 or .gif")
     fps = check_fps(args.fps, out.suffix.lower())
     _out_file(out)
-    args.written_to = out.parent
     result = simulate_for_render(run.params, load, args.experiment, control, spec,
                                  duration, run.dt)
+    check_video(result.time[-1] - result.time[0], fps, args.size, out.suffix)
     settings = {"load_n": load, "experiment": args.experiment, "control": control,
                 "freq_hz": spec.freq, "duration_s": duration, "fps": fps, "size": args.size,
                 "dt_s": run.dt}
@@ -722,11 +719,11 @@ def _add_fit_parser(add) -> None:
     p.add_argument("--bounds", type=_name_list, default=(), metavar="NAME=LO:HI,...",
                    help="override the bounds of free parameters [SI] (default: their "
                         "plausible ranges, docs/fitting.md)")
-    p.add_argument("--out", type=Path, default=Path("out") / "fit" / "params.toml",
+    p.add_argument("--out", type=_out_path, default=Path("out") / "fit" / "params.toml",
                    metavar="FILE.toml",
                    help="fitted parameters, a --config file for the same --preset; the "
                         "figures go next to it (default: out/fit/params.toml)")
-    p.add_argument("--randomize-out", type=Path, metavar="FILE.toml",
+    p.add_argument("--randomize-out", type=_out_path, metavar="FILE.toml",
                    help="also write domain-randomisation ranges (estimate +- k sigma) for "
                         "wpam_mj.env.make_env(randomize=FILE)")
     p.add_argument("--randomize-k", type=float, default=2.0, metavar="K",
@@ -802,7 +799,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 def _add_synth_parser(add) -> None:
     p = add("synth", "write synthetic measurements (the CSV format of `wpam fit`) from the "
             "simulator: static ramps and PI staircases, PI sine runs in holdout/", _cmd_synth)
-    p.add_argument("--out", type=Path, default=Path("out") / "synth", metavar="DIR",
+    p.add_argument("--out", type=_out_path, default=Path("out") / "synth", metavar="DIR",
                    help="output folder (default: out/synth)")
     p.add_argument("--loads", type=_float_list, default=paper.LOADS_N, metavar="N,N,...",
                    help="hanging loads [N] (default: 50,100,150)")
@@ -837,21 +834,35 @@ def _one_line(err: BaseException) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the `wpam` command line; returns the exit status."""
+    closed = reopen_closed()  # `wpam ... >&-`: before any file takes descriptor 1
+    code = 1
+    with handle_signals():  # also over the cleanup: a second signal cannot interrupt it
+        try:
+            code = _main(argv)
+        finally:
+            outputs.release(failed=code != 0)
+    if code == 0 and "stdout" in closed:
+        code = 141  # as for a reader gone before the first line (below)
+    if argv is None and stopped_by_signal():  # the process's own command line
+        exit_now(code)  # cleanup is done; skip the interpreter's ~1 s teardown
+    return code
+
+
+def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     args = None
     try:
-        with terminate_on_sigterm():
-            args = parser.parse_args(argv)
-            args.argv = list(sys.argv[1:] if argv is None else argv)
-            code = args.handler(args)
-            sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
-            return code
+        args = parser.parse_args(argv)
+        args.argv = list(sys.argv[1:] if argv is None else argv)
+        code = args.handler(args)
+        sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+        return code
     except SystemExit as exc:  # --help, --version
         return exc.code if isinstance(exc.code, int) else 0
     except (UsageError, ParameterError) as err:
         print(f"wpam: error: {_one_line(err)}", file=sys.stderr)
         return 2
-    except (SimulationDiverged, RunFailed) as err:
+    except (SimulationDiverged, RunFailed, BrokenExecutor) as err:
         print(f"wpam: error: {_one_line(err)}", file=sys.stderr)
         return 1
     except BrokenPipeError:  # stdout piped into e.g. `head`, which has exited: quietly,
@@ -861,21 +872,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as err:
         print(f"wpam: error: {_one_line(err)}", file=sys.stderr)
         return 1
-    except Terminated:
-        _remove_temporaries(args)
-        print("wpam: terminated", file=sys.stderr)
-        return 143
-    except KeyboardInterrupt:
-        _remove_temporaries(args)
-        print("wpam: interrupted", file=sys.stderr)
-        return 130
-
-
-def _remove_temporaries(args: argparse.Namespace | None) -> None:
-    """Temporary files the stopped workers were writing in the output folder."""
-    folder = getattr(args, "written_to", None)
-    if folder is not None:
-        remove_dead_temporaries(folder)
+    except KeyboardInterrupt as stop:  # SIGINT, SIGTERM, SIGHUP (`wpam_mj.termination`)
+        stop = stop if isinstance(stop, Interrupted) else Interrupted()
+        print(f"wpam: {stop.message}", file=sys.stderr)
+        return stop.status
 
 
 if __name__ == "__main__":

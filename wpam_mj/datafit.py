@@ -30,7 +30,6 @@ in mm, every sample of every fitted file.
 
 from __future__ import annotations
 
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -38,9 +37,11 @@ from typing import Sequence
 import numpy as np
 
 from wpam_mj import fitting
+from wpam_mj.budget import check_run
 from wpam_mj.measurements import Experiment
 from wpam_mj.model import DT_RANGE_S, check_dt
 from wpam_mj.params import MM, Params, ParameterError
+from wpam_mj.pool import WorkerPool
 from wpam_mj.simulate import Drive, simulate
 
 # The rough first pass of `fit_data` replays at this multiple of dt (a 2 ms replay of
@@ -52,6 +53,7 @@ RELATIVE_COST_TOL = 0.01
 
 def replay_inputs(params: Params, exp: Experiment, dt: float) -> tuple[Params, Drive, np.ndarray]:
     """(params to simulate with, the drive, its time grid [s]) for `exp` (module doc)."""
+    check_replay(exp, dt)
     n = int(np.floor((exp.time[-1] - exp.time[0]) / dt + 1e-9)) + 1
     grid = exp.time[0] + np.arange(n) * dt
     p_max = params.pneumatics.p_max
@@ -66,6 +68,22 @@ def replay_inputs(params: Params, exp: Experiment, dt: float) -> tuple[Params, D
         po_cmd = np.zeros(n)  # the bare RLAM: nothing for Po to fill
     return params, Drive(pi_cmd=pi_cmd, po_cmd=po_cmd, x_ref=np.full(n, np.nan),
                          start_at_rest=True), grid
+
+
+def check_replay(exp: Experiment, dt: float) -> None:
+    """A replay of `exp` at `dt` [s] within one run's budget (it records every step)."""
+    check_run(f"the replay of {exp.name}", exp.duration, dt, record_dt=dt)
+
+
+def check_names(experiments: Sequence[Experiment]) -> None:
+    """Every experiment once: a file's figure and RMS line are named after it, so the
+    same file as data and hold-out, or two files of one name, would overwrite each other."""
+    names = [e.name for e in experiments]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ParameterError(f"experiment {twice[0]!r} is given twice (as data and hold-out, "
+                             "or two files of that name); each file's figure is named after "
+                             "it: give each once, under its own name")
 
 
 def replay(params: Params, exp: Experiment, dt: float = 1e-3, *,
@@ -176,11 +194,14 @@ def fit_data(start: Params, experiments: Sequence[Experiment],
     if not experiments:
         raise ParameterError("no experiments to fit")
     dt = check_dt(dt)
+    check_names((*experiments, *holdout))
+    for e in (*experiments, *holdout):
+        check_replay(e, dt)
     open_loop = [e for e in experiments if e.x_ref is None] or list(experiments)
     coarse = DataModel(tuple(open_loop), min(COARSE_DT_FACTOR * dt, DT_RANGE_S[1]))
     model = DataModel(tuple(experiments), dt)
     everything = DataModel((*experiments, *holdout), dt)
-    own = ProcessPoolExecutor(jobs) if executor is None and jobs > 1 else None
+    own = WorkerPool(jobs) if executor is None and jobs > 1 else None
     ex = executor or own
     try:
         rough = fitting.fit(coarse, start, free, executor=ex, max_nfev=max_nfev,

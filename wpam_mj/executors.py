@@ -4,7 +4,7 @@ Everything that runs many simulations takes a `concurrent.futures.Executor`, so 
 choice is made once, here:
 
   * jobs = 1, no scheduler: no executor (runs in this process, in order);
-  * jobs > 1: a `ProcessPoolExecutor` of `jobs` processes (the default);
+  * jobs > 1: a `wpam_mj.pool.WorkerPool` of `jobs` processes (the default);
   * a Dask scheduler address (`--scheduler tcp://host:8786` or the environment variable
     DASK_SCHEDULER_ADDRESS): `distributed.Client(address).get_executor()`, the Executor
     interface of Dask distributed. Workers must have wpam_mj installed.
@@ -15,12 +15,13 @@ Dask is an optional dependency (`pip install ".[cluster]"`), imported only when 
 from __future__ import annotations
 
 import os
-from concurrent.futures import Executor, ProcessPoolExecutor
+from concurrent.futures import Executor
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Iterator
 
 from wpam_mj.params import ParameterError
+from wpam_mj.pool import WorkerPool
 
 SCHEDULER_ENV = "DASK_SCHEDULER_ADDRESS"
 CONNECT_TIMEOUT_S = 10.0  # our choice: a scheduler that does not answer in 10 s is not there
@@ -51,7 +52,7 @@ def open_workers(jobs: int = 1, scheduler: str | None = None) -> Iterator[Worker
     elif jobs == 1:
         yield Workers(None, 1, "this process")
     else:
-        with ProcessPoolExecutor(max_workers=jobs) as pool:
+        with WorkerPool(jobs) as pool:  # stops its workers at once on an exception
             yield Workers(pool, jobs, f"{jobs} local processes")
 
 
@@ -69,7 +70,12 @@ def _dask_executor(address: str) -> Iterator[Workers]:
                              f"({' '.join(str(err).split())})") from None
     try:
         slots = sum(client.nthreads().values())  # threads of the workers connected now
-        with client.get_executor() as executor:
+        executor = client.get_executor()
+        try:
             yield Workers(executor, max(slots, 1), f"Dask at {address}")
+        except BaseException:
+            executor.shutdown(wait=False)  # cancel the cluster's tasks; do not wait for them
+            raise
+        executor.shutdown(wait=True)
     finally:
         client.close()

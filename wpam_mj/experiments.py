@@ -19,11 +19,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wpam_mj.budget import MAX_RUN_S, check_duration, check_run
 from wpam_mj.control import CONTROLLERS, check_control
+from wpam_mj.display import fmt
+from wpam_mj.feasibility import check_liftable
+from wpam_mj.geometry import BraidGeometry
 from wpam_mj.model import check_dt, check_load
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.paper import SINE_AMPLITUDE_MM, STEP_HOLD_S, STEP_LEVELS_MM
-from wpam_mj.params import MM, MPA, ParameterError, Params, check_range
+from wpam_mj.params import MM, MPA, ParameterError, Params, check_range, shown
 from wpam_mj.results import SimResult
 from wpam_mj.simulate import Drive, simulate
 
@@ -42,7 +46,9 @@ def check_po(name: str, po: float, params: Params) -> float:
     return check_range(name, po / MPA, pn.p_min / MPA, pn.p_max / MPA, "MPa") * MPA
 
 
-def _steps(duration: float, dt: float) -> tuple[int, np.ndarray]:
+def _steps(what: str, duration: float, dt: float, record_dt: float) -> tuple[int, np.ndarray]:
+    """The physics steps of a run of `duration` [s], within the budget of one run."""
+    check_run(what, duration, dt, record_dt)
     n = int(round(duration / dt)) + 1
     return n, np.arange(n) * dt
 
@@ -72,13 +78,25 @@ def static_loop(params: Params, load: float, *, po_down: float = 0.0,
         check_po("pi_top", pi_top, params)
     check_range("ramp_time", ramp_time, 1.0, 3600.0, "s")
     dwell = 1.0
-    n, t = _steps(2 * dwell + 2 * ramp_time, dt)
+    n, t = _steps(f"a static loop of {ramp_time:g} s ramps", 2 * dwell + 2 * ramp_time, dt,
+                  record_dt)
     knots_t = [0.0, dwell, dwell + ramp_time, dwell + 2 * ramp_time, 2 * dwell + 2 * ramp_time]
     pi_cmd = np.interp(t, knots_t, [p_min, p_min, pi_top, p_min, p_min])
     po_cmd = np.where(t > dwell + ramp_time, po_down, 0.0)
     drive = Drive(pi_cmd=pi_cmd, po_cmd=po_cmd, x_ref=np.full(n, np.nan))
     return simulate(params, load, drive, dt=dt, control="open", record_dt=record_dt,
                     engine=engine)
+
+
+def check_targets(params: Params, load: float, lo: float, hi: float, what: str) -> None:
+    """Targets spanning [lo, hi] [m] must lie within the braid's stroke, and the muscle
+    must lift `load` [N] to the highest of them (else the run reports numbers of a load
+    that sits where it hangs: `wpam_mj.feasibility`)."""
+    stroke = BraidGeometry.from_params(params.braid).max_contraction
+    if not 0.0 <= lo <= hi <= stroke:
+        raise ParameterError(f"{what} spans [{fmt(lo / MM, 'g')}, {fmt(hi / MM, 'g')}] mm; "
+                             f"targets must lie in the stroke [0, {stroke / MM:.1f}] mm")
+    check_liftable(params, (load,), "load", x=hi)
 
 
 def step_targets(t: np.ndarray, levels_mm=STEP_LEVELS_MM, hold: float = STEP_HOLD_S) -> np.ndarray:
@@ -113,7 +131,10 @@ def step_run(params: Params, load: float, control: str, *, levels_mm=STEP_LEVELS
     hold = check_range("hold", hold, 0.0, 3600.0, "s", lo_open=True)
     if len(levels_mm) < 1:
         raise ParameterError("levels_mm is empty: a step run needs at least one target")
-    n, t = _steps(len(levels_mm) * hold - dt, dt)
+    levels = np.asarray(levels_mm, dtype=float) * MM
+    check_targets(params, load, float(levels.min()), float(levels.max()), "levels_mm")
+    n, t = _steps(f"a staircase of {len(levels_mm)} levels of {hold:g} s",
+                  len(levels_mm) * hold - dt, dt, record_dt)
     x_ref = step_targets(t, levels_mm, hold)
     return simulate(params, load, drive_for_targets(params, load, x_ref, control, dt), dt=dt,
                     control=control, record_dt=record_dt, engine=engine)
@@ -136,7 +157,10 @@ class SineSpec:
         for name, lo in (("settle_cycles", 0), ("cycles", 1)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < lo:
-                raise ParameterError(f"{name} = {value!r} must be an integer >= {lo}")
+                raise ParameterError(f"{name} = {shown(value)} must be an integer >= {lo}")
+        cycles = self.settle_cycles + self.cycles
+        check_duration(f"a sine at {self.freq:g} Hz ({cycles} cycles)", self.duration,
+                       f"the lowest frequency allowed is {cycles / MAX_RUN_S:g} Hz")
 
     @property
     def duration(self) -> float:
@@ -157,7 +181,9 @@ def sine_run(params: Params, load: float, control: str, spec: SineSpec, *,
              dt: float = 1e-3, record_dt: float = 0.01, engine: str = "auto") -> SimResult:
     """Sinusoidal target (paper §4.2) under PI/PID on Po (or open loop)."""
     load, dt, control = check_load(load), check_dt(dt), check_control(control)
-    n, t = _steps(spec.duration, dt)
+    check_targets(params, load, spec.mean - spec.amplitude, spec.mean + spec.amplitude,
+                  "the sine's target")
+    n, t = _steps(f"a sine at {spec.freq:g} Hz", spec.duration, dt, record_dt)
     x_ref = spec.target(t)
     return simulate(params, load, drive_for_targets(params, load, x_ref, control, dt), dt=dt,
                     control=control, record_dt=record_dt, engine=engine)

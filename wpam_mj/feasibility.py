@@ -50,11 +50,13 @@ def check_liftable(params: Params, loads: Iterable[float], name: str = "load",
     model = MuscleModel.from_params(params)
     for load in loads:
         if not model.equilibrium_pressure(x, load, 0.0, +1) <= params.pneumatics.p_max:
+            allowed = f"the allowed range is [{LOAD_RANGE_N[0]:g}, {limit:.1f}] N" \
+                if limit >= LOAD_RANGE_N[0] else \
+                f"it lifts no load of [{LOAD_RANGE_N[0]:g}, {LOAD_RANGE_N[1]:g}] N that high"
             raise ParameterError(
                 f"{name} = {load:g} N: the {params.preset} muscle cannot lift it to "
                 f"{x / MM:g} mm at the regulator maximum Pi = "
-                f"{params.pneumatics.p_max / MPA:g} MPa; the allowed range is "
-                f"[{LOAD_RANGE_N[0]:g}, {limit:.1f}] N")
+                f"{params.pneumatics.p_max / MPA:g} MPa; {allowed}")
     return loads
 
 

@@ -37,7 +37,7 @@ import json
 import math
 import sys
 import time
-from concurrent.futures import Executor, ProcessPoolExecutor
+from concurrent.futures import Executor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Protocol, Sequence
@@ -47,6 +47,7 @@ from scipy.optimize import least_squares
 
 from wpam_mj.loop_contract import SimulationDiverged
 from wpam_mj.params import Params, ParameterError, describe_with_ranges, plausible_range
+from wpam_mj.pool import WorkerPool
 from wpam_mj.results import write_text_atomic
 
 DIFF_STEP = 1e-3  # forward-difference step in scaled coordinates (see the module doc)
@@ -376,7 +377,7 @@ def fit(model: ResidualModel, start: Params, free: Sequence[FreeParameter], *,
         raise ParameterError(f"a parameter is freed twice: {', '.join(names)}")
     own = None
     if executor is None and jobs > 1:
-        executor = own = ProcessPoolExecutor(max_workers=jobs)
+        executor = own = WorkerPool(jobs)
     try:
         obj = _Objective(model, start, free, executor, diff_step, progress, journal, max_nfev)
         z0 = np.array([p.to_z(p.value(start)) for p in free])

@@ -105,7 +105,12 @@ def read_manifest(path: str | Path) -> dict[str, Any]:
 
 
 def check_files(path: str | Path) -> dict[str, str]:
-    """{file name: "ok" | "changed" | "missing"} for every file the manifest lists."""
+    """{file name: "ok" | "changed" | "missing"} for every file the manifest lists.
+
+    "ok" needs the SHA-256 the manifest recorded and, for a figure or video, the run id
+    the file carries to be this manifest's: a file of another run is never "ok", even
+    under a manifest written while that run was overwriting it.
+    """
     manifest = read_manifest(path)
     folder = Path(path).parent
     status = {}
@@ -114,9 +119,21 @@ def check_files(path: str | Path) -> dict[str, str]:
         if not target.is_file():
             status[name] = "missing"
         else:
-            status[name] = "ok" if _digest(target)["sha256"] == entry.get("sha256") else \
-                "changed"
+            same = _digest(target)["sha256"] == entry.get("sha256") and \
+                embedded_run_id(target) in (None, manifest.get("run_id"))
+            status[name] = "ok" if same else "changed"
     return status
+
+
+def embedded_run_id(path: Path) -> str | None:
+    """The run id a PNG (`png_metadata`) or video (`video_comment`) carries, else None."""
+    suffix = path.suffix.lower()
+    if suffix == ".png":
+        return png_run_id(path)
+    if suffix in (".mp4", ".gif"):
+        found = re.search(rb"%s ([\w-]{1,64})" % RUN_ID_KEY.encode(), path.read_bytes())
+        return found.group(1).decode() if found else None
+    return None
 
 
 def check_run_id(run: str) -> str:

@@ -34,7 +34,8 @@ import numpy as np
 
 from wpam_mj.geometry import BraidGeometry
 from wpam_mj.model import check_load
-from wpam_mj.params import MM, MPA, Params, ParameterError
+from wpam_mj.budget import check_duration
+from wpam_mj.params import MM, MPA, Params, ParameterError, check_regular_file, file_kind
 from wpam_mj.results import write_text_atomic
 
 REQUIRED = ("time_s", "load_n", "pi_mpa", "po_mpa", "x_mm")
@@ -104,7 +105,7 @@ class Experiment:
 def read_experiment(path: str | Path, params: Params) -> Experiment:
     """Read and check one measurement CSV against the muscle `params` (regulator range,
     braid limit). Raises ParameterError with one line naming file, line and column."""
-    path = Path(path)
+    path = check_regular_file(path, "measurement file")
     try:
         text = path.read_text()
     except (OSError, UnicodeDecodeError) as err:
@@ -136,6 +137,8 @@ def read_experiment(path: str | Path, params: Params) -> Experiment:
     cols = {c: _column(table[:, names.index(c)], c, where, allow_gaps=c == "x_ref_mm")
             for c in (*REQUIRED, *OPTIONAL) if c in names}
     _check(cols, params, where)
+    check_duration(f"{path} (rows from {cols['time_s'][0]:g} to {cols['time_s'][-1]:g} s)",
+                   float(cols["time_s"][-1] - cols["time_s"][0]))
     si = {_UNITS[c][0]: v * _UNITS[c][1] for c, v in cols.items()}
     load = float(si.pop("load")[0])
     return Experiment(name=path.stem, load=load, **si)
@@ -243,15 +246,15 @@ def experiment_files(paths: list[str | Path]) -> list[Path]:
     """The CSV files named by `paths`: files as given, folders by their *.csv (sorted)."""
     out: list[Path] = []
     for p in map(Path, paths):
-        if p.is_dir():
+        if file_kind(p) == "folder":
             found = sorted(p.glob("*.csv"))
             if not found:
                 raise ParameterError(f"{p}: no *.csv files in this folder")
             out += found
-        elif p.is_file():
-            out.append(p)
-        else:
+        elif file_kind(p) == "missing":
             raise ParameterError(f"{p}: no such file or folder")
+        else:
+            out.append(check_regular_file(p, "measurement file"))
     if len({f.resolve() for f in out}) != len(out):
         raise ParameterError("the same file is given twice: " + ", ".join(map(str, out)))
     return out

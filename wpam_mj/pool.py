@@ -7,7 +7,9 @@ depend on the number of workers.
 
 from __future__ import annotations
 
+import ctypes
 import os
+import signal
 import sys
 from concurrent.futures import FIRST_EXCEPTION, Executor, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
@@ -16,18 +18,82 @@ from typing import Callable, Sequence
 import numpy as np
 from tqdm import tqdm
 
-from wpam_mj.params import ParameterError
+from wpam_mj import termination
+from wpam_mj.params import ParameterError, shown
+
+_PR_SET_PDEATHSIG = 1  # prctl option (linux/prctl.h): signal this process when its parent dies
+_STOP_GRACE_S = 0.5  # our choice: a worker still alive this long after SIGTERM is killed
 
 
 def check_jobs(jobs: int) -> int:
     """Process-pool size: an integer >= 1."""
     if isinstance(jobs, bool) or not isinstance(jobs, (int, np.integer)) or jobs < 1:
-        raise ParameterError(f"jobs = {jobs!r} must be an integer >= 1")
+        raise ParameterError(f"jobs = {shown(jobs)} must be an integer >= 1")
     return int(jobs)
 
 
 def default_jobs() -> int:
     return os.cpu_count() or 1
+
+
+def _worker_init(parent: int) -> None:
+    """Pool worker start-up: die with the parent, leave signals to it.
+
+    SIGINT (Ctrl-C reaches the whole process group) is ignored: the parent stops the
+    workers itself, so they print no tracebacks. SIGTERM kills at once, even in compiled
+    code. On Linux the kernel sends SIGKILL when the parent dies, however it dies
+    (SIGKILL included); a parent gone before that was set up ends the worker here.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for stop in termination.STOP_SIGNALS:
+        signal.signal(stop, signal.SIG_DFL)
+    if sys.platform.startswith("linux"):
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    if os.getppid() != parent:
+        os._exit(1)
+
+
+class WorkerPool(ProcessPoolExecutor):
+    """A process pool whose workers never outlive the command.
+
+    Its workers die with this process (`_worker_init`); submitting is shielded from
+    signals (`termination.deferred`: a pool half started cannot be torn down); and leaving
+    it on an exception, or shutting it down after a signal, stops the workers at once
+    instead of waiting for their tasks.
+    """
+
+    def __init__(self, jobs: int) -> None:
+        super().__init__(max_workers=check_jobs(jobs), initializer=_worker_init,
+                         initargs=(os.getpid(),))
+
+    def submit(self, fn, /, *args, **kwargs) -> Future:
+        with termination.deferred():
+            return super().submit(fn, *args, **kwargs)
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        if termination.stopping():
+            self.stop()
+        else:
+            super().shutdown(wait, cancel_futures=cancel_futures)
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.shutdown(wait=True)
+        else:
+            self.stop()
+
+    def stop(self) -> None:
+        """Stop the workers now (SIGTERM, SIGKILL after a grace), drop queued tasks."""
+        workers = list((self._processes or {}).values())
+        for proc in workers:
+            proc.terminate()
+        for proc in workers:
+            proc.join(_STOP_GRACE_S)
+            if proc.is_alive():
+                proc.kill()
+                proc.join()
+        super().shutdown(wait=False, cancel_futures=True)
 
 
 def _execute(task):
@@ -59,11 +125,11 @@ class TaskPool:
     def __enter__(self) -> TaskPool:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, exc_type, exc, tb) -> None:
         for fut in self._submitted:
             fut.cancel()
         if self._pool is not None:
-            self._pool.shutdown(wait=True)
+            self._pool.__exit__(exc_type, exc, tb)  # on an exception: stop the workers now
         self._bar.close()
 
     def submit(self, tasks: Sequence) -> list[Future]:
@@ -79,12 +145,13 @@ class TaskPool:
                 self._bar.update()
             return futures
         if self._pool is None and self._executor is None:
-            self._pool = ProcessPoolExecutor(max_workers=self.jobs)
+            self._pool = WorkerPool(self.jobs)
         pool = self._pool if self._executor is None else self._executor
-        for i in sorted(range(len(tasks)), key=lambda i: -tasks[i].cost):
-            futures[i] = fut = pool.submit(_execute, tasks[i])
-            fut.add_done_callback(lambda _: self._bar.update())
-        self._submitted += futures
+        with termination.deferred():  # every future recorded, so that all are cancelled
+            for i in sorted(range(len(tasks)), key=lambda i: -tasks[i].cost):
+                futures[i] = fut = pool.submit(_execute, tasks[i])
+                fut.add_done_callback(lambda _: self._bar.update())
+            self._submitted += futures
         return futures
 
     def results(self, futures: Sequence[Future]) -> list:

@@ -20,6 +20,7 @@ import numpy as np
 
 from wpam_mj.analysis import frequency_response, loop_area, steady_state_means
 from wpam_mj.control import check_control
+from wpam_mj.feasibility import load_moved
 from wpam_mj.experiments import STATIC_RAMP_S, SineSpec, check_po, sine_run, static_loop, step_run
 from wpam_mj.model import check_dt, check_load
 from wpam_mj.paper import (FIG18_FREQ_HZ, FIG18_LOAD_N, LOADS_N, PO_DOWN_STATIC_MPA,
@@ -181,7 +182,8 @@ class SineTask:
                            gain=fr.gain, phase_lag_deg=fr.phase_lag_deg,
                            po_max=float(r.po_reg[window].max()),
                            po_chamber_max=float(r.po[window].max()),
-                           po_cmd_max=float(r.po_cmd[window].max()))
+                           po_cmd_max=float(r.po_cmd[window].max()),
+                           load_moved=load_moved(r))
         return point, (r if self.keep else None)
 
 

@@ -51,8 +51,10 @@ import numpy as np
 from tqdm import tqdm
 
 from wpam_mj.analysis import frequency_response, loop_area, steady_state_means
+from wpam_mj.budget import MAX_RUN_S
 from wpam_mj.control import CONTROLS, check_control
 from wpam_mj.executors import Workers
+from wpam_mj.feasibility import MOVE_MIN_MM, check_liftable, load_moved
 from wpam_mj.experiments import STATIC_RAMP_S, SineSpec, check_po, sine_run, step_run
 from wpam_mj.model import check_dt, check_load
 from wpam_mj.paper import PO_DOWN_STATIC_MPA, STEP_HOLD_S, STEP_LEVELS_MM
@@ -66,6 +68,7 @@ from wpam_mj.study_results import LOOP_METHOD
 EXPERIMENTS = ("static", "step", "sine", "table2")
 METHODS = ("grid", "list", "random", "lhs")
 MAX_RUNS = 1_000_000  # our choice: a bound that catches a runaway grid before it starts
+RECORD_DT_S = 0.01  # every run records at this period (`wpam_mj.simulate.simulate`)
 STEP_DURATION_S = len(STEP_LEVELS_MM) * STEP_HOLD_S  # paper §4.1 staircase, 110 s
 STATIC_DURATION_S = 2 * STATIC_RAMP_S + 2.0  # `experiments.static_loop`: ramps + 1 s dwells
 # Parameter sections of the config file (braid, muscle, pneumatics, controller)
@@ -231,16 +234,24 @@ def _check_value(name: str, value: Any, base: Params) -> Any:
         raise ParameterError(f"{name} = {value!r} is not a number")
     if name == "load":
         return check_load(value)
-    if name == "frequency":
-        return check_range("frequency", value, 0.0, 20.0, "Hz", lo_open=True)
+    if name == "frequency":  # SineSpec: its range, and a run of bounded length
+        return SineSpec(value).freq
     if name == "amplitude":
         return SineSpec(1.0, amplitude=value).amplitude
     if name == "duration":
-        return check_range("duration", value, 1.0, 36000.0, "s")
+        return check_range("duration", value, 1.0, MAX_RUN_S, "s")
     if name == "po_down":
         return check_po("po_down", value, base)
     md = _param_field(name).metadata
     return check_range(name, value, md["lo"], md["hi"], md["unit"], lo_open=md["lo_open"])
+
+
+def _dt(value: Any) -> float:
+    """The study's physics step [s]: what `--dt` accepts (it must divide the recording
+    period), so that a study file cannot ask for a run the command line refuses."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ParameterError(f"dt = {value!r} is not a number; give seconds, e.g. 1e-3")
+    return check_dt(float(value), divides=RECORD_DT_S, name="dt")
 
 
 def _allowed(name: str, experiment: str) -> None:
@@ -281,7 +292,7 @@ def parse_spec(data: Mapping[str, Any], where: str = "study") -> StudySpec:
     if name not in PRESETS:
         raise ParameterError(f"{where}: preset = {name!r}; valid: " + ", ".join(PRESETS))
     base = preset(name)
-    dt = check_dt(data.get("dt", 1e-3))
+    dt = _dt(data.get("dt", 1e-3))
     vary = data.get("vary", {})
     method = vary.get("method", "grid")
     if method not in METHODS:
@@ -328,7 +339,7 @@ def parse_spec(data: Mapping[str, Any], where: str = "study") -> StudySpec:
 
 def load_spec(path: str | Path) -> StudySpec:
     """Read and validate a study file."""
-    data = load_toml(path)  # its errors name the file
+    data = load_toml(path, "study file")  # its errors name the file
     try:
         return parse_spec(data, str(path))
     except ParameterError as err:
@@ -399,24 +410,38 @@ def _sine_metrics(result, spec: SineSpec) -> dict[str, float]:
             "po_max_mpa": float(result.po_reg[window].max()) / MPA}
 
 
+def _moved(*results):
+    """The results, or ParameterError when the load never moved in one of them (its
+    metrics would mean nothing: a gain of 0, a loop of no area)."""
+    for result in results:
+        if not load_moved(result):
+            raise ParameterError(f"the load never moved (x spanned < {MOVE_MIN_MM:g} mm); "
+                                 "this run's metrics mean nothing")
+    return results[0]
+
+
 def run_metrics(experiment: str, params: Params, inputs: Mapping[str, Any],
                 dt: float) -> dict[str, float]:
-    """Simulate one run and reduce it to the experiment's metrics (display units)."""
+    """Simulate one run and reduce it to the experiment's metrics (display units).
+    ParameterError for a load this parameter set cannot lift or one that never moved."""
     load = inputs["load"]
+    check_liftable(params, (load,), "load")
     if experiment == "static":
         loop = StaticTask(params, load, check_po("po_down", inputs["po_down"], params),
                           dt).run()
         return {"loop_area_mpa_mm": loop.area_mpa_mm,
-                "po_max_mpa": float(loop.result.po_reg.max()) / MPA}
+                "po_max_mpa": float(_moved(loop.result).po_reg.max()) / MPA}
     if experiment == "step":
         hold = inputs["duration"] / len(STEP_LEVELS_MM)
         r = step_run(params, load, inputs["controller"], hold=hold, dt=dt)
-        return _step_metrics(r, hold)
+        return _step_metrics(_moved(r), hold)
     if experiment == "sine":
         spec = SineSpec(inputs["frequency"], amplitude=inputs["amplitude"])
-        return _sine_metrics(sine_run(params, load, inputs["controller"], spec, dt=dt), spec)
+        r = sine_run(params, load, inputs["controller"], spec, dt=dt)
+        return _sine_metrics(_moved(r), spec)
     batch = table2_batch(params, loads=(load,), po_down=inputs["po_down"], dt=dt)
     t2 = batch.assemble([task.run() for task in batch.tasks])
+    _moved(t2.feedback_runs[0].result, *(lp.result for lp in (*t2.open_loops, *t2.po_loops)))
     return {"open_po": t2.open_po[load], "feedback": t2.feedback[load],
             **_step_metrics(t2.feedback_runs[0].result, STEP_HOLD_S)}
 

@@ -14,6 +14,7 @@ from typing import Mapping
 import numpy as np
 
 from wpam_mj.analysis import loop_area
+from wpam_mj.feasibility import load_moved
 from wpam_mj.paper import (PO_DOWN_STATIC_MPA, SINE_AMPLITUDE_MM, STEP_HOLD_S, TABLE2,
                            TABLE2_SOURCE)
 from wpam_mj.params import MM, MPA
@@ -124,19 +125,28 @@ class Table2Result:
     def feedback(self) -> dict[float, float]:
         return {o.load: f.area / o.area for o, f in zip(self.open_loops, self.feedback_runs)}
 
+    @property
+    def load_moved(self) -> dict[float, bool]:
+        """Per load: whether the load moved in all three runs (else its ratios mean
+        nothing; `feasibility.load_moved`)."""
+        return {o.load: all(load_moved(r.result) for r in (o, p, f))
+                for o, p, f in zip(self.open_loops, self.po_loops, self.feedback_runs)}
+
     def paper(self) -> dict[str, dict[float, float]]:
         """The paper's rows for the loads of this study that the paper has."""
         return {row: {load: v[load] for load in self.loads if load in v}
                 for row, v in TABLE2.items()}
 
     def as_json(self) -> dict:
-        """{"open_po": {"50": a, ...}, "feedback": {...}, "paper": {...}}."""
+        """{"open_po": {"50": a, ...}, "feedback": {...}, "load_moved": {"50": true, ...},
+        "paper": {...}}."""
         paper: dict = {row: {load_key(k): v for k, v in vals.items()}
                        for row, vals in self.paper().items()}
         paper["po_down_mpa"] = PO_DOWN_STATIC_MPA
         paper["source"] = TABLE2_SOURCE
         return {"open_po": {load_key(k): v for k, v in self.open_po.items()},
                 "feedback": {load_key(k): v for k, v in self.feedback.items()},
+                "load_moved": {load_key(k): v for k, v in self.load_moved.items()},
                 "paper": paper}
 
     def plot(self):
@@ -158,6 +168,7 @@ class Table2Result:
                 "feedback": f.area / o.area,
                 "paper_open_po": paper["open_po"].get(o.load, math.nan),
                 "paper_feedback": paper["feedback"].get(o.load, math.nan),
+                "load_moved": self.load_moved[o.load],
             })
         return out
 
@@ -169,7 +180,8 @@ class SweepPoint:
     load [N]; freq [Hz]; gain [1]; phase_lag_deg [deg], positive = lag; po_max: highest
     Po read by the regulator's own gauge over the analysed cycles [Pa] (what the paper
     plots, §2.3); po_chamber_max: highest Po inside the outer chamber, behind the line
-    restriction [Pa]; po_cmd_max: highest Po command (capped at po_cap) [Pa].
+    restriction [Pa]; po_cmd_max: highest Po command (capped at po_cap) [Pa]; load_moved:
+    whether x spanned `feasibility.MOVE_MIN_MM` (else the gain and lag mean nothing).
     """
 
     load: float
@@ -180,11 +192,12 @@ class SweepPoint:
     po_max: float
     po_chamber_max: float = float("nan")
     po_cmd_max: float = float("nan")
+    load_moved: bool = True
 
     def as_json(self) -> dict:
         return {"load_n": self.load, "freq_hz": self.freq, "controller": self.controller,
                 "gain": self.gain, "phase_lag_deg": self.phase_lag_deg,
-                "po_max_mpa": self.po_max / MPA}
+                "po_max_mpa": self.po_max / MPA, "load_moved": self.load_moved}
 
 
 SweepKey = tuple[float, float, str]  # (load [N], freq [Hz], controller)

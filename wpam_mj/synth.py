@@ -22,7 +22,7 @@ from wpam_mj import paper
 from wpam_mj.experiments import STATIC_RAMP_S, SineSpec, sine_run, static_loop, step_run
 from wpam_mj.measurements import Experiment
 from wpam_mj.model import check_dt, check_load
-from wpam_mj.params import MM, MPA, Params, ParameterError, check_range
+from wpam_mj.params import MM, MPA, Params, ParameterError, check_int, check_range
 from wpam_mj.results import SimResult
 from wpam_mj.studies import run_tasks
 
@@ -34,6 +34,7 @@ KINDS = ("static", "step", "sine")
 # step: logged every 10 ms the replayed step runs drift by 0.08 mm RMS, every 2 ms by
 # 0.009 mm, every 1 ms they replay exactly.
 SAMPLE_DT = 0.001
+SEED_MAX = 2**63 - 1  # numpy's generators take any non-negative integer; bound it
 
 
 @dataclass(frozen=True)
@@ -95,6 +96,7 @@ def synth(params: Params, out: Path, *, loads: Sequence[float] = paper.LOADS_N,
     dt = check_dt(dt)
     noise_x = check_range("--noise-mm", noise_mm, 0.0, 10.0, "mm") * MM
     noise_p = check_range("--noise-kpa", noise_kpa, 0.0, 100.0, "kPa") * 1e3
+    seed = check_int("--seed", seed, 0, SEED_MAX)
     unknown = set(kinds) - set(KINDS)
     if unknown:
         raise ParameterError(f"unknown experiment kind(s) {sorted(unknown)}; valid: "

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Sequence
 
 from wpam_mj import plots
-from wpam_mj.feasibility import load_moved
+from wpam_mj.feasibility import MOVE_MIN_MM, load_moved
 from wpam_mj.paper import Check
 from wpam_mj.results import SimResult, write_text_atomic
 from wpam_mj.study_results import StaticLoop, StepRun, SweepKey, SweepResult, Table2Result
@@ -51,12 +51,19 @@ def write_table2(out: Path, t2: Table2Result) -> list[Path]:
             write_text_atomic(out / "table2.csv", table2_csv_text(t2))]
 
 
-SWEEP_COLUMNS = ("load_n", "freq_hz", "controller", "gain", "phase_lag_deg", "po_max_mpa")
+SWEEP_COLUMNS = ("load_n", "freq_hz", "controller", "gain", "phase_lag_deg", "po_max_mpa",
+                 "load_moved")
 
 
 def sweep_csv_text(sw: SweepResult) -> str:
     return _csv([SWEEP_COLUMNS] + [[p.as_json()[k] for k in SWEEP_COLUMNS]
                                    for p in sw.points])
+
+
+def still_points(sw: SweepResult) -> list[str]:
+    """The sweep points whose load never moved, as "100 N 0.5 Hz pi"."""
+    return [f"{p.load:g} N {p.freq:g} Hz {p.controller}" for p in sw.points
+            if not p.load_moved]
 
 
 def write_sweep(out: Path, sw: SweepResult) -> list[Path]:
@@ -82,6 +89,16 @@ def run_metadata(result: SimResult) -> dict:
     return {**result.metadata(), "load_moved": load_moved(result)}
 
 
+def flag_still(fig, still: Sequence[str]):
+    """`fig` with one red line naming the runs whose load never moved (their numbers
+    mean nothing), so that a figure never shows them as results unmarked."""
+    if still:
+        fig.text(0.5, 0.0, f"the load never moved (x spanned < {MOVE_MIN_MM:g} mm): "
+                 + "; ".join(still), color="red", ha="center", va="bottom", fontsize=7,
+                 wrap=True)
+    return fig
+
+
 def write_static_outputs(out: Path, loops: Sequence[StaticLoop], *,
                          compare_presets: bool = False,
                          run_id: str | None = None) -> dict[Path, dict]:
@@ -91,8 +108,9 @@ def write_static_outputs(out: Path, loops: Sequence[StaticLoop], *,
     po_down = loops[0].po_down
     po = "" if po_down == 0.0 else f"_po{mpa_label(po_down)}MPa"
     stem = "static_presets" if compare_presets else f"static_{loops[0].preset}"
-    written[plots.save_figure(plots.static_figure(loops), out / f"{stem}{po}.png",
-                              run_id=run_id)] = {}
+    still = [f"{lp.preset} {lp.load:g} N" for lp in loops if not load_moved(lp.result)]
+    written[plots.save_figure(flag_still(plots.static_figure(loops), still),
+                              out / f"{stem}{po}.png", run_id=run_id)] = {}
     return written
 
 
@@ -101,7 +119,8 @@ def write_step_outputs(out: Path, run: StepRun, *,
     """The run's CSV and its figure (`wpam step`)."""
     name = step_csv_name(run)
     return {run.result.to_csv(out / name): run_metadata(run.result),
-            plots.save_figure(plots.step_figure([run.result]),
+            plots.save_figure(flag_still(plots.step_figure([run.result]),
+                                         [] if load_moved(run.result) else [name[:-4]]),
                               out / name.replace(".csv", ".png"), run_id=run_id): {}}
 
 
@@ -109,7 +128,16 @@ def write_table2_outputs(out: Path, t2: Table2Result, *,
                          run_id: str | None = None) -> dict[Path, dict]:
     """table2.json, table2.csv and table2.png (`wpam table2`)."""
     return {**dict.fromkeys(write_table2(out, t2), {}),
-            plots.save_figure(plots.table2_figure(t2), out / "table2.png", run_id=run_id): {}}
+            plots.save_figure(flag_still(plots.table2_figure(t2), table2_still(t2)),
+                              out / "table2.png", run_id=run_id): {}}
+
+
+def table2_still(t2: Table2Result) -> list[str]:
+    """The Table 2 runs whose load never moved."""
+    runs = [(f"open loop {lp.load:g} N, Po {lp.po_down / 1e6:g} MPa", lp.result)
+            for lp in (*t2.open_loops, *t2.po_loops)]
+    runs += [(f"PI {f.load:g} N", f.result) for f in t2.feedback_runs]
+    return [name for name, result in runs if not load_moved(result)]
 
 
 def write_sweep_outputs(out: Path, sw: SweepResult, key: SweepKey, po_cap: float, *,
@@ -118,9 +146,10 @@ def write_sweep_outputs(out: Path, sw: SweepResult, key: SweepKey, po_cap: float
     `key` (`wpam sweep`); po_cap [Pa] is drawn in the Po panel."""
     series = sw.series[key]
     return {**dict.fromkeys(write_sweep(out, sw), {}),
-            plots.save_figure(plots.sweep_figure(sw), out / "sweep_gain_phase.png",
-                              run_id=run_id): {},
+            plots.save_figure(flag_still(plots.sweep_figure(sw), still_points(sw)),
+                              out / "sweep_gain_phase.png", run_id=run_id): {},
             series.to_csv(out / sine_csv_name(key)): run_metadata(series),
-            plots.save_figure(plots.sine_figure(series, key[1], po_cap),
+            plots.save_figure(flag_still(plots.sine_figure(series, key[1], po_cap),
+                                         [] if load_moved(series) else [sine_csv_name(key)[:-4]]),
                               out / sine_csv_name(key).replace(".csv", ".png"),
                               run_id=run_id): {}}
