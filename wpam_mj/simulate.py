@@ -23,7 +23,7 @@ import numpy as np
 from mujoco import batch as mjbatch
 
 from wpam_mj import engine as pyengine
-from wpam_mj import plugin
+from wpam_mj import plugin, termination
 from wpam_mj.control import make_controller
 from wpam_mj.loop_contract import (REC_FIELDS, REC_ROWS, RunConstants, SimulationDiverged,
                                    contraction_diverged, pressure_diverged)
@@ -206,6 +206,7 @@ def run_batch(models: list[mujoco.MjModel], inputs: list[np.ndarray], record_eve
     controls = np.stack(inputs)
     dt = model.opt.timestep
     for start in range(0, n, CHUNK_STEPS):
+        termination.check()  # a signal held back while this ran in C acts here
         stop = min(n, start + CHUNK_STEPS)
         out = sim.rollout(stop - start, control=controls[:, start:stop],
                           record=("plugin_state",))["plugin_state"]
