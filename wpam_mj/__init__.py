@@ -1,12 +1,8 @@
 """wpam-mj: MuJoCo simulator of the double-air-chamber pneumatic artificial muscle (W-PAM)."""
 
 import importlib.util as _importlib_util
-import os as _os
-import sys as _sys
 
-if _sys.platform.startswith("linux") and not _os.environ.get("DISPLAY"):
-    _os.environ.setdefault("MUJOCO_GL", "egl")  # headless EGL; must precede `import mujoco`
-
+# No GL backend is chosen here (loading EGL breaks PyTorch): wpam_mj.gl, where rendering starts.
 from wpam_mj.params import Params, ParameterError, preset
 from wpam_mj.results import SimResult
 from wpam_mj.loop_contract import SimulationDiverged

@@ -60,12 +60,9 @@ from pathlib import Path
 
 import mujoco
 import numpy as np
-from dm_control.mujoco import engine
-from dm_control.mujoco.wrapper import core as wrapper
-from dm_control.rl import control
-from dm_control.utils import rewards
 from dm_env import specs
 
+from wpam_mj import gl
 from wpam_mj.control import pi_feedforward
 from wpam_mj.experiments import SineSpec
 from wpam_mj.geometry import BraidGeometry
@@ -75,6 +72,12 @@ from wpam_mj.params import MM, STANDARD_GRAVITY, ParameterError, Params, check_r
 from wpam_mj.loop_contract import RunConstants, SimulationDiverged
 from wpam_mj.plant import Plant
 from wpam_mj.randomize import ParameterRanges
+
+with gl.quiet_display_probe():  # dm_control probes GLFW on import; we never render with it
+    from dm_control.mujoco import engine
+    from dm_control.mujoco.wrapper import core as wrapper
+    from dm_control.rl import control
+    from dm_control.utils import rewards
 
 ACTIONS = ("po", "both")
 REFERENCES = ("step", "sine")

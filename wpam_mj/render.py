@@ -28,16 +28,9 @@ calls release the GIL), while a third thread feeds ffmpeg.
 
 from __future__ import annotations
 
-import os
-import sys
-
-# Headless default: EGL (Mesa llvmpipe) works without a display; it must be chosen before
-# mujoco is first imported (wpam_mj/__init__.py carries the same guard).
-if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
-    os.environ.setdefault("MUJOCO_GL", "egl")
-
 import functools
 import math
+import os
 import queue
 import threading
 from collections.abc import Iterator
@@ -48,7 +41,7 @@ import mujoco
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont, PngImagePlugin
 
-from wpam_mj import paper
+from wpam_mj import gl, paper
 from wpam_mj.display import fmt
 from wpam_mj.geometry import BraidGeometry
 from wpam_mj.manifest import png_metadata, video_comment
@@ -187,10 +180,11 @@ class _Scene:
 
         # the GL context last: nothing after it may fail and leak it
         try:
+            gl.offscreen_context_class()  # headless: EGL, chosen here and not on import
             self.renderer = mujoco.Renderer(model, height, width)
         except Exception as err:  # GL errors come in several types
             raise RuntimeError(f"cannot create an OpenGL context for offscreen rendering: "
-                               f"{err}. {_gl_hint()}") from err
+                               f"{err}. {gl.backend_hint()}") from err
         self.renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = shadows
         self.renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
 
@@ -383,20 +377,6 @@ class _StateBox:
             if bottom < image.shape[0] and right < image.shape[1]:
                 image[top:bottom + 1, left:right + 1] = self.OUTLINE
                 image[top + 1:bottom, left + 1:right] = rgb
-
-
-def _gl_hint() -> str:
-    """Which GL backend mujoco chose, and why it may not be the one asked for."""
-    from mujoco.rendering.classic import gl_context
-
-    cls = getattr(gl_context, "GLContext", None)
-    chosen = cls.__module__.rsplit(".", 1)[-1] if cls is not None else "none"
-    wanted = os.environ.get("MUJOCO_GL", "<unset>")
-    hint = f"MUJOCO_GL={wanted}, mujoco uses the {chosen!r} backend"
-    if wanted.lower() not in ("<unset>", chosen):
-        hint += (" (mujoco was imported before MUJOCO_GL was set: export MUJOCO_GL=egl "
-                 "or import wpam_mj before mujoco)")
-    return hint
 
 
 def _font(size: int) -> ImageFont.ImageFont | ImageFont.FreeTypeFont:
