@@ -13,6 +13,6 @@ __all__ = ["Drive", "Params", "ParameterError", "SimResult", "SimulationDiverged
 __version__ = "0.1.0"
 
 if _importlib_util.find_spec("gymnasium") is not None:  # the optional `rl` extra
-    from gymnasium.envs.registration import register as _register
+    from wpam_mj.registry import register_all as _register_all
 
-    _register(id="wpam_mj/WPAM-v0", entry_point="wpam_mj.gym_env:WPAMEnv")
+    _register_all()
