@@ -24,7 +24,12 @@ Action: Box float64 [Pa], clipped to its bounds:
     action="po"   (1,): Po command in [p_min, po_cap]; Pi is the equilibrium feedforward
     action="both" (2,): Pi command in [p_min, p_max], Po command in [p_min, po_cap]
 Normalised spaces (normalize=True; the learning variants): float32 everywhere.
-    Action: Box [-1, 1], mapped linearly onto the SI bounds above (-1 = lower bound).
+    Action: Box [-1, 1], each command as a fraction of its upper bound (Po: a * po_cap),
+    clipped to its SI bounds, so a <= p_min / bound (Po: 0.0625) is the regulator minimum.
+    Why not [-1, 1] onto [p_min, bound]: a Gaussian policy starts at a = 0, which that
+    map makes a mid-range Po (the muscle barely contracts, every reward ~0), and the
+    usual best command, the regulator minimum the Pi feedforward assumes, would sit on
+    the space's edge, where a clipped Gaussian stops exploring.
     Observation: Box [-1, 1] of shape (7,), each SI value scaled at this edge and clipped:
     x and x_r over [0, x_max], dx/dt over +-`V_SCALE`, Pi over [0, p_max], Po over
     [0, po_cap], the load over its range (0 when fixed), and the tracking error x - x_r
@@ -125,15 +130,16 @@ class Scaling:
         self._centre, self._half = (lo + hi) / 2, np.maximum((hi - lo) / 2, 1e-12)
 
     def action(self, a) -> np.ndarray:
-        """Normalised action in [-1, 1] (clipped) -> SI command [Pa]."""
-        a = np.clip(np.asarray(a, dtype=np.float64).reshape(self._a_lo.shape), -1.0, 1.0)
-        return self._a_lo + (a + 1.0) / 2.0 * (self._a_hi - self._a_lo)
+        """Normalised action in [-1, 1] -> SI command [Pa]: a times the upper bound,
+        clipped to the bounds (so a <= p_min / upper bound is the regulator minimum)."""
+        a = np.asarray(a, dtype=np.float64).reshape(self._a_lo.shape)
+        return np.clip(a * self._a_hi, self._a_lo, self._a_hi)
 
     def action_of(self, command) -> np.ndarray:
         """SI command [Pa] -> normalised action (float32), e.g. to run a classic
         controller on a normalised environment."""
         c = np.asarray(command, dtype=np.float64).reshape(self._a_lo.shape)
-        return (2.0 * (c - self._a_lo) / (self._a_hi - self._a_lo) - 1.0).astype(np.float32)
+        return (c / self._a_hi).astype(np.float32)
 
     def observation(self, obs_si: np.ndarray) -> np.ndarray:
         """SI observation (6,) -> normalised (7,) float32 in [-1, 1]."""
