@@ -215,6 +215,8 @@ def test_viewer_shows_the_rig_and_rejects_a_pull(xvfb, tmp_path) -> None:
     r, g, b = image[..., 0], image[..., 1], image[..., 2]
     brown = (r - b > 60) & (r > g) & (g > b)  # the hanging mass (material "mass")
     assert brown.sum() > 500, "the screenshot does not show the load"
+    beige = (r > 200) & (g > 170) & (r - b > 40)  # the sleeve `wpam render` draws
+    assert beige.sum() > 500, "the viewer does not draw the braided sleeve"
 
 
 def test_cli_runs_the_viewer_in_real_time(xvfb) -> None:
