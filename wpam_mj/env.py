@@ -39,14 +39,21 @@ Actions (`BoundedArray`, float64, [Pa]; out-of-range values are clipped):
 Targets (`reference`):
     "step"  x_r constant over the episode, reached from rest at x = 0 (paper §4.1);
     "sine"  x_r(t) = 25 mm - 25 mm cos(2 pi f t) (paper §4.2, `experiments.SineSpec`),
-            f drawn from `sine_freq_range` [Hz] (or fixed with `sine_freq=`); under
-            action="po" the Pi feedforward follows x_r at the start of each control step.
-Reward: `dm_control.utils.rewards.tolerance(x - x_r)`: 1 within +-0.5 mm of the target,
-Gaussian fall-off to 0.1 at 2 mm outside that band. Discount 1; episodes end at
-`time_limit` [s]. At each reset the muscle hangs at rest at x = 0 with vented chambers, and
-target and load are drawn uniformly from `target_range` [m] and `load_range` [N] with the
-task's seeded `numpy.random.RandomState` (or fixed with `target=` / `load=`), then for
-"sine" the frequency; the load mass is load / g.
+            f drawn from `sine_freq_range` [Hz] (or fixed with `sine_freq=`);
+    "staircase"  a new level every `STAIR_HOLD` s, each drawn from `target_range`, so
+            targets also fall (what the Po feedback is for, paper §4: the friction holds
+            a falling muscle over-contracted); under action="po" the Pi feedforward
+            follows x_r at the start of each control step (sine and staircase).
+Reward (`reward=`): "tolerance" (default), `dm_control.utils.rewards.tolerance(x - x_r)`:
+1 within +-0.5 mm of the target, Gaussian fall-off to 0.1 at 2 mm outside that band;
+"tracking", max(0, 1 - |x - x_r| / `TRACKING_SCALE`) (docs/learning.md: why).
+Discount 1; episodes end at `time_limit` [s]. A load the muscle cannot lift to the
+highest target at the regulator maximum is refused, naming the largest it can
+(`feasibility.check_liftable`). At each reset the muscle hangs at rest at x = 0 with
+vented chambers, and target and load are drawn uniformly from `target_range` [m] and
+`load_range` [N] with the task's seeded `numpy.random.RandomState` (or fixed with
+`target=` / `load=`), then any `randomize` parameters, then for "sine" the frequency or
+for "staircase" its levels; the load mass is load / g.
 A divergence (negative absolute chamber pressure, non-finite state, MuJoCo warning) raises
 `dm_control.rl.control.PhysicsError`; from then on `step` refuses, with the same cause,
 until `reset()`: the state it would continue from has no meaning.
