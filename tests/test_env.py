@@ -11,6 +11,7 @@ import wpam_mj
 from wpam_mj import paper
 from wpam_mj.control import PIControl
 from wpam_mj.env import OBSERVATIONS, make_env
+from wpam_mj.feasibility import max_liftable_load
 from wpam_mj.params import MM, MPA, STANDARD_GRAVITY, ParameterError
 from wpam_mj.simulate import Drive
 
@@ -151,11 +152,39 @@ def test_actions_are_clipped_to_the_bounds() -> None:
     ({"target": 0.2}, "target = 0.2"),
     ({"load": 0.0}, "load = 0.0"),
     ({"load_range": (150.0, 50.0)}, "low <= high"),
+    ({"reward": "dense"}, "valid rewards: tolerance, tracking"),
+    ({"randomize": 1.5}, "relative spread must be a number in (0, 1)"),
 ])
 def test_bad_options_raise_parameter_error(kwargs, message) -> None:
     with pytest.raises(ParameterError) as err:
         make_env(PARAMS, **kwargs)
     assert message in str(err.value)
+
+
+def test_a_load_the_muscle_cannot_lift_is_refused_naming_the_largest() -> None:
+    largest = max_liftable_load(PARAMS)
+    for kwargs in ({"load": largest + 10}, {"load_range": (50.0, largest + 10)}):
+        with pytest.raises(ParameterError, match=rf"cannot lift .* \[1, {largest:.1f}\] N"):
+            make_env(PARAMS, **kwargs)
+    make_env(PARAMS, load=largest - 10)
+
+
+def test_staircase_targets_go_up_and_down_and_the_tracking_reward_is_linear() -> None:
+    env = make_env(PARAMS, reference="staircase", reward="tracking", seed=0, time_limit=10.0)
+    ts = env.reset()
+    targets, rewards = [], []
+    while not ts.last():
+        ts = env.step([PARAMS.pneumatics.p_min])
+        targets.append(ts.observation["target_m"][0])
+        error = ts.observation["x_m"][0] - targets[-1]
+        rewards.append((ts.reward, max(0.0, 1 - abs(error) / (5 * MM))))
+    levels = np.unique(targets)
+    # 2.5 s per level, the new one from t = 2.5 s on; the last observation, at 10 s, the 5th
+    assert len(levels) == 5 and len(np.unique(targets[:249])) == 1
+    assert targets[249] != targets[248]
+    steps = np.diff([t for i, t in enumerate(targets) if i % 250 == 249])
+    assert (steps > 0).any() and (steps < 0).any()
+    np.testing.assert_allclose(*np.array(rewards).T, rtol=0, atol=1e-12)
 
 
 def test_bad_action_raises_parameter_error() -> None:

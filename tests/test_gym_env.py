@@ -18,6 +18,8 @@ from wpam_mj.control import PIControl  # noqa: E402
 from wpam_mj.env import OBSERVATIONS, make_env  # noqa: E402
 from wpam_mj.gym_env import ENV_ID, WPAMEnv  # noqa: E402
 from wpam_mj.params import MM, MPA, ParameterError  # noqa: E402
+from wpam_mj.policies import mean_return  # noqa: E402
+from wpam_mj.registry import VARIANTS  # noqa: E402
 
 # Code defaults, not the calibration file: these tests pin the environment, not the fit.
 PARAMS = wpam_mj.preset("wpam", calibration=None)
@@ -226,3 +228,97 @@ def test_readme_gymnasium_example_runs(capsys) -> None:
     assert len(code.strip().splitlines()) <= 12
     exec(compile(code, "README.md", "exec"), {})
     assert "mm" in capsys.readouterr().out
+
+
+# ---------------------------------------------------------------- learning variants
+
+TRACK_IDS = [i for i in VARIANTS if i != ENV_ID]
+
+
+@pytest.mark.parametrize("env_id", TRACK_IDS)
+def test_normalised_variants_pass_the_checker_without_any_warning(env_id) -> None:
+    env = gymnasium.make(env_id, params=PARAMS)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_env(env.unwrapped)
+    assert env.spec.max_episode_steps == 1000
+    assert env.action_space.dtype == env.observation_space.dtype == np.float32
+    assert np.all(env.action_space.low == -1) and np.all(env.observation_space.high == 1)
+
+
+def test_info_carries_error_commands_and_success() -> None:
+    env = gymnasium.make("wpam_mj/WPAMTrack-v0", params=PARAMS)
+    _, info = env.reset(seed=0)
+    _, _, _, _, info = env.step(np.array([1.0], dtype=np.float32))  # Po at its cap
+    assert info["po_cmd_pa"] == PARAMS.controller.po_cap and info["pi_cmd_pa"] > 0
+    assert info["error_m"] == info["x_m"] - info["target_m"]
+    assert info["is_success"] == (abs(info["error_m"]) <= 0.5 * MM)
+
+
+def test_constant_po_scores_far_below_the_paper_pi() -> None:
+    """On the learning task holding Po at 5 kPa (the Pi feedforward alone) earns under half
+    of what the paper's PI earns (measured 0.41 of it; docs/learning.md), mean of 10 seeds."""
+    scores = {p: mean_return("wpam_mj/WPAMTrack-v0", p, range(10)) for p in ("constant", "pi")}
+    assert scores["constant"] < 0.5 * scores["pi"], scores
+
+
+def test_make_accepts_randomize_and_draws_a_plant_per_episode(tmp_path) -> None:
+    ranges = tmp_path / "ranges.toml"
+    ranges.write_text("[muscle]\nfriction_coeff = [0.1, 0.4]\n", encoding="utf-8")
+    env = gymnasium.make(ENV_ID, params=PARAMS, randomize=str(ranges))
+    drawn = set()
+    for seed in range(3):
+        env.reset(seed=seed)
+        drawn.add(env.unwrapped.physics.params.muscle.friction_coeff)
+    assert len(drawn) == 3 and all(0.1 <= mu <= 0.4 for mu in drawn)
+    relative = gymnasium.make("wpam_mj/WPAMTrackRandomized-v0", params=PARAMS)
+    relative.reset(seed=0)
+    assert relative.unwrapped.physics.params != PARAMS
+
+
+def test_vector_entry_point_equals_n_single_envs() -> None:
+    """make_vec's native vector env against SyncVectorEnv of the same envs: the same
+    observations, rewards, ends and infos over autoresets."""
+    kwargs = {"params": PARAMS, "time_limit": 0.2}
+    native = gymnasium.make_vec("wpam_mj/WPAMTrack-v0", num_envs=3, **kwargs)
+    sync = gymnasium.make_vec("wpam_mj/WPAMTrack-v0", num_envs=3, vectorization_mode="sync",
+                              **kwargs)
+    assert type(native).__name__ == "WPAMVectorEnv"
+    np.testing.assert_array_equal(native.reset(seed=4)[0], sync.reset(seed=4)[0])
+    rng = np.random.default_rng(0)
+    for _ in range(45):  # two autoresets
+        actions = rng.uniform(-1, 1, (3, 1)).astype(np.float32)
+        a, b = native.step(actions), sync.step(actions)
+        for x, y in zip(a[:4], b[:4]):
+            np.testing.assert_array_equal(x, y)
+        assert a[4].keys() == b[4].keys()
+        for key in a[4]:
+            np.testing.assert_array_equal(a[4][key], b[4][key])
+
+
+def test_reset_options_fix_one_episode_and_refuse_the_unknown() -> None:
+    env = WPAMEnv(PARAMS)
+    _, info = env.reset(seed=0, options={"target": 0.02, "load": 60.0})
+    assert info["target_m"] == 0.02 and env.physics.load() == pytest.approx(60.0)
+    _, info = env.reset()
+    assert info["target_m"] != 0.02
+    for options, message in (({"targt": 0.02}, "reset option(s) 'targt' unknown"),
+                             ({"load": "heavy"}, "reset option load = 'heavy' must be"),
+                             ({"target": 1.0}, "target = 1"), ([1], "must be a dict")):
+        with pytest.raises(ParameterError, match=re.escape(message)):
+            env.reset(options=options)
+
+
+def test_params_by_preset_name_or_refused_in_one_line() -> None:
+    env = gymnasium.make(ENV_ID, params="rlam")
+    assert env.unwrapped.physics.params.preset == "rlam"
+    for params, message in (("wpm", "unknown preset 'wpm'"), (3, "params = 3 must be")):
+        with pytest.raises(ParameterError, match=re.escape(message)):
+            gymnasium.make(ENV_ID, params=params)
+
+
+def test_vector_env_refuses_a_time_limit_its_max_episode_steps_would_cut() -> None:
+    with pytest.raises(ParameterError, match="pass max_episode_steps=2000"):
+        gymnasium.make_vec(ENV_ID, num_envs=2, params=PARAMS, time_limit=20.0)
+    gymnasium.make_vec(ENV_ID, num_envs=2, params=PARAMS, time_limit=20.0,
+                       max_episode_steps=2000)

@@ -278,3 +278,33 @@ def test_sweep_amplitude_changes_the_run(tmp_path, capsys):
     assert points[25]["gain"] < 0.9 < points[5]["gain"], points
     assert points[5]["phase_lag_deg"] < points[25]["phase_lag_deg"], points
     assert math.isfinite(points[5]["phase_lag_deg"])
+
+
+@pytest.mark.parametrize("model", linear.MODELS)
+def test_public_plant_and_loops_work_with_python_control(params, model) -> None:
+    """P(s) and C(s) are public with named signals; feedback, margin and bode_plot take
+    them as a control engineer writes them, and agree with the loop the package builds."""
+    lp = linear.linear_loop(params, 100.0, X_OP, "pi", model)
+    signals = {name: (sys.input_labels, sys.output_labels) for name, sys in (
+        ("P", lp.plant), ("C", lp.controller), ("L", lp.loop), ("G_yr", lp.g_yr),
+        ("G_yd", lp.g_yd))}
+    assert signals == {"P": (["po_cmd"], ["x"]), "C": (["e"], ["po_cmd"]),
+                       "L": (["e"], ["x"]), "G_yr": (["x_r"], ["x"]),
+                       "G_yd": (["d"], ["x"])}
+    assert lp.plant.dcgain() < 0 or not np.isfinite(lp.plant.dcgain())  # Po extends
+    omega = np.logspace(-1, 1.5, 30)
+    def response(sys):
+        return ct.frequency_response(sys, omega).complex
+
+    closed = response(ct.feedback(-lp.controller * lp.plant, 1))
+    if model == "extended":  # x_r also acts through the Pi feedforward: + P_pi k / (1 + L)
+        through_pi = linear.extended_plant(params, lp.op)[0, 0] * lp.op.pi_ff_slope
+        closed = closed + response(through_pi) / (1 + response(lp.loop))
+    np.testing.assert_allclose(closed, response(lp.g_yr), rtol=1e-6)
+    gm, pm, _, _ = ct.margin(lp.loop)
+    assert pm == pytest.approx(lp.margins()["phase_margin_deg"], rel=1e-6)
+    by_name = ct.interconnect([lp.plant, lp.controller,
+                               ct.summing_junction(["x", "-x_r"], "e")],
+                              inputs="x_r", outputs="x")  # joined by signal names
+    np.testing.assert_allclose(response(by_name), response(ct.feedback(lp.loop)), rtol=1e-6)
+    ct.bode_plot(ct.frequency_response(lp.plant, omega))  # a ControlPlot

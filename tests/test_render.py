@@ -6,6 +6,8 @@ import dataclasses
 import itertools
 import math
 import os
+import subprocess
+import sys
 import threading
 
 import imageio.v2 as imageio
@@ -14,6 +16,7 @@ import numpy as np
 import pytest
 
 import wpam_mj
+import wpam_mj.gl
 from wpam_mj import render
 from wpam_mj.model import build_model
 from wpam_mj.params import MM, MPA, ParameterError
@@ -29,10 +32,24 @@ STEP = 40 * MM  # m: contraction of the synthetic step
 def gl() -> None:
     """Skip (with the reason) where no offscreen OpenGL context can be made."""
     try:
+        wpam_mj.gl.offscreen_context_class()  # headless: EGL, as wpam_mj.render chooses
         with mujoco.Renderer(mujoco.MjModel.from_xml_string("<mujoco/>"), 16, 16) as r:
             r.render()
     except Exception as err:  # noqa: BLE001 (EGL/OSMesa/GLFW raise different types)
-        pytest.skip(f"no OpenGL context (MUJOCO_GL={os.environ.get('MUJOCO_GL')}): {err}")
+        pytest.skip(f"no OpenGL context ({wpam_mj.gl.backend_hint()}): {err}")
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/self/maps")
+def test_importing_the_package_chooses_no_gl_backend() -> None:
+    """PyTorch's triton segfaults with EGL loaded: importing must neither set MUJOCO_GL nor
+    load libEGL; the backend is chosen where offscreen rendering starts."""
+    code = ("import os, wpam_mj, wpam_mj.env, wpam_mj.gym_env\n"
+            "maps = open('/proc/self/maps').read()\n"
+            "print(os.environ.get('MUJOCO_GL'), 'libEGL' in maps)")
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
+    out = subprocess.run([sys.executable, "-W", "error::UserWarning", "-c", code], env=env,
+                         capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["None", "False"], out.stderr
 
 
 def synthetic(x: np.ndarray, *, record_dt: float = 0.01, pi: float = 0.0,

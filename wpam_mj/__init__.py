@@ -1,12 +1,8 @@
 """wpam-mj: MuJoCo simulator of the double-air-chamber pneumatic artificial muscle (W-PAM)."""
 
 import importlib.util as _importlib_util
-import os as _os
-import sys as _sys
 
-if _sys.platform.startswith("linux") and not _os.environ.get("DISPLAY"):
-    _os.environ.setdefault("MUJOCO_GL", "egl")  # headless EGL; must precede `import mujoco`
-
+# No GL backend is chosen here (loading EGL breaks PyTorch): wpam_mj.gl, where rendering starts.
 from wpam_mj import engine as _engine
 from wpam_mj import plugin as _plugin
 from wpam_mj.params import Params, ParameterError, preset
@@ -24,6 +20,6 @@ if _plugin.load() is None:
     _engine.register_stand_in()
 
 if _importlib_util.find_spec("gymnasium") is not None:  # the optional `rl` extra
-    from gymnasium.envs.registration import register as _register
+    from wpam_mj.registry import register_all as _register_all
 
-    _register(id="wpam_mj/WPAM-v0", entry_point="wpam_mj.gym_env:WPAMEnv")
+    _register_all()

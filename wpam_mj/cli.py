@@ -275,7 +275,8 @@ def _add_view_parser(add) -> None:
             _cmd_view)
     p.add_argument("--load", type=float, default=100.0, metavar="N",
                    help="hanging load [N] (default: 100)")
-    p.add_argument("--control", choices=CONTROLS, default="pi",
+    from wpam_mj.viewer import VIEW_CONTROLS  # noqa: PLC0415 (pi_ff needs the target ahead)
+    p.add_argument("--control", choices=VIEW_CONTROLS, default="pi",
                    help="Po controller; End cycles it in the viewer (default: pi)")
     p.add_argument("--target", default="step", metavar="step|sine|MM",
                    help="target: the 0-50-0 mm staircase, a 25 mm sine about 25 mm at "
@@ -322,6 +323,8 @@ def _add_study_parser(sub) -> None:
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="progress bar with time left on stderr (default: when stderr is a "
                         "terminal)")
+    for name in ("--preset", "--dt", "--config"):  # refused in _cmd_study, with the reason
+        p.add_argument(name, help=argparse.SUPPRESS)
 
 
 # ------------------------------------------------------------------ helpers
@@ -686,6 +689,11 @@ def _cmd_view(args: argparse.Namespace) -> int:
 def _cmd_study(args: argparse.Namespace) -> int:
     from wpam_mj import study  # noqa: PLC0415 (the study's own modules)
     from wpam_mj.executors import open_workers  # noqa: PLC0415
+    given = [f"--{n}" for n in ("preset", "dt", "config") if getattr(args, n) is not None]
+    if given:
+        raise ParameterError(f"{', '.join(given)}: a study file sets its own preset, dt and "
+                             "parameters (preset = \"rlam\", dt = 5e-4, [fixed] "
+                             "\"section.field\" = value)")
     jobs = _jobs(args.jobs)
     spec = study.load_spec(args.spec)
     out = _writable_dir(args.out if args.out is not None
@@ -706,9 +714,11 @@ def _cmd_study(args: argparse.Namespace) -> int:
 
 
 def _add_fit_parser(add) -> None:
-    p = add("fit", "fit the model to your own measured experiments (CSV files, format in "
-            "docs/fitting.md): estimates with 1-sigma, RMS per file, a PNG per file",
-            _cmd_fit)
+    from wpam_mj import measurements  # noqa: PLC0415 (its docstring is the format)
+    p = add("fit", "fit the model to your own measured experiments (CSV files, format "
+            "below): estimates with 1-sigma, RMS per file, a PNG per file", _cmd_fit)
+    p.formatter_class = argparse.RawDescriptionHelpFormatter  # keep the format's layout
+    p.epilog = measurements.__doc__.split("\n\nInside,")[0]
     p.add_argument("--data", nargs="+", required=True, metavar="FILE_OR_DIR",
                    help="measurement CSV files, or folders of them (their *.csv)")
     p.add_argument("--holdout", nargs="+", default=[], metavar="FILE_OR_DIR",
@@ -718,7 +728,7 @@ def _add_fit_parser(add) -> None:
                         "not give: braid angle, Kf, mu, F_f0, A_ax, both line conductances)")
     p.add_argument("--bounds", type=_name_list, default=(), metavar="NAME=LO:HI,...",
                    help="override the bounds of free parameters [SI] (default: their "
-                        "plausible ranges, docs/fitting.md)")
+                        "plausible ranges, listed in the package's models/README.md)")
     p.add_argument("--out", type=_out_path, default=Path("out") / "fit" / "params.toml",
                    metavar="FILE.toml",
                    help="fitted parameters, a --config file for the same --preset; the "

@@ -30,14 +30,21 @@ Actions (`BoundedArray`, float64, [Pa]; out-of-range values are clipped):
 Targets (`reference`):
     "step"  x_r constant over the episode, reached from rest at x = 0 (paper §4.1);
     "sine"  x_r(t) = 25 mm - 25 mm cos(2 pi f t) (paper §4.2, `experiments.SineSpec`),
-            f drawn from `sine_freq_range` [Hz] (or fixed with `sine_freq=`); under
-            action="po" the Pi feedforward follows x_r at the start of each control step.
-Reward: `dm_control.utils.rewards.tolerance(x - x_r)`: 1 within +-0.5 mm of the target,
-Gaussian fall-off to 0.1 at 2 mm outside that band. Discount 1; episodes end at
-`time_limit` [s]. At each reset the muscle hangs at rest at x = 0 with vented chambers, and
-target and load are drawn uniformly from `target_range` [m] and `load_range` [N] with the
-task's seeded `numpy.random.RandomState` (or fixed with `target=` / `load=`), then for
-"sine" the frequency; the load mass is load / g.
+            f drawn from `sine_freq_range` [Hz] (or fixed with `sine_freq=`);
+    "staircase"  a new level every `STAIR_HOLD` s, each drawn from `target_range`, so
+            targets also fall (what the Po feedback is for, paper §4: the friction holds
+            a falling muscle over-contracted); under action="po" the Pi feedforward
+            follows x_r at the start of each control step (sine and staircase).
+Reward (`reward=`): "tolerance" (default), `dm_control.utils.rewards.tolerance(x - x_r)`:
+1 within +-0.5 mm of the target, Gaussian fall-off to 0.1 at 2 mm outside that band;
+"tracking", max(0, 1 - |x - x_r| / `TRACKING_SCALE`) (docs/learning.md: why).
+Discount 1; episodes end at `time_limit` [s]. A load the muscle cannot lift to the
+highest target at the regulator maximum is refused, naming the largest it can
+(`feasibility.check_liftable`). At each reset the muscle hangs at rest at x = 0 with
+vented chambers, and target and load are drawn uniformly from `target_range` [m] and
+`load_range` [N] with the task's seeded `numpy.random.RandomState` (or fixed with
+`target=` / `load=`), then any `randomize` parameters, then for "sine" the frequency or
+for "staircase" its levels; the load mass is load / g.
 A divergence (negative absolute chamber pressure, non-finite state, MuJoCo warning) raises
 `dm_control.rl.control.PhysicsError`; from then on `step` refuses, with the same cause,
 until `reset()`: the state it would continue from has no meaning.
@@ -46,33 +53,41 @@ until `reset()`: the state it would continue from has no meaning.
 from __future__ import annotations
 
 import collections
+import math
 from pathlib import Path
 
 import mujoco
 import numpy as np
-from dm_control.mujoco import engine
-from dm_control.mujoco.wrapper import core as wrapper
-from dm_control.rl import control
-from dm_control.utils import rewards
 from dm_env import specs
 
+from wpam_mj import gl
 from wpam_mj.control import pi_feedforward
 from wpam_mj.experiments import SineSpec
+from wpam_mj.feasibility import check_liftable
 from wpam_mj.geometry import BraidGeometry
 from wpam_mj.live import LiveRig
 from wpam_mj.model import check_dt, check_load
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM, STANDARD_GRAVITY, ParameterError, Params, check_range, preset
 from wpam_mj.loop_contract import SimulationDiverged
-from wpam_mj.randomize import ParameterRanges
+from wpam_mj.randomize import ParameterRanges, ranges_of
+
+with gl.quiet_display_probe():  # dm_control probes GLFW on import; we never render with it
+    from dm_control.mujoco import engine
+    from dm_control.mujoco.wrapper import core as wrapper
+    from dm_control.rl import control
+    from dm_control.utils import rewards
 
 ACTIONS = ("po", "both")
-REFERENCES = ("step", "sine")
+REFERENCES = ("step", "sine", "staircase")
+REWARDS = ("tolerance", "tracking")
+STAIR_HOLD = 2.5  # s per staircase level: our choice, long enough for a PI to act
 SINE_FREQ_RANGE = (0.1, 1.0)  # Hz: the paper's frequency sweep (§4.2, Fig. 17)
 TARGET_RANGE = (0.0, 50 * MM)  # m: the paper's step experiment spans 0-50 mm (§4.1)
 LOAD_RANGE = (50.0, 150.0)  # N: the paper's loads (§4)
 REWARD_BOUND = 0.5 * MM  # m: reward 1 inside +-bound
 REWARD_MARGIN = 2 * MM  # m: reward 0.1 this far outside the bound
+TRACKING_SCALE = 5 * MM  # m: the "tracking" reward falls linearly to 0 at this error
 TIME_LIMIT_RANGE = (1e-3, 3600.0)  # s
 CONTROL_TIMESTEP_RANGE = (1e-5, 1.0)  # s
 
@@ -179,13 +194,18 @@ class TrackingTask(control.Task):
                  flat_observation: bool = False, reference: str = "step",
                  sine_freq: float | None = None,
                  sine_freq_range: tuple[float, float] = SINE_FREQ_RANGE,
-                 randomize: ParameterRanges | None = None) -> None:
+                 randomize: ParameterRanges | None = None, reward: str = "tolerance",
+                 time_limit: float = 10.0) -> None:
         if action not in ACTIONS:
             raise ParameterError(f"action = {action!r}; valid actions: {', '.join(ACTIONS)}")
         if reference not in REFERENCES:
             raise ParameterError(f"reference = {reference!r}; valid references: "
                                  f"{', '.join(REFERENCES)}")
-        self._reference = reference
+        if reward not in REWARDS:
+            raise ParameterError(f"reward = {reward!r}; valid rewards: {', '.join(REWARDS)}")
+        self._reference, self._reward = reference, reward
+        self._levels = np.zeros(1)  # staircase targets [m], one per STAIR_HOLD
+        self._n_levels = math.ceil(time_limit / STAIR_HOLD) + 1
         self._freq_range = _check_interval("sine_freq_range", sine_freq_range, 1e-3, 20.0, "Hz")
         self._fixed_freq = None if sine_freq is None else SineSpec(sine_freq).freq
         self._sine: SineSpec | None = None
@@ -200,6 +220,9 @@ class TrackingTask(control.Task):
         self._fixed_target = None if target is None else check_range("target", target, 0.0,
                                                                       x_max, "m")
         self._fixed_load = None if load is None else check_load(load)
+        heaviest = self._load_range[1] if load is None else self._fixed_load
+        check_liftable(params, [heaviest], "load" if load is not None else "load_range high",
+                       x=self._highest_target(x_max))
         self._params, self._action = params, action
         self._base, self._randomize = params, randomize
         self._flat = flat_observation
@@ -209,6 +232,7 @@ class TrackingTask(control.Task):
         self._random = random
         self.target = self._fixed_target if target is not None else 0.0
         self._pi_ff = 0.0
+        self._next: tuple[float | None, float | None] = (None, None)
         pn, c = params.pneumatics, params.controller
         if action == "po":
             self._lo, self._hi = np.array([pn.p_min]), np.array([c.po_cap])
@@ -216,6 +240,25 @@ class TrackingTask(control.Task):
         else:
             self._lo, self._hi = np.array([pn.p_min, pn.p_min]), np.array([pn.p_max, c.po_cap])
             self._name = "pi_cmd_pa,po_cmd_pa"
+
+    def _highest_target(self, x_max: float) -> float:
+        """The highest contraction [m] an episode may ask for."""
+        if self._reference == "sine":
+            spec = SineSpec(self._freq_range[0])
+            return min(spec.mean + spec.amplitude, x_max)
+        if self._fixed_target is not None and self._reference == "step":
+            return self._fixed_target
+        return self._target_range[1]
+
+    def fix_next_episode(self, target: float | None = None, load: float | None = None) -> None:
+        """Use `target` [m] and `load` [N] for the next episode only (gym reset options);
+        the random draws still happen, so the sequence of later episodes is unchanged."""
+        x_max = BraidGeometry.from_params(self._base.braid).max_contraction
+        self._next = (None if target is None else check_range("target", target, 0.0, x_max,
+                                                               "m"),
+                      None if load is None else check_load(load))
+        if self._next[1] is not None:
+            check_liftable(self._base, [self._next[1]], x=self._highest_target(x_max))
 
     @property
     def random(self) -> np.random.RandomState:
@@ -226,15 +269,23 @@ class TrackingTask(control.Task):
         # draw both every episode so fixing one does not shift the other's sequence
         target = self._random.uniform(*self._target_range)
         load = self._random.uniform(*self._load_range)
-        self.target = target if self._fixed_target is None else self._fixed_target
+        next_target, next_load = self._next
+        self._next = (None, None)
+        target = next_target if next_target is not None else (
+            target if self._fixed_target is None else self._fixed_target)
+        load = next_load if next_load is not None else (
+            load if self._fixed_load is None else self._fixed_load)
+        self.target = target
         if self._randomize is not None:  # drawn after target and load: same sequence
             self._params = self._randomize.sample(self._base, self._random)
             self._muscle = MuscleModel.from_params(self._params)
             physics.set_params(self._params)
-        physics.set_load(load if self._fixed_load is None else self._fixed_load)
+        physics.set_load(load)
         if self._reference == "sine":
             freq = self._random.uniform(*self._freq_range)
             self._sine = SineSpec(freq if self._fixed_freq is None else self._fixed_freq)
+        if self._reference == "staircase":
+            self._levels = self._random.uniform(*self._target_range, size=self._n_levels)
         self._pi_ff = self._feedforward(self.target_at(0.0), physics.load())
 
     def _feedforward(self, target: float, load: float) -> float:
@@ -244,6 +295,9 @@ class TrackingTask(control.Task):
 
     def target_at(self, t: float) -> float:
         """Target contraction x_r [m] at episode time `t` [s]."""
+        if self._reference == "staircase":
+            k = int(t / STAIR_HOLD + 1e-9)  # t sums physics steps: 2.4999999 s is 2.5 s
+            return float(self._levels[min(k, self._n_levels - 1)])
         return self.target if self._sine is None else float(self._sine.target(t))
 
     def action_spec(self, physics: MusclePhysics) -> specs.BoundedArray:
@@ -256,7 +310,7 @@ class TrackingTask(control.Task):
             raise ParameterError(f"action = {action!r} must be {self._lo.size} finite "
                                  f"number(s) [Pa] ({self._name})")
         a = np.clip(a, self._lo, self._hi)
-        if self._action == "po" and self._sine is not None:
+        if self._action == "po" and self._reference != "step":
             self._pi_ff = self._feedforward(self.target_at(physics.time()), physics.load())
         if self._action == "po":
             physics.set_commands(self._pi_ff, a[0])
@@ -280,8 +334,10 @@ class TrackingTask(control.Task):
             (name, np.array([v], dtype=np.float64)) for name, v in zip(OBSERVATIONS, values))
 
     def get_reward(self, physics: MusclePhysics) -> float:
-        return float(rewards.tolerance(physics.contraction() - self.target_at(physics.time()),
-                                       bounds=(-REWARD_BOUND, REWARD_BOUND),
+        error = physics.contraction() - self.target_at(physics.time())
+        if self._reward == "tracking":
+            return max(0.0, 1.0 - abs(error) / TRACKING_SCALE)
+        return float(rewards.tolerance(error, bounds=(-REWARD_BOUND, REWARD_BOUND),
                                        margin=REWARD_MARGIN, sigmoid="gaussian",
                                        value_at_margin=0.1))
 
@@ -297,7 +353,8 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
              flat_observation: bool = False, reference: str = "step",
              sine_freq: float | None = None,
              sine_freq_range: tuple[float, float] = SINE_FREQ_RANGE,
-             randomize: str | Path | ParameterRanges | None = None) -> control.Environment:
+             randomize: str | Path | float | ParameterRanges | None = None,
+             reward: str = "tolerance") -> control.Environment:
     """The hung W-PAM as a `dm_control.rl.control.Environment`.
 
     Args:
@@ -317,13 +374,15 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
       reference: "step" (constant target) or "sine" (sinusoidal target), see above.
       sine_freq: fix the sine target's frequency [Hz] instead of drawing it.
       sine_freq_range: (low, high) [Hz] for random sine frequencies.
-      randomize: domain randomisation: a ranges file (`wpam fit --randomize-out`) or
-        `ParameterRanges`; each episode draws the listed parameters from their ranges
-        (with the task's RandomState, after target and load).
+      randomize: domain randomisation: a ranges file (`wpam fit --randomize-out`),
+        `ParameterRanges`, or a relative spread (0.1: each fitted plant parameter of
+        `randomize.PLANT_PARAMETERS` within +-10 %); each episode draws the listed
+        parameters from their ranges (with the task's RandomState, after target and load).
+      reward: "tolerance" (1 within +-0.5 mm, Gaussian tail) or "tracking" (1 - |x - x_r|
+        / 5 mm, floored at 0); see the module docstring.
     """
     params = preset() if params is None else params
-    if randomize is not None and not isinstance(randomize, ParameterRanges):
-        randomize = ParameterRanges.load(randomize, params)
+    randomize = ranges_of(randomize, params)
     time_limit = check_range("time_limit", time_limit, *TIME_LIMIT_RANGE, "s")
     control_timestep = check_range("control_timestep", control_timestep,
                                    *CONTROL_TIMESTEP_RANGE, "s")
@@ -337,7 +396,7 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
                         target_range=target_range, load_range=load_range, random=seed,
                         flat_observation=flat_observation, reference=reference,
                         sine_freq=sine_freq, sine_freq_range=sine_freq_range,
-                        randomize=randomize)
+                        randomize=randomize, reward=reward, time_limit=time_limit)
     return control.Environment(physics, task, time_limit=time_limit, n_sub_steps=n_sub,
                                flat_observation=flat_observation)
 

@@ -227,15 +227,21 @@ def controller_tf(params: Params, control: str, *, derivative_filter: bool = Fal
 
 @dataclass(frozen=True)
 class LinearLoop:
-    """One linear model of the closed loop: loop transfer and closed-loop responses.
+    """One linear model of the closed loop, every system with named signals (SI):
 
-    loop: L(s), the open loop broken at the Po command (closed loop = L / (1 + L));
-    g_yr: target x_r [m] -> x [m]; g_yd: disturbance force d [N] -> x [m].
+    plant: P(s), Po command "po_cmd" [Pa] -> "x" [m] (negative: more Po extends);
+    controller: C(s), "e" = x - x_r [m] -> "po_cmd" [Pa] (the paper's sign: Po = C e);
+    loop: L(s) = -C(s) P(s), "e" -> "x", for unity negative feedback: `control.margin(loop)`
+      gives the margins, and `control.feedback(loop)` is g_yr of the paper model (the
+      extended g_yr adds x_r's path through the Pi feedforward, P_pi k / (1 + L));
+    g_yr: target "x_r" [m] -> "x" [m]; g_yd: disturbance force "d" [N] -> "x" [m].
     """
 
     model: str
     control: str
     op: OperatingPoint
+    plant: ct.LTI
+    controller: ct.LTI
     loop: ct.LTI
     g_yr: ct.LTI
     g_yd: ct.LTI
@@ -291,13 +297,33 @@ class LinearLoop:
                 **({k: num(v) for k, v in self.step_info().items()} if self.stable else {})}
 
 
+def named(system: ct.LTI, name: str, inputs: str, outputs: str) -> ct.LTI:
+    """`system` (SISO) with its name and signal names, of the same kind (tf or ss)."""
+    kind = ct.tf if isinstance(system, ct.TransferFunction) else ct.ss
+    return kind(system, name=name, inputs=inputs, outputs=outputs)
+
+
+def _closed_loops(model: str, control: str, op: OperatingPoint, plant: ct.LTI,
+                  controller: ct.LTI, g_yr: ct.LTI, g_yd: ct.LTI) -> LinearLoop:
+    """A `LinearLoop` with every system named (`LinearLoop`'s docstring)."""
+    return LinearLoop(model, control, op, plant, controller,
+                      named(-controller * plant, "L", "e", "x"),
+                      named(g_yr, "G_yr", "x_r", "x"), named(g_yd, "G_yd", "d", "x"))
+
+
+def paper_plant(op: OperatingPoint) -> ct.TransferFunction:
+    """§3's P(s) = -A_o / (m s^2 + c s): Po command [Pa] -> x [m] (eq. 12, Po = its command)."""
+    return ct.tf([-op.po_area], [op.mass, op.damping, 0.0], name="P", inputs="po_cmd",
+                 outputs="x")
+
+
 def paper_model(params: Params, op: OperatingPoint, control: str) -> LinearLoop:
     """The paper's §3 loop (eqs. 12-14) at `op` with PI or PID (ideal derivative)."""
     force_to_x = ct.tf([1.0], [op.mass, op.damping, 0.0])  # 1 / (m s^2 + c s), eq. 12
-    c = controller_tf(params, control) * op.po_area  # Po -> F_o = A_o Po
-    loop = c * force_to_x
-    return LinearLoop("paper", control, op, loop, ct.feedback(loop, 1),
-                      ct.feedback(force_to_x, c))
+    c = controller_tf(params, control)
+    loop = c * op.po_area * force_to_x  # Po -> F_o = A_o Po
+    return _closed_loops("paper", control, op, paper_plant(op), c, ct.feedback(loop, 1),
+                         ct.feedback(force_to_x, c * op.po_area))
 
 
 def _regulator(params: Params, name: str, cmd: str, out: str) -> ct.TransferFunction:
@@ -309,8 +335,10 @@ def _regulator(params: Params, name: str, cmd: str, out: str) -> ct.TransferFunc
     return ct.tf(reg, name=name, inputs=cmd, outputs=out)
 
 
-def _extended_plant(params: Params, op: OperatingPoint) -> ct.StateSpace:
-    """Pressure commands (pi_cmd, po_cmd [Pa]) and a force d [N] -> x [m]."""
+def extended_plant(params: Params, op: OperatingPoint) -> ct.StateSpace:
+    """Pressure commands ("pi_cmd", "po_cmd" [Pa]) and a force "d" [N] -> "x" [m]: the
+    load, both chambers and both regulators linearised at `op`. P(s) is its
+    `plant[0, 1]` ("po_cmd" -> "x"), as `LinearLoop.plant` holds it."""
     m, c, k = op.mass, op.damping, op.stiffness
     mech = ct.ss([[0.0, 1.0], [-k / m, -c / m]],
                  [[0.0, 0.0, 0.0], [op.pi_area / m, -op.po_area / m, 1.0 / m]],
@@ -326,19 +354,24 @@ def _extended_plant(params: Params, op: OperatingPoint) -> ct.StateSpace:
 
 def extended_model(params: Params, op: OperatingPoint, control: str) -> LinearLoop:
     """§3 plus stiffness, Pi feedforward, regulators, chamber dynamics and the D filter."""
-    plant = _extended_plant(params, op)
+    plant = extended_plant(params, op)
     c = controller_tf(params, control, derivative_filter=True)
     feedforward = ct.tf([op.pi_ff_slope], [1.0], name="ff", inputs="x_r", outputs="pi_cmd")
     error = ct.summing_junction(inputs=["x", "-x_r"], output="e", name="error")
     closed = ct.interconnect([plant, c, feedforward, error], inputs=["x_r", "d"],
                              outputs=["x"], name="closed")
-    loop = -c * plant[0, 1]  # Po = C (x - x_r) and more Po extends: L = -C P_po
-    return LinearLoop("extended", control, op, ct.ss(loop), closed[0, 0], closed[0, 1])
+    p = named(plant[0, 1], "P", "po_cmd", "x")  # Po = C (x - x_r); more Po extends
+    return _closed_loops("extended", control, op, p, c, closed[0, 0], closed[0, 1])
 
 
 def linear_loop(params: Params, load: float, x: float, control: str,
                 model: str = "paper") -> LinearLoop:
-    """`paper_model` or `extended_model` at the operating point (load [N], x [m])."""
+    """`paper_model` or `extended_model` at the operating point (load [N], x [m]).
+
+        lp = linear_loop(wpam_mj.preset(), 100.0, 25e-3, "pi", "extended")
+        control.margin(lp.loop); control.bode_plot(lp.plant)
+        control.feedback(-lp.controller * lp.plant)   # x_r -> x without the Pi feedforward
+    """
     if model not in MODELS:
         raise ParameterError(f"unknown linear model {model!r}; valid: {', '.join(MODELS)}")
     op = operating_point(params, load, x)

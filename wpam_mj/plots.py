@@ -48,6 +48,17 @@ def _load_colours(loads: Sequence[float]) -> dict[float, str]:
 # ------------------------------------------------------------------ static loops
 
 
+def _legend_below(ax) -> None:
+    """The legend under the axes, where no curve can be covered (constrained layout
+    makes room)."""
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.16), frameon=False)
+
+
+def _legend_right(ax) -> None:
+    """The legend right of the axes, where no curve can be covered."""
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), frameon=False)
+
+
 def _direction_arrows(ax, p: np.ndarray, x: np.ndarray, colour: str, n: int = 3) -> None:
     """Arrows along each branch of the polyline (p, x) [display units] (paper Figs. 8-9)."""
     turn = int(np.argmax(p))
@@ -102,7 +113,7 @@ def static_figure(loops: Sequence[StaticLoop], *, title: str | None = None) -> F
         ax.set_xlabel("internal pressure Pi [MPa]")
         ax.set_ylabel("contraction x [mm]")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, loc="lower right")  # "best" would scan every data point
+        _legend_below(ax)
         if by_preset:
             ax.set_title(f"load {panel_load:g} N")
     po = {lp.po_down for lp in loops}
@@ -154,7 +165,7 @@ def step_figure(results: Sequence[SimResult], *, title: str | None = None) -> Fi
     ax_p.set_xlabel("time t [s]")
     for ax in (ax_x, ax_p):
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8, ncol=2, loc="upper right")
+        _legend_right(ax)
     loads = sorted({r.load for r in results})
     fig.suptitle(title or "Step response, load " + ", ".join(f"{v:g}" for v in loads) + " N")
     return fig
@@ -163,7 +174,7 @@ def step_figure(results: Sequence[SimResult], *, title: str | None = None) -> Fi
 def closed_loop_static_figure(runs: Sequence[StepRun], params: Params) -> Figure:
     """Plateau means x [mm] against mean chamber Pi [MPa] (paper Fig. 16), beside the
     mechanical-equilibrium model (the Pi feedforward at Po = po_feedforward)."""
-    fig = Figure(figsize=(6.4, 4.6), layout="constrained")
+    fig = Figure(figsize=(8.4, 4.6), layout="constrained")
     ax = fig.subplots()
     colours = _load_colours([r.load for r in runs])
     muscle = MuscleModel.from_params(params)
@@ -178,12 +189,16 @@ def closed_loop_static_figure(runs: Sequence[StepRun], params: Params) -> Figure
         ax.plot(p[turn:], x[turn:], "v--", color=c, ms=5, lw=1.0, mfc="none",
                 label=f"{run.load:g} N, down")
         pi_model = pi_feedforward(muscle, params, x_model, run.load, po_ff)
-        ax.plot(pi_model / MPA, x_model / MM, color=c, lw=0.8, alpha=0.6)
-    ax.plot([], [], color="gray", lw=0.8, label=f"model, Po = {po_ff / MPA:g} MPa")
+        # a wide pale band under the data: the PI brings the plateaus onto the model, so
+        # a thin line would hide beneath them
+        ax.plot(pi_model / MPA, x_model / MM, color=c, lw=7, alpha=0.25, zorder=1,
+                solid_capstyle="butt")
+    ax.plot([], [], color="gray", lw=7, alpha=0.35,
+            label=f"model (eq. 5), Po = {po_ff / MPA:g} MPa")
     ax.set_xlabel("mean internal pressure Pi [MPa]")
     ax.set_ylabel("mean contraction x [mm]")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=7, loc="upper left")
+    _legend_right(ax)
     ax.set_title(f"Closed-loop static characteristic (PI; last {runs[0].settle:g} s "
                  "of each plateau)")
     return fig

@@ -19,7 +19,13 @@ from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
-from wpam_mj.params import Params, ParameterError, load_toml
+from wpam_mj.params import Params, ParameterError, load_toml, plausible_range
+
+# The plant parameters the calibration fits (wpam_mj.calibrate.FREE without the
+# controller's feedforward reading): what a real muscle is least sure to share with ours.
+PLANT_PARAMETERS = ("braid.braid_angle", "muscle.output_coeff", "muscle.friction_coeff",
+                    "muscle.friction_const", "muscle.axial_area",
+                    "pneumatics.inner_conductance", "pneumatics.outer_conductance")
 
 if TYPE_CHECKING:  # scipy.optimize, imported by wpam_mj.fitting, is slow to import
     from wpam_mj.fitting import Estimate
@@ -63,6 +69,22 @@ class ParameterRanges:
         return cls({e.name: (float(max(e.lo, e.value - k * e.sigma)),
                              float(min(e.hi, e.value + k * e.sigma))) for e in estimates})
 
+    @classmethod
+    def relative(cls, base: Params, spread: float) -> "ParameterRanges":
+        """Each of `PLANT_PARAMETERS` within +-spread (a fraction) of its value in `base`,
+        clipped to its plausible range."""
+        if isinstance(spread, bool) or not isinstance(spread, (int, float)) \
+                or not 0.0 < spread < 1.0:
+            raise ParameterError(f"randomize = {spread!r}: a relative spread must be a "
+                                 "number in (0, 1)")
+        ranges = {}
+        for name in PLANT_PARAMETERS:
+            value = base.value(name)
+            lo, hi = plausible_range(name)
+            ranges[name] = (min(value, max(lo, value * (1 - spread))),
+                            max(value, min(hi, value * (1 + spread))))
+        return cls(ranges)
+
     def sample(self, base: Params, random: np.random.RandomState) -> Params:
         """`base` with every listed field drawn uniformly from its range (sorted name
         order, so a seed gives the same parameters)."""
@@ -80,3 +102,15 @@ class ParameterRanges:
         for section, rows in sections.items():
             lines += [f"[{section}]", *rows, ""]
         return "\n".join(lines)
+
+
+def ranges_of(randomize: "str | Path | float | ParameterRanges | None",
+              base: Params) -> "ParameterRanges | None":
+    """What an environment's `randomize=` names: None, `ParameterRanges`, a ranges file
+    (`wpam fit --randomize-out`), or a relative spread of `PLANT_PARAMETERS` (0.1: +-10 %)."""
+    if randomize is None or isinstance(randomize, ParameterRanges):
+        return randomize
+    if isinstance(randomize, (str, Path)):
+        return ParameterRanges.load(randomize, base)
+    return ParameterRanges.relative(base, randomize)
+

@@ -28,16 +28,9 @@ calls release the GIL), while a third thread feeds ffmpeg.
 
 from __future__ import annotations
 
-import os
-import sys
-
-# Headless default: EGL (Mesa llvmpipe) works without a display; it must be chosen before
-# mujoco is first imported (wpam_mj/__init__.py carries the same guard).
-if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
-    os.environ.setdefault("MUJOCO_GL", "egl")
-
 import functools
 import math
+import os
 import queue
 import threading
 from collections.abc import Iterator
@@ -48,7 +41,7 @@ import mujoco
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont, PngImagePlugin
 
-from wpam_mj import paper
+from wpam_mj import gl, paper
 from wpam_mj.display import fmt
 from wpam_mj.geometry import BraidGeometry
 from wpam_mj.manifest import png_metadata, video_comment
@@ -142,6 +135,94 @@ def _samples(result: SimResult, times: np.ndarray) -> Iterator[_Sample]:
         yield _Sample(float(t), float(xk), float(xr), float(pik), float(pok))
 
 
+def _reserve(scene: mujoco.MjvScene, n: int) -> int:
+    if scene.ngeom + n > scene.maxgeom:
+        raise RuntimeError(f"render scene full: {scene.ngeom} + {n} > {scene.maxgeom}")
+    first = scene.ngeom
+    scene.ngeom += n
+    return first
+
+
+def add_geom(scene: mujoco.MjvScene, kind: int, size, pos, rgba: np.ndarray) -> None:
+    """Append an axis-aligned decor geom; `size` as in MJCF (capsule/cylinder: r, half-length)."""
+    g = scene.geoms[_reserve(scene, 1)]
+    mujoco.mjv_initGeom(g, kind, np.asarray(size, float), np.asarray(pos, float), _EYE, rgba)
+    g.category = mujoco.mjtCatBit.mjCAT_DECOR
+
+
+def add_lines(scene: mujoco.MjvScene, starts: np.ndarray, ends: np.ndarray, rgba: np.ndarray,
+              width_px: float) -> None:
+    """Append line segments starts[i] -> ends[i], arrays (n, 3) [m]."""
+    first = _reserve(scene, len(starts))
+    line = mujoco.mjtGeom.mjGEOM_LINE
+    for i, (a, b) in enumerate(zip(starts, ends), first):
+        g = scene.geoms[i]
+        mujoco.mjv_initGeom(g, line, _ZERO3, _ZERO3, _EYE, rgba)
+        mujoco.mjv_connector(g, line, width_px, a, b)
+
+
+class MuscleDecor:
+    """The braided sleeve (diameter D(x), threads, coloured by Pi) and the translucent outer
+    bag (coloured by Po), appended as decor geoms to any `mujoco.MjvScene`: the video frames
+    and the live viewer (`wpam_mj.viewer`) draw the same muscle. Needs the scene model's
+    sites muscle_top/muscle_bottom and geoms top_fitting/bottom_fitting, after mj_forward.
+    """
+
+    def __init__(self, params: Params, line_px: float = 1.5) -> None:
+        self.geometry = BraidGeometry.from_params(params.braid)
+        self.bag_radius = 0.5 * params.braid.outer_bag_diameter
+        self.x_max = self.geometry.max_contraction
+        self.line_px = line_px
+
+    def draw(self, scene: mujoco.MjvScene, model: mujoco.MjModel, data: mujoco.MjData,
+             x: float, pi: float, po: float, eye: np.ndarray | None = None) -> None:
+        """Bag, sleeve and threads at contraction x [m] and gauge pressures Pi, Po [Pa];
+        with the camera position `eye` [m], only the threads facing it."""
+        self._bag(scene, model, data, po)
+        self._muscle(scene, data, x, pi, eye)
+
+    def _muscle(self, scene, data, x: float, pi: float, eye) -> None:
+        top = data.site("muscle_top").xpos
+        bottom = data.site("muscle_bottom").xpos
+        r = 0.5 * self.geometry.diameter(min(max(x, 0.0), self.x_max))
+        length = float(top[2] - bottom[2])
+        half = max(0.5 * length - r, 1e-4)  # capsule: cylinder part + rounded ends = L
+        mid = 0.5 * (top + bottom)
+        add_geom(scene, mujoco.mjtGeom.mjGEOM_CAPSULE, (r, half, 0.0), mid,
+                 pressure_colour(pi, PI_COLOUR_RANGE, _SLEEVE_LOW, _SLEEVE_HIGH))
+        # Threads of the pantograph: n turns over the active length L (Chou & Hannaford
+        # 1996, eq. 2) in both winding directions, drawn on the cylindrical part.
+        turns = self.geometry.turns * (2.0 * half) / max(length, 1e-9)
+        nseg = max(2, math.ceil(turns * _SEGMENTS_PER_TURN))
+        frac = np.arange(nseg + 1) / nseg
+        start = 2.0 * np.pi * np.arange(_THREADS_PER_HAND) / _THREADS_PER_HAND
+        angle = np.concatenate([start[:, None] + 2.0 * np.pi * turns * frac,
+                                start[:, None] - 2.0 * np.pi * turns * frac])  # (threads, n+1)
+        # vertices just outside the capsule so that the chords between them are too and the
+        # depth test keeps the threads visible
+        rr = 1.01 * r / math.cos(math.pi * turns / nseg)
+        normal = np.stack([np.cos(angle), np.sin(angle), np.zeros_like(angle)], -1)
+        pts = np.stack([mid[0] + rr * normal[..., 0], mid[1] + rr * normal[..., 1],
+                        np.broadcast_to(mid[2] - half + 2.0 * half * frac, angle.shape)], -1)
+        # only segments with an end on the side facing the camera: the opaque sleeve hides
+        # the others, and each geom costs ~15 us of software GL
+        keep = np.ones((angle.shape[0], nseg), dtype=bool)
+        if eye is not None:
+            facing = np.einsum("tnk,tnk->tn", normal, eye - pts) > 0
+            keep = facing[:, :-1] | facing[:, 1:]
+        add_lines(scene, pts[:, :-1][keep], pts[:, 1:][keep], _THREAD, self.line_px)
+
+    def _bag(self, scene, m, d, po: float) -> None:
+        """Outer bag: from the top face of the upper fitting to the bottom face of the lower."""
+        z_top = d.geom("top_fitting").xpos[2] + m.geom("top_fitting").size[1]
+        z_bot = d.geom("bottom_fitting").xpos[2] - m.geom("bottom_fitting").size[1]
+        mid = d.site("muscle_top").xpos.copy()
+        mid[2] = 0.5 * (z_top + z_bot)
+        add_geom(scene, mujoco.mjtGeom.mjGEOM_CYLINDER,
+                 (self.bag_radius, 0.5 * (z_top - z_bot), 0.0), mid,
+                 pressure_colour(po, PO_COLOUR_RANGE, _BAG_LOW, _BAG_HIGH))
+
+
 class _Scene:
     """Scene model, renderer and fixed drawing constants for one video."""
 
@@ -160,13 +241,11 @@ class _Scene:
         self.model, self.data = model, mujoco.MjData(model)
         self.size = size
         self.camera = model.camera(camera).id
-        self.geometry = BraidGeometry.from_params(params.braid)
-        self.bag_radius = 0.5 * params.braid.outer_bag_diameter
-        self.x_max = self.geometry.max_contraction
+        self.decor = MuscleDecor(params, line_px=max(1.0, 1.5 * height / 480))
+        self.x_max = self.decor.x_max
         self.load_text = f"{load:.0f} N"
         self.option = mujoco.MjvOption()
         self.option.flags[mujoco.mjtVisFlag.mjVIS_TENDON] = False  # the sleeve replaces it
-        self.line_px = max(1.0, 1.5 * height / 480)
         self.text = _Text(_font(round(14 * height / 480)))
         self.small_text = _Text(_font(round(11 * height / 480)))
 
@@ -187,10 +266,11 @@ class _Scene:
 
         # the GL context last: nothing after it may fail and leak it
         try:
+            gl.offscreen_context_class()  # headless: EGL, chosen here and not on import
             self.renderer = mujoco.Renderer(model, height, width)
         except Exception as err:  # GL errors come in several types
             raise RuntimeError(f"cannot create an OpenGL context for offscreen rendering: "
-                               f"{err}. {_gl_hint()}") from err
+                               f"{err}. {gl.backend_hint()}") from err
         self.renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = shadows
         self.renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = False
 
@@ -198,68 +278,8 @@ class _Scene:
         self.renderer.close()
 
     # -- 3D: decor geoms added to the scene after mjv_updateScene ------------------------
-    def _reserve(self, n: int) -> int:
-        scene = self.renderer.scene
-        if scene.ngeom + n > scene.maxgeom:
-            raise RuntimeError(f"render scene full: {scene.ngeom} + {n} > {scene.maxgeom}")
-        first = scene.ngeom
-        scene.ngeom += n
-        return first
-
     def _add(self, kind: int, size, pos, rgba: np.ndarray) -> None:
-        """Append an axis-aligned geom; `size` as in MJCF (capsule/cylinder: r, half-length)."""
-        g = self.renderer.scene.geoms[self._reserve(1)]
-        mujoco.mjv_initGeom(g, kind, np.asarray(size, float), np.asarray(pos, float), _EYE,
-                            rgba)
-        g.category = mujoco.mjtCatBit.mjCAT_DECOR
-
-    def _lines(self, starts: np.ndarray, ends: np.ndarray, rgba: np.ndarray) -> None:
-        """Append line segments starts[i] -> ends[i], arrays (n, 3) [m]."""
-        geoms, first = self.renderer.scene.geoms, self._reserve(len(starts))
-        line = mujoco.mjtGeom.mjGEOM_LINE
-        for i, (a, b) in enumerate(zip(starts, ends), first):
-            g = geoms[i]
-            mujoco.mjv_initGeom(g, line, _ZERO3, _ZERO3, _EYE, rgba)
-            mujoco.mjv_connector(g, line, self.line_px, a, b)
-
-    def _muscle(self, s: _Sample) -> None:
-        top = self.data.site("muscle_top").xpos
-        bottom = self.data.site("muscle_bottom").xpos
-        r = 0.5 * self.geometry.diameter(min(max(s.x, 0.0), self.x_max))
-        length = float(top[2] - bottom[2])
-        half = max(0.5 * length - r, 1e-4)  # capsule: cylinder part + rounded ends = L
-        mid = 0.5 * (top + bottom)
-        self._add(mujoco.mjtGeom.mjGEOM_CAPSULE, (r, half, 0.0), mid,
-                  pressure_colour(s.pi, PI_COLOUR_RANGE, _SLEEVE_LOW, _SLEEVE_HIGH))
-        # Threads of the pantograph: n turns over the active length L (Chou & Hannaford
-        # 1996, eq. 2) in both winding directions, drawn on the cylindrical part.
-        turns = self.geometry.turns * (2.0 * half) / max(length, 1e-9)
-        nseg = max(2, math.ceil(turns * _SEGMENTS_PER_TURN))
-        frac = np.arange(nseg + 1) / nseg
-        start = 2.0 * np.pi * np.arange(_THREADS_PER_HAND) / _THREADS_PER_HAND
-        angle = np.concatenate([start[:, None] + 2.0 * np.pi * turns * frac,
-                                start[:, None] - 2.0 * np.pi * turns * frac])  # (threads, n+1)
-        # vertices just outside the capsule so that the chords between them are too and the
-        # depth test keeps the threads visible
-        rr = 1.01 * r / math.cos(math.pi * turns / nseg)
-        normal = np.stack([np.cos(angle), np.sin(angle), np.zeros_like(angle)], -1)
-        pts = np.stack([mid[0] + rr * normal[..., 0], mid[1] + rr * normal[..., 1],
-                        np.broadcast_to(mid[2] - half + 2.0 * half * frac, angle.shape)], -1)
-        # only segments with an end on the side facing the camera: the opaque sleeve hides
-        # the others, and each geom costs ~15 us of software GL
-        facing = np.einsum("tnk,tnk->tn", normal, self.data.cam_xpos[self.camera] - pts) > 0
-        keep = facing[:, :-1] | facing[:, 1:]
-        self._lines(pts[:, :-1][keep], pts[:, 1:][keep], _THREAD)
-
-    def _bag(self, s: _Sample) -> None:
-        """Outer bag: from the top face of the upper fitting to the bottom face of the lower."""
-        m, d = self.model, self.data
-        z_top = d.geom("top_fitting").xpos[2] + m.geom("top_fitting").size[1]
-        z_bot = d.geom("bottom_fitting").xpos[2] - m.geom("bottom_fitting").size[1]
-        mid = d.site("muscle_top").xpos.copy()
-        mid[2] = 0.5 * (z_top + z_bot)
-        self._add(mujoco.mjtGeom.mjGEOM_CYLINDER, (self.bag_radius, 0.5 * (z_top - z_bot), 0.0),
-                  mid, pressure_colour(s.po, PO_COLOUR_RANGE, _BAG_LOW, _BAG_HIGH))
+        add_geom(self.renderer.scene, kind, size, pos, rgba)
 
     def _ruler(self) -> None:
         """Fixed ruler (+x of site ruler_zero at x = 0), ticks every 10 mm, and the pointer."""
@@ -292,8 +312,8 @@ class _Scene:
         d.qvel[0] = 0.0
         mujoco.mj_forward(m, d)
         self.renderer.update_scene(d, camera=self.camera, scene_option=self.option)
-        self._bag(s)
-        self._muscle(s)
+        self.decor.draw(self.renderer.scene, m, d, s.x, s.pi, s.po,
+                        eye=d.cam_xpos[self.camera])
         self._ruler()
         image = self.renderer.render()
         self._overlay(image, s)
@@ -383,20 +403,6 @@ class _StateBox:
             if bottom < image.shape[0] and right < image.shape[1]:
                 image[top:bottom + 1, left:right + 1] = self.OUTLINE
                 image[top + 1:bottom, left + 1:right] = rgb
-
-
-def _gl_hint() -> str:
-    """Which GL backend mujoco chose, and why it may not be the one asked for."""
-    from mujoco.rendering.classic import gl_context
-
-    cls = getattr(gl_context, "GLContext", None)
-    chosen = cls.__module__.rsplit(".", 1)[-1] if cls is not None else "none"
-    wanted = os.environ.get("MUJOCO_GL", "<unset>")
-    hint = f"MUJOCO_GL={wanted}, mujoco uses the {chosen!r} backend"
-    if wanted.lower() not in ("<unset>", chosen):
-        hint += (" (mujoco was imported before MUJOCO_GL was set: export MUJOCO_GL=egl "
-                 "or import wpam_mj before mujoco)")
-    return hint
 
 
 def _font(size: int) -> ImageFont.ImageFont | ImageFont.FreeTypeFont:

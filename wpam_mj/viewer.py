@@ -1,12 +1,13 @@
 """`wpam view`: MuJoCo's interactive viewer on the hung W-PAM, stepped live by our loop.
 
 MuJoCo's passive viewer (`mujoco.viewer.launch_passive`) draws the model in its own
-thread; this module's loop owns the physics. Every physics step it runs the same plant
-step as every other path (`wpam_mj.simulate.Plant.actuate`: regulators, chambers, muscle
-force and friction, then `mj_step`), with Pi from the equilibrium feedforward for the
-target and Po from PI/PID feedback (`wpam_mj.control.PoFeedback`) or 0 in open loop, as in
-the paper's experiments (`wpam_mj.experiments.drive_for_targets`). Simulated time follows
-the wall clock.
+thread, with the sleeve, its braid and the outer bag as `wpam render` draws them
+(`wpam_mj.render.MuscleDecor`); this module's loop owns the physics. Every physics step
+it runs the same plant step as every other path (`wpam_mj.simulate.Plant.actuate`:
+regulators, chambers, muscle force and friction, then `mj_step`), with Pi from the
+equilibrium feedforward for the target and Po from PI/PID feedback
+(`wpam_mj.control.PoFeedback`) or 0 in open loop, as in the paper's experiments
+(`wpam_mj.experiments.drive_for_targets`). Simulated time follows the wall clock.
 
 Keys (MuJoCo's viewer uses every letter and the digits 0-5 itself):
     Up / Down   target +-5 mm (switches to a fixed target)
@@ -265,6 +266,10 @@ def view(params: Params, *, load: float = 100.0, control: str = "pi",
     check_display()
     import mujoco.viewer  # noqa: PLC0415 (GLFW; only with a display)
 
+    from wpam_mj.render import MuscleDecor  # noqa: PLC0415 (drawing code; only here)
+
+    decor = MuscleDecor(params)
+
     keys: queue.SimpleQueue[int] = queue.SimpleQueue()  # filled by the viewer's thread
     rows = []
     frame = 1.0 / FPS
@@ -280,6 +285,7 @@ def view(params: Params, *, load: float = 100.0, control: str = "pi",
     window_threads = set(threading.enumerate()) - running
     try:
         _frame_the_rig(handle.cam)
+        handle.opt.flags[mujoco.mjtVisFlag.mjVIS_TENDON] = False  # the sleeve replaces it
         start = time.perf_counter()
         while handle.is_running() and (duration is None or rig.time < duration - 0.5 * dt):
             handle.sync()  # draws this state; clears xfrc_applied, then adds the mouse's
@@ -293,6 +299,7 @@ def view(params: Params, *, load: float = 100.0, control: str = "pi",
                 until = min(until, duration)
             with handle.lock():
                 force = rig.advance(until, perturb)
+                _draw_muscle(handle.user_scn, decor, rig)
             if time.perf_counter() - texts_at >= TEXT_PERIOD_S:
                 handle.set_texts(rig.texts())
                 texts_at = time.perf_counter()
@@ -307,6 +314,14 @@ def view(params: Params, *, load: float = 100.0, control: str = "pi",
         for thread in window_threads:
             thread.join(timeout=10.0)
     return ViewTrace(*np.array(rows, dtype=float).reshape(-1, 6).T)
+
+
+def _draw_muscle(scene: mujoco.MjvScene, decor, rig: LiveRig) -> None:
+    """The outer bag, sleeve and braid threads of `wpam render` at the rig's state (the
+    viewer adds these decor geoms to its scene every frame)."""
+    scene.ngeom = 0
+    pi, po = rig.plant.pressures
+    decor.draw(scene, rig.model, rig.data, rig.x, pi, po)
 
 
 def _frame_the_rig(cam: mujoco.MjvCamera) -> None:
