@@ -320,7 +320,7 @@ def _draw_muscle(scene: mujoco.MjvScene, decor, rig: LiveRig) -> None:
     """The outer bag, sleeve and braid threads of `wpam render` at the rig's state (the
     viewer adds these decor geoms to its scene every frame)."""
     scene.ngeom = 0
-    pi, po = rig.plant.pressures
+    pi, po = rig.pressures()
     decor.draw(scene, rig.model, rig.data, rig.x, pi, po)
 
 
