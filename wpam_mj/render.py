@@ -41,7 +41,7 @@ import mujoco
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont, PngImagePlugin
 
-from wpam_mj import gl, paper
+from wpam_mj import budget, gl, paper
 from wpam_mj.display import fmt
 from wpam_mj.geometry import BraidGeometry
 from wpam_mj.manifest import png_metadata, video_comment
@@ -595,6 +595,7 @@ def render_video(result: SimResult, params: Params, out: str | Path, *, fps: flo
     fps = check_fps(fps, suffix)
     size = _check_size(size, suffix)
     _check_inputs(result, params, shadows)
+    budget.check_video(float(result.time[-1] - result.time[0]), fps, size, suffix)
     comment = None if run_id is None else video_comment(run_id)
     frames = render_frames(result, params, fps=fps, size=size, camera=camera,
                            shadows=shadows, threads=threads)
