@@ -50,6 +50,33 @@ def time_pool(n: int, duration: float) -> float:
     return time.perf_counter() - start
 
 
+def measure(runs: list[Run], repeats: int, *, pool: bool = True) -> tuple[dict, bool]:
+    """Best wall time [s] of `runs` on 1 and 2 batch threads (and a pool of 2), and
+    whether the records of 1 and 2 threads are bit-identical."""
+    best, results = {1: np.inf, 2: np.inf, "pool": np.inf}, {}
+    for _ in range(repeats):
+        for nthread in (1, 2):
+            start = time.perf_counter()
+            results[nthread] = simulate_many(runs, nthread=nthread)
+            best[nthread] = min(best[nthread], time.perf_counter() - start)
+        if pool:
+            best["pool"] = min(best["pool"], time_pool(len(runs), _duration(runs[0])))
+    same = all(np.array_equal(a.x, b.x) and np.array_equal(a.po, b.po)
+               for a, b in zip(results[1], results[2]))
+    return best, same
+
+
+def _duration(run: Run) -> float:
+    return len(run.inputs) * run.dt
+
+
+def figures(runs: int = 40, duration: float = 20.0, repeats: int = 2) -> list[Figure]:
+    """The target figures for run_all: 2-thread speed-up, identical records."""
+    best, same = measure(make_runs(runs, duration), repeats, pool=False)
+    return [Figure("batch, 2 threads / 1 [x]", best[1] / best[2], ">=", TARGET_SPEEDUP),
+            Figure("batch records identical (1 = yes)", float(same), ">=", 1.0)]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=100, help="runs per batch (default 100)")
@@ -59,16 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     if not plugin.available():
         print(f"plugin unavailable: {plugin.unavailable_reason()}")
         return 1
-    runs = make_runs(args.runs, args.duration)
-    best, results = {1: np.inf, 2: np.inf, "pool": np.inf}, {}
-    for _ in range(args.repeats):
-        for nthread in (1, 2):
-            start = time.perf_counter()
-            results[nthread] = simulate_many(runs, nthread=nthread)
-            best[nthread] = min(best[nthread], time.perf_counter() - start)
-        best["pool"] = min(best["pool"], time_pool(args.runs, args.duration))
-    same = all(np.array_equal(a.x, b.x) and np.array_equal(a.po, b.po)
-               for a, b in zip(results[1], results[2]))
+    best, same = measure(make_runs(args.runs, args.duration), args.repeats)
     print(f"{args.runs} PI runs of {args.duration:g} s, dt {DT * 1e3:g} ms, best of "
           f"{args.repeats}; parallel capacity of this machine now: {parallel_capacity():.2f}"
           " cores")

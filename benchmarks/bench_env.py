@@ -61,7 +61,7 @@ def time_direct(params, n: int) -> float:
     return time.perf_counter() - start
 
 
-def time_compiled(params, n: int) -> float:
+def time_simulate(params, n: int) -> float:
     steps = n * SUBSTEPS + 1
     drive = Drive(np.full(steps, _pi(params)), np.full(steps, PO), np.full(steps, np.nan))
     start = time.perf_counter()
@@ -102,7 +102,7 @@ def time_gym_make(params, n: int) -> float:
                      n)
 
 
-ROWS = {REFERENCE: time_direct, 'simulate engine="plugin"': time_compiled,
+ROWS = {REFERENCE: time_direct, 'simulate engine="plugin"': time_simulate,
         "dm_control env.step": time_dm_control, "gymnasium env.step": time_gym,
         "gymnasium.make(...).step": time_gym_make}
 

@@ -3,7 +3,7 @@
 The study: seeded random staircase runs (PI, load 50-150 N, friction coefficient 0.010-
 0.015), --runs of --duration s each (default 1,000 runs of 100 s: 1e8 physics steps).
 Figures (runs per second of wall time, each from a clean output folder):
-  floor2   the compiled loop alone on both cores: two forked processes, each calling
+  floor2   the engine alone on both cores: two forked processes, each calling
            `experiments.step_run` (drive + `simulate`) directly for its half of the same
            runs; no batching, metrics, part files or table.
   jobs1    `run_study` in this process;  jobs2: on a local process pool of 2 (pool start

@@ -4,14 +4,16 @@
 
 Figures are measured side by side in one run and, where the target is a ratio, as ratios
 (this machine is shared and noisy; the machine line says how busy it was). Each figure
-comes from its own script, which prints more detail: bench_step.py (per-step cost),
-bench_reproduce.py (reproduce wall time, memory, sweep speed-up), bench_render.py (video).
+comes from its own script, which prints more detail: bench_step.py (per-step cost of the
+plugin), bench_batch.py (runs on mujoco.batch threads), bench_reproduce.py (reproduce wall
+time, memory, sweep speed-up), bench_render.py (video).
 """
 
 from __future__ import annotations
 
 import sys
 
+import bench_batch
 import bench_render
 import bench_reproduce
 import bench_step
@@ -19,7 +21,8 @@ from common import describe, print_table
 
 
 def main() -> int:
-    rows = [*bench_step.figures(), *bench_reproduce.figures(), *bench_render.figures()]
+    rows = [*bench_step.figures(), *bench_batch.figures(), *bench_reproduce.figures(),
+            *bench_render.figures()]
     print(describe())
     return 0 if print_table(rows) else 1
 
