@@ -141,8 +141,11 @@ class MusclePhysics(engine.Physics):
         self._setup(params, rig)
 
     def set_load(self, load: float) -> None:
-        """Hang `load` [N]: the load body's mass becomes load / g."""
+        """Hang `load` [N]: the load body's mass becomes load / g, and the constants MuJoCo
+        derives from masses (the constraints' inverse weights) follow, so the model is the
+        one built for this load whatever load it held before."""
         self.model.ptr.body_mass[self._load_body] = check_load(load) / STANDARD_GRAVITY
+        mujoco.mj_setConst(self.model.ptr, self.data.ptr)
 
     def load(self) -> float:
         """Hanging load [N]."""
