@@ -56,6 +56,17 @@ def never_met(pm: np.ndarray) -> list[tuple[str, float]]:
     return [(f, float(pm[i, i])) for i, f in enumerate(FINDINGS) if not pm[i, i] >= 0.0]
 
 
+def verdict(pm: np.ndarray) -> str:
+    """The findings never met, and the pairs met alone but never together."""
+    lines = ["Never met by any point searched (best margin):"]
+    lines += [f"- {FINDING_TEXT[f]} ({m:+.2f})" for f, m in never_met(pm)] or ["- none"]
+    lines += ["", "Met alone but never together (best margin of the first while the "
+              "second holds):"]
+    lines += [f"- {FINDING_TEXT[a]} / {FINDING_TEXT[b]} ({m:+.2f})"
+              for a, b, m in conflicts(pm)] or ["- none"]
+    return "\n".join(lines)
+
+
 def best_compromise(records: Sequence[Record]) -> Record:
     """The point meeting the most findings, of least cost among those."""
     ran = [r for r in records if r.margins is not None]

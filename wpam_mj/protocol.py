@@ -15,7 +15,7 @@ Figs. 8-9 and Table 2 come from "slow" Pi ramps up and back down (§2.3), with P
 
 The Po feedforward's nominal Po, its share phi of the friction band and the gain reading
 are readings of the controller and live in `wpam_mj.params.Controller`
-(`po_feedforward`, `feedforward_friction`, `command_scale`). `Protocol()` is the reading
+(`po_feedforward`, `feedforward_friction`, `command_scale`). `SHIPPED` is the reading
 `wpam reproduce` ships (docs/physics.md, "The protocol readings").
 """
 
@@ -70,6 +70,9 @@ class Protocol:
                else f"{self.ramp_top / MPA:g} MPa for every load")
         return (f"ramp top {top}, {self.ramp_time:g} s each way, Po on after "
                 f"{self.top_hold:g} s at the top, loop area '{self.loop_method}'")
+
+
+SHIPPED = Protocol()  # what `wpam reproduce` and `wpam table2` use (docs/physics.md)
 
 
 def static_drive(params: Params, load: float, po_down: float, protocol: Protocol,

@@ -10,13 +10,14 @@ import numpy as np
 from wpam_mj import paper
 from wpam_mj.paper import Check
 from wpam_mj.params import CALIBRATION_FILE, MM, MPA, Params
+from wpam_mj.protocol import SHIPPED, Protocol
 from wpam_mj.study_results import StaticLoop, StepRun, SweepResult, Table2Result
 from wpam_mj.summaries import checks_markdown, fmt_value, mpa_label, params_markdown
 
 
 def report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResult,
                      open_step: StepRun, preset_loops: Sequence[StaticLoop],
-                     checks: Sequence[Check]) -> str:
+                     checks: Sequence[Check], protocol: Protocol = SHIPPED) -> str:
     ref = t2.paper()
     calib = (f"`{CALIBRATION_FILE.name}` present" if CALIBRATION_FILE.exists() else
              "no calibration file: built-in defaults")
@@ -33,9 +34,14 @@ def report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResult
         "",
         checks_markdown(checks),
         "",
+        *given_up_markdown(checks),
         "## Table 2: hysteresis-loop areas",
         "",
-        "Loop areas of the measured chamber Pi against x (`loop_area(method=\"branches\")`),"
+        f"Static ramps: {protocol.describe()} (`wpam_mj.protocol`; the paper does not state"
+        " them).",
+        "",
+        f"Loop areas of the measured chamber Pi against x "
+        f"(`loop_area(method=\"{protocol.loop_method}\")`),"
         " normalized by the open-loop, Po = 0 area of the same load. Feedback: the loop of"
         f" the plateau means (last {t2.feedback_runs[0].settle:g} s of each 10 s plateau,"
         " up branch then down branch), as in the paper's Fig. 16."
@@ -112,6 +118,24 @@ def report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResult
         "",
     ]
     return "\n".join(md)
+
+
+# Why the shipped parameters give up a finding: the measured search of issue 20 (the
+# feasibility map in docs/physics.md, `wpam search`), keyed by the start of its text.
+GIVEN_UP = {}
+
+
+def given_up_markdown(checks: Sequence[Check]) -> list[str]:
+    """A section naming every failed finding and why the credible physics gives it up."""
+    failed = [c for c in checks if c.passed is False]
+    if not failed:
+        return []
+    md = ["## Findings this parameter set gives up, and why", ""]
+    for c in failed:
+        why = next((v for k, v in GIVEN_UP.items() if c.finding.startswith(k)),
+                   "not measured by the feasibility search (docs/physics.md).")
+        md.append(f"- **{c.finding}**: {why}")
+    return md + [""]
 
 
 def _step_table(runs: Sequence[StepRun]) -> str:

@@ -26,6 +26,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 import sys
 import time
 from concurrent.futures import Executor, ProcessPoolExecutor
@@ -42,6 +43,7 @@ from wpam_mj.calibrate import FREE, READINGS, PaperTargets
 from wpam_mj.loop_contract import SimulationDiverged
 from wpam_mj.params import MPA, Params, ParameterError, check_range, preset
 from wpam_mj.protocol import LOOP_METHODS, Protocol
+from wpam_mj.results import write_text_atomic
 
 PHYSICAL = tuple(n for n in FREE if n != "controller.feedforward_friction")
 PO_FF_RANGE_MPA = (0.005, 0.04)  # from p_min to the Po of Fig. 9
@@ -427,3 +429,51 @@ def at_bounds(u: Sequence[float], tol: float = 1e-3) -> list[str]:
     return [d.name for d, x in zip(SPACE, u) if not d.choices
             and (x <= d.bounds[0] + tol or x >= d.bounds[1] - tol)]
 
+
+
+def write_search(out: Path, **kw) -> list[Path]:
+    """`search` into `out`, then its best point (best.toml, best.txt) and the
+    feasibility map of its archive (feasibility.md, feasibility.png)."""
+    from wpam_mj import findings_map  # noqa: PLC0415 (it imports this module)
+
+    base = kw.get("base") or preset("wpam")
+    load0 = os.getloadavg()[0]
+    r = search(out, **kw)
+    pm = findings_map.pair_margins(r.records)
+    best = findings_map.best_compromise(r.records)
+    point = point_of(best.u, base)
+    files = [write_text_atomic(out / "best.toml", point_toml(point)),
+             write_text_atomic(out / "best.txt", summary(r, best, base, load0)),
+             write_text_atomic(out / "feasibility.md", findings_map.markdown(pm, len(r.records))
+                               + "\n\n" + findings_map.verdict(pm) + "\n"),
+             findings_map.figure(pm, out / "feasibility.png",
+                                 f"Feasibility of the paper's findings: {len(r.records)} "
+                                 "points of the credible box and protocol readings")]
+    return files
+
+
+def point_toml(point: Point) -> str:
+    """The point's parameter values as a `--config` TOML and its protocol as comments."""
+    sections: dict[str, list[str]] = {}
+    for name, v in point.values().items():
+        if not name.startswith("protocol."):
+            s, n = name.split(".")
+            sections.setdefault(s, []).append(f"{n} = {float(v)!r}")
+    out = ["# Found by `wpam search` (wpam_mj/search.py); SI units.",
+           f"# protocol: {point.protocol.describe()}", ""]
+    for s, lines in sections.items():
+        out += [f"[{s}]", *lines, ""]
+    return "\n".join(out)
+
+
+def summary(r: SearchResult, best: Record, base: Params, load0: float) -> str:
+    """What the search did and the compromise it found (plain text)."""
+    return (f"{r.evaluations} points in {r.seconds / 60:.1f} min (load average "
+            f"{load0:.2f} at the start, {os.getloadavg()[0]:.2f} at the end); {r.message}\n"
+            f"least cost {r.best.cost:.4f} ({r.best.held} of {len(FINDINGS)} findings)\n"
+            f"best compromise: {best.held} of {len(FINDINGS)} findings, cost {best.cost:.4f}\n"
+            + describe_point(best.u, base)
+            + f"\nat a bound: {', '.join(at_bounds(best.u)) or 'none'}"
+            + "\nmargins:\n" + "\n".join(f"  {k:<24s} {v:+.3f}"
+                                         for k, v in (best.margins or {}).items())
+            + f"\nfigures: {json.dumps(best.figures)}\n")
