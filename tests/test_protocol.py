@@ -52,5 +52,5 @@ def test_every_reading_is_a_command_option():
                                                                           0.05)
     default = cli.build_parser().parse_args(["reproduce"])
     assert cli._protocol(default, preset("wpam")) == (preset("wpam"), SHIPPED)
-    per_load = cli.build_parser().parse_args(["table2", "--ramp-top", "per-load"])
+    per_load = cli.build_parser().parse_args(["reproduce", "--ramp-top", "per-load"])
     assert cli._protocol(per_load, preset("wpam"))[1].ramp_top == 0.0

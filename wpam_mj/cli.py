@@ -45,7 +45,7 @@ from wpam_mj.experiments import (EXPERIMENTS, SINE_AMPLITUDE_MM, SINE_MEAN_MM, S
 from wpam_mj.model import check_dt, check_load
 from wpam_mj.params import (MM, MPA, PRESETS, ParameterError, Params,
                             apply_overrides, check_range, describe, load_toml, preset)
-from wpam_mj.protocol import LOOP_METHODS, SHIPPED, Protocol, table2_batch
+from wpam_mj.protocol import LOOP_METHODS, SHIPPED, Protocol
 from wpam_mj.results import write_text_atomic
 from wpam_mj.simulate import SimulationDiverged
 from wpam_mj.termination import Terminated, remove_dead_temporaries, terminate_on_sigterm
@@ -235,7 +235,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true",
                    help="print one JSON object (normalized areas, unit-free) on stdout")
     ramp_time(p)
-    protocol_options(p)
     out_dir(p, "table2")
 
     p = add("sweep", "frequency response to a sinusoid about 25 mm, 25 mm amplitude unless "
@@ -589,22 +588,20 @@ def _cmd_step(args: argparse.Namespace) -> int:
 def _cmd_table2(args: argparse.Namespace) -> int:
     summaries, writers = _output_modules()
     run = _run_options(args)
-    params, protocol = _protocol(args, run.params)
-    _loads(paper.LOADS_N, [params], "Table 2 load")
+    _loads(paper.LOADS_N, [run.params], "Table 2 load")
     ramp_time = studies.check_ramp_time(args.ramp_time)
     out = _out_dir(args)
-    t2 = pool.run_batches([table2_batch(params, protocol, dt=run.dt)],
-                          jobs=run.jobs_for(3 * len(paper.LOADS_N)), progress=run.progress,
-                          desc="table 2")[0]
-    settings = {"ramp_time_s": ramp_time, "dt_s": run.dt, **_protocol_settings(protocol)}
-    rid = _run_id(args, params, settings)
+    t2 = studies.table2(run.params, dt=run.dt, jobs=run.jobs_for(3 * len(paper.LOADS_N)),
+                        progress=run.progress, ramp_time=ramp_time)
+    settings = {"ramp_time_s": ramp_time, "dt_s": run.dt}
+    rid = _run_id(args, run.params, settings)
     written = writers.write_table2_outputs(out, t2, run_id=rid)
     still = [(f"table2 open loop {lp.load:g} N, Po = {lp.po_down / MPA:g} MPa while Pi falls",
               load_moved(lp.result)) for lp in (*t2.open_loops, *t2.po_loops)]
     moved = {name: m for name, m in still}
     written = {path: ({"load_moved": moved} if path.suffix in (".json", ".csv") else meta)
                for path, meta in written.items()}
-    manifest = _manifest(args, out, rid, params, settings, written)
+    manifest = _manifest(args, out, rid, run.params, settings, written)
     if args.json:
         _print_json(t2.as_json())
     else:
