@@ -43,7 +43,7 @@ class _Targets:
         margins["table2_po_row"] = kf - 0.8
         margins["gain_spread"] = 0.7 - kf
         r = np.array([max(0.0, -m) for m in margins.values()])
-        return r, margins, {"kf": kf}
+        return r, margins, {"step_error_mm": {"pi": [0.1]}}
 
 
 def _search(tmp_path, **kw):
@@ -79,7 +79,7 @@ def test_the_archive_maps_which_findings_conflict(tmp_path):
     assert ("table2_po_row", "gain_spread", pm[i, j]) in findings_map.conflicts(pm)
     best = findings_map.best_compromise(records)
     assert best.held == max(r.held for r in records)
-    assert "while F1" in findings_map.markdown(pm, len(records))
+    assert "while F1" in findings_map.markdown(pm, records)
     assert findings_map.figure(pm, tmp_path / "map.png", "test").stat().st_size > 1000
 
 

@@ -276,6 +276,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted search in --out: journaled points are "
                         "replayed, not run again (a finished search replays in seconds)")
+    p.add_argument("--map-only", action="store_true",
+                   help="run nothing: the best point and the feasibility map of the points "
+                        "journaled in --out so far (e.g. while the search still runs)")
 
     p = add("calibrate", "fit the parameters the paper does not give (braid angle, Kf, "
             "friction, axial area, regulators) to its Table 2 and findings", _cmd_calibrate)
@@ -714,10 +717,14 @@ def _cmd_search(args: argparse.Namespace) -> int:
         raise ParameterError(f"--preset {args.preset}: search explores the wpam preset")
     run = _run_options(args)  # the search's shipped point: the preset plus --config
     out = _writable_dir(Path("out") / "search" if args.out is None else args.out)
-    from wpam_mj.search import write_search  # noqa: PLC0415 (scipy, matplotlib: slow)
-    for path in write_search(out, base=run.params, seed=args.seed, popsize=args.popsize,
-                             maxiter=args.maxiter, jobs=run.jobs, resume=args.resume,
-                             progress=run.progress):
+    from wpam_mj import search  # noqa: PLC0415 (scipy, matplotlib: slow imports)
+    if args.map_only:
+        written = search.write_outputs(out, search.load_records(out), run.params)
+    else:
+        written = search.write_search(out, base=run.params, seed=args.seed,
+                                      popsize=args.popsize, maxiter=args.maxiter,
+                                      jobs=run.jobs, resume=args.resume, progress=run.progress)
+    for path in written:
         print(f"wrote {path}")
     return 0
 

@@ -19,10 +19,22 @@ import numpy as np
 from wpam_mj.search import FINDING_TEXT, FINDINGS, Record
 
 
+TRACK_MM = 5.0  # half a 10 mm step: a PI staircase worse than this does not follow it
+
+
+def tracks(r: Record) -> bool:
+    """Whether the point ran and its PI staircase follows the targets at all. A muscle
+    that never moves meets the feedback row vacuously (no loop), so such points are not
+    reproductions of the experiments and stay out of the map."""
+    return r.margins is not None and max(r.figures["step_error_mm"]["pi"]) <= TRACK_MM
+
+
 def margin_matrix(records: Sequence[Record]) -> np.ndarray:
-    """Margins of the points that ran, shape (n_points, n_findings)."""
-    rows = [[r.margins[f] for f in FINDINGS] for r in records if r.margins is not None]
-    return np.array(rows, dtype=float).reshape(-1, len(FINDINGS))
+    """Margins of the points that track, shape (n_points, n_findings); a margin that
+    could not be computed (NaN: e.g. no gain where the muscle did not move) fails."""
+    rows = [[r.margins[f] for f in FINDINGS] for r in records if tracks(r)]
+    m = np.array(rows, dtype=float).reshape(-1, len(FINDINGS))
+    return np.where(np.isnan(m), -np.inf, m)
 
 
 def pair_margins(records: Sequence[Record]) -> np.ndarray:
@@ -69,15 +81,14 @@ def verdict(pm: np.ndarray) -> str:
 
 def best_compromise(records: Sequence[Record]) -> Record:
     """The point meeting the most findings, of least cost among those."""
-    ran = [r for r in records if r.margins is not None]
-    return min(ran, key=lambda r: (-r.held, r.cost))
+    return min((r for r in records if tracks(r)), key=lambda r: (-r.held, r.cost))
 
 
 def _cell(v: float) -> str:
     return "never holds" if math.isnan(v) else f"{v:+.2f}"
 
 
-def markdown(pm: np.ndarray, n_points: int) -> str:
+def markdown(pm: np.ndarray, records: Sequence[Record]) -> str:
     """The map as a Markdown table (rows: finding i; columns: while j holds)."""
     short = [f"F{k + 1}" for k in range(len(FINDINGS))]
     lines = ["| finding | best alone | " + " | ".join(f"while {s}" for s in short) + " |",
@@ -87,9 +98,11 @@ def markdown(pm: np.ndarray, n_points: int) -> str:
         lines.append(f"| {short[i]} {FINDING_TEXT[f]} | {_cell(pm[i, i])} | "
                      + " | ".join(cells) + " |")
     lines.append("")
+    n = sum(tracks(r) for r in records)
     lines.append(f"Best signed margin of each finding (in units of its margin's scale; "
-                 f">= 0 holds) over the {n_points} points searched, alone and while "
-                 "another finding holds.")
+                 f">= 0 holds) over the {n} points of the {len(records)} searched whose PI "
+                 f"staircase follows its targets (worst error <= {TRACK_MM:g} mm), alone "
+                 "and while another finding holds.")
     return "\n".join(lines)
 
 

@@ -432,24 +432,30 @@ def at_bounds(u: Sequence[float], tol: float = 1e-3) -> list[str]:
 
 
 def write_search(out: Path, **kw) -> list[Path]:
-    """`search` into `out`, then its best point (best.toml, best.txt) and the
-    feasibility map of its archive (feasibility.md, feasibility.png)."""
-    from wpam_mj import findings_map  # noqa: PLC0415 (it imports this module)
-
-    base = kw.get("base") or preset("wpam")
+    """`search` into `out`, then `write_outputs` of its archive."""
     load0 = os.getloadavg()[0]
     r = search(out, **kw)
-    pm = findings_map.pair_margins(r.records)
-    best = findings_map.best_compromise(r.records)
-    point = point_of(best.u, base)
-    files = [write_text_atomic(out / "best.toml", point_toml(point)),
-             write_text_atomic(out / "best.txt", summary(r, best, base, load0)),
-             write_text_atomic(out / "feasibility.md", findings_map.markdown(pm, len(r.records))
-                               + "\n\n" + findings_map.verdict(pm) + "\n"),
-             findings_map.figure(pm, out / "feasibility.png",
-                                 f"Feasibility of the paper's findings: {len(r.records)} "
-                                 "points of the credible box and protocol readings")]
-    return files
+    timing = (f"{r.evaluations} points in {r.seconds / 60:.1f} min (load average "
+              f"{load0:.2f} at the start, {os.getloadavg()[0]:.2f} at the end); {r.message}")
+    return write_outputs(out, r.records, kw.get("base") or preset("wpam"), timing)
+
+
+def write_outputs(out: Path, records: Sequence[Record], base: Params,
+                  timing: str = "") -> list[Path]:
+    """The best compromise of `records` (best.toml, best.txt) and their feasibility map
+    (feasibility.md, feasibility.png) in `out`."""
+    from wpam_mj import findings_map  # noqa: PLC0415 (it imports this module)
+
+    pm = findings_map.pair_margins(records)
+    best = findings_map.best_compromise(records)
+    least = min(records, key=lambda r: r.cost)
+    return [write_text_atomic(out / "best.toml", point_toml(point_of(best.u, base))),
+            write_text_atomic(out / "best.txt", summary(timing, least, best, base)),
+            write_text_atomic(out / "feasibility.md", findings_map.markdown(pm, records)
+                              + "\n\n" + findings_map.verdict(pm) + "\n"),
+            findings_map.figure(pm, out / "feasibility.png",
+                                f"Feasibility of the paper's findings: {len(records)} "
+                                "points of the credible box and protocol readings")]
 
 
 def point_toml(point: Point) -> str:
@@ -466,11 +472,10 @@ def point_toml(point: Point) -> str:
     return "\n".join(out)
 
 
-def summary(r: SearchResult, best: Record, base: Params, load0: float) -> str:
+def summary(timing: str, least: Record, best: Record, base: Params) -> str:
     """What the search did and the compromise it found (plain text)."""
-    return (f"{r.evaluations} points in {r.seconds / 60:.1f} min (load average "
-            f"{load0:.2f} at the start, {os.getloadavg()[0]:.2f} at the end); {r.message}\n"
-            f"least cost {r.best.cost:.4f} ({r.best.held} of {len(FINDINGS)} findings)\n"
+    return (f"{timing}\n"
+            f"least cost {least.cost:.4f} ({least.held} of {len(FINDINGS)} findings)\n"
             f"best compromise: {best.held} of {len(FINDINGS)} findings, cost {best.cost:.4f}\n"
             + describe_point(best.u, base)
             + f"\nat a bound: {', '.join(at_bounds(best.u)) or 'none'}"
