@@ -448,9 +448,11 @@ def write_outputs(out: Path, records: Sequence[Record], base: Params,
 
     pm = findings_map.pair_margins(records)
     best = findings_map.best_compromise(records)
-    least = min(records, key=lambda r: r.cost)
+    most = findings_map.most_findings(records)
     return [write_text_atomic(out / "best.toml", point_toml(point_of(best.u, base))),
-            write_text_atomic(out / "best.txt", summary(timing, least, best, base)),
+            write_text_atomic(out / "best.txt", summary(timing, best, base) + "\n"
+                              + "the point meeting the most findings:\n"
+                              + summary("", most, base)),
             write_text_atomic(out / "feasibility.md", findings_map.markdown(pm, records)
                               + "\n\n" + findings_map.verdict(pm) + "\n"),
             findings_map.figure(pm, out / "feasibility.png",
@@ -472,11 +474,10 @@ def point_toml(point: Point) -> str:
     return "\n".join(out)
 
 
-def summary(timing: str, least: Record, best: Record, base: Params) -> str:
-    """What the search did and the compromise it found (plain text)."""
-    return (f"{timing}\n"
-            f"least cost {least.cost:.4f} ({least.held} of {len(FINDINGS)} findings)\n"
-            f"best compromise: {best.held} of {len(FINDINGS)} findings, cost {best.cost:.4f}\n"
+def summary(timing: str, best: Record, base: Params) -> str:
+    """A point of the search and its findings (plain text)."""
+    return (f"{timing}\n" * bool(timing)
+            + f"cost {best.cost:.4f}, {best.held} of {len(FINDINGS)} findings met\n"
             + describe_point(best.u, base)
             + f"\nat a bound: {', '.join(at_bounds(best.u)) or 'none'}"
             + "\nmargins:\n" + "\n".join(f"  {k:<24s} {v:+.3f}"
