@@ -45,7 +45,7 @@ from wpam_mj import fitting, paper
 from wpam_mj.experiments import STATIC_TOP_MM
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM, MPA, Params, ParameterError, check_range, preset
-from wpam_mj.protocol import Protocol, table2_batch
+from wpam_mj.protocol import SHIPPED, Protocol, table2_batch
 from wpam_mj.results import write_text_atomic
 from wpam_mj.studies import PLATEAU_SETTLE_S, StepTask, sweep_batch
 
@@ -124,7 +124,7 @@ class PaperTargets:
     ramps run and measured under `protocol` (`wpam_mj.protocol`)."""
 
     dt: float = 1e-3
-    protocol: Protocol = Protocol()
+    protocol: Protocol = SHIPPED
 
     def _batches(self, params: Params):
         return (table2_batch(params, self.protocol, dt=self.dt),
@@ -280,7 +280,8 @@ def _best_start(model: PaperTargets, candidates: list[Params], ex: Executor | No
 
 def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
               progress: bool = True, start: Params | None = None, samples: int = 0,
-              seed: int = 7, max_nfev: int = 6, resume: bool = False) -> CalibrationResult:
+              seed: int = 7, max_nfev: int = 6, resume: bool = False,
+              protocol: Protocol = SHIPPED) -> CalibrationResult:
     """Fit FREE to `PaperTargets` (module docstring) and write the TOML to `out` (None: do
     not write).
 
@@ -292,6 +293,7 @@ def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
       max_nfev: most least-squares steps (each also runs a Jacobian: len(FREE) + 1 sets).
       resume: replay the journal of an interrupted fit to `out` (evaluations already run
         are not run again).
+      protocol: the static ramps' readings (`wpam_mj.protocol`) Table 2 is measured with.
     """
     check_range("samples", samples, *SAMPLES_RANGE, "")
     check_range("max_nfev", max_nfev, *NFEV_RANGE, "")
@@ -301,7 +303,7 @@ def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
     if resume and (journal_file is None or not journal_file.exists()):
         raise ParameterError(f"--resume: no journal {journal_file} of an interrupted fit")
     journal = fitting.Journal(journal_file, keep=resume)
-    model = PaperTargets(dt)
+    model = PaperTargets(dt, protocol)
     started = time.perf_counter()
     with ProcessPoolExecutor(jobs) if jobs > 1 else nullcontext() as ex:
         if samples:

@@ -45,7 +45,7 @@ from wpam_mj.experiments import (EXPERIMENTS, SINE_AMPLITUDE_MM, SINE_MEAN_MM, S
 from wpam_mj.model import check_dt, check_load
 from wpam_mj.params import (MM, MPA, PRESETS, ParameterError, Params,
                             apply_overrides, check_range, describe, load_toml, preset)
-from wpam_mj.protocol import LOOP_METHODS, SHIPPED, Protocol
+from wpam_mj.protocol import LOOP_METHODS, SHIPPED, Protocol, remeasure
 from wpam_mj.results import write_text_atomic
 from wpam_mj.simulate import SimulationDiverged
 from wpam_mj.termination import Terminated, remove_dead_temporaries, terminate_on_sigterm
@@ -181,6 +181,12 @@ def build_parser() -> argparse.ArgumentParser:
     def json_flag(p: argparse.ArgumentParser, what: str) -> None:
         p.add_argument("--json", action="store_true", help=f"print {what} on stdout")
 
+    def loop_area_option(p) -> None:
+        p.add_argument("--loop-area", choices=LOOP_METHODS, default=None,
+                       help="loop area of the open-loop ramps: branches (every lobe of a "
+                            "crossing loop counts) or shoelace (signed: lobes cancel) "
+                            f"(default: the shipped {SHIPPED.loop_method})")
+
     def protocol_options(p: argparse.ArgumentParser) -> None:
         """The readings the paper does not state (wpam_mj.protocol; docs/physics.md)."""
         g = p.add_argument_group("protocol readings (the paper does not state them; "
@@ -191,9 +197,7 @@ def build_parser() -> argparse.ArgumentParser:
         g.add_argument("--top-hold", type=float, default=None, metavar="S",
                        help="seconds Pi is held at its top with Po on before it falls "
                             "(0: Po switched on as Pi starts to fall)")
-        g.add_argument("--loop-area", choices=LOOP_METHODS, default=None,
-                       help="loop area of the open-loop ramps: branches (every lobe of a "
-                            "crossing loop counts) or shoelace (signed: lobes cancel)")
+        loop_area_option(g)
         g.add_argument("--po-feedforward", type=float, default=None, metavar="MPA",
                        help="the Po [MPa] the Pi feedforward assumes "
                             "(controller.po_feedforward)")
@@ -235,6 +239,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true",
                    help="print one JSON object (normalized areas, unit-free) on stdout")
     ramp_time(p)
+    loop_area_option(p)
     out_dir(p, "table2")
 
     p = add("sweep", "frequency response to a sinusoid about 25 mm, 25 mm amplitude unless "
@@ -294,6 +299,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "start from the best of them and the preset (default: 0)")
     p.add_argument("--seed", type=int, default=7,
                    help="seed of the random samples (default: 7)")
+    ramp_time(p)
+    protocol_options(p)
     p.add_argument("--max-steps", type=int, default=6, metavar="N",
                    help="most least-squares steps, each ~10 parameter sets (default: 6)")
 
@@ -596,7 +603,9 @@ def _cmd_table2(args: argparse.Namespace) -> int:
     out = _out_dir(args)
     t2 = studies.table2(run.params, dt=run.dt, jobs=run.jobs_for(3 * len(paper.LOADS_N)),
                         progress=run.progress, ramp_time=ramp_time)
-    settings = {"ramp_time_s": ramp_time, "dt_s": run.dt}
+    loop_area = args.loop_area or SHIPPED.loop_method
+    t2 = remeasure(t2, loop_area)
+    settings = {"ramp_time_s": ramp_time, "dt_s": run.dt, "loop_area": loop_area}
     rid = _run_id(args, run.params, settings)
     written = writers.write_table2_outputs(out, t2, run_id=rid)
     still = [(f"table2 open loop {lp.load:g} N, Po = {lp.po_down / MPA:g} MPa while Pi falls",
@@ -702,11 +711,13 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         raise ParameterError(f"--preset {args.preset}: calibrate fits the wpam preset "
                              "(start from other values with --config)")
     run = _run_options(args)  # the search starts from the preset plus --config
+    start, protocol = _protocol(args, run.params)
     out = _out_file(Path("calibrated.toml") if args.out is None else args.out)
     from wpam_mj.calibrate import calibrate  # noqa: PLC0415 (scipy.optimize: slow import)
+    readings = {} if protocol == SHIPPED else {"protocol": protocol}  # as before: none
     result = calibrate(out=out, jobs=run.jobs, dt=run.dt, progress=run.progress,
-                       start=run.params, samples=args.samples, seed=args.seed,
-                       max_nfev=args.max_steps, resume=args.resume)
+                       start=start, samples=args.samples, seed=args.seed,
+                       max_nfev=args.max_steps, resume=args.resume, **readings)
     print(result.table())
     print(f"wrote {out} (use it with --config {out})")
     return 0

@@ -21,6 +21,7 @@ are readings of the controller and live in `wpam_mj.params.Controller`
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Iterable
 
@@ -73,6 +74,17 @@ class Protocol:
 
 
 SHIPPED = Protocol()  # what `wpam reproduce` and `wpam table2` use (docs/physics.md)
+
+
+def remeasure(t2: Table2Result, method: str) -> Table2Result:
+    """`t2` with its open-loop loops' areas measured by `method` (same runs)."""
+    if method not in LOOP_METHODS:
+        raise ParameterError(f"loop_method {method!r}; valid: " + ", ".join(LOOP_METHODS))
+
+    def area(loops):
+        return tuple(dataclasses.replace(lp, area=loop_area(lp.result.pi, lp.result.x,
+                                                            method=method)) for lp in loops)
+    return dataclasses.replace(t2, open_loops=area(t2.open_loops), po_loops=area(t2.po_loops))
 
 
 def static_drive(params: Params, load: float, po_down: float, protocol: Protocol,
