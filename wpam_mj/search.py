@@ -27,6 +27,7 @@ import hashlib
 import json
 import math
 import os
+import resource
 import sys
 import time
 from concurrent.futures import Executor, ProcessPoolExecutor
@@ -433,11 +434,20 @@ def at_bounds(u: Sequence[float], tol: float = 1e-3) -> list[str]:
 
 def write_search(out: Path, **kw) -> list[Path]:
     """`search` into `out`, then `write_outputs` of its archive."""
-    load0 = os.getloadavg()[0]
+    load0, cpu0 = os.getloadavg()[0], _cpu_seconds()
     r = search(out, **kw)
-    timing = (f"{r.evaluations} points in {r.seconds / 60:.1f} min (load average "
-              f"{load0:.2f} at the start, {os.getloadavg()[0]:.2f} at the end); {r.message}")
+    timing = (f"{r.evaluations} points in {r.seconds / 60:.1f} min wall, "
+              f"{(_cpu_seconds() - cpu0) / 60:.1f} CPU-min (load average {load0:.2f} at "
+              f"the start, {os.getloadavg()[0]:.2f} at the end); {r.message}")
     return write_outputs(out, r.records, kw.get("base") or preset("wpam"), timing)
+
+
+def _cpu_seconds() -> float:
+    """CPU time of this process and its finished workers [s] (the machine is shared:
+    wall time alone says more about the others' load than about the search)."""
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), \
+        resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
 
 
 def write_outputs(out: Path, records: Sequence[Record], base: Params,
