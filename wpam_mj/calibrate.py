@@ -42,12 +42,13 @@ from pathlib import Path
 import numpy as np
 
 from wpam_mj import fitting, paper
-from wpam_mj.experiments import STATIC_TOP_MM, static_top_pressure
+from wpam_mj.experiments import STATIC_TOP_MM
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import MM, MPA, Params, ParameterError, check_int, check_range, preset
 from wpam_mj.pool import WorkerPool
+from wpam_mj.protocol import SHIPPED, Protocol, table2_batch
 from wpam_mj.results import write_text_atomic
-from wpam_mj.studies import PLATEAU_SETTLE_S, StepTask, sweep_batch, table2_batch
+from wpam_mj.studies import PLATEAU_SETTLE_S, StepTask, sweep_batch
 
 FREE = ("braid.braid_angle", "muscle.output_coeff", "muscle.friction_coeff",
         "muscle.friction_const", "muscle.axial_area", "pneumatics.inner_conductance",
@@ -120,12 +121,14 @@ class Scores:
 
 @dataclass(frozen=True)
 class PaperTargets:
-    """`fitting.ResidualModel` of the paper's targets (module docstring)."""
+    """`fitting.ResidualModel` of the paper's targets (module docstring), the static
+    ramps run and measured under `protocol` (`wpam_mj.protocol`)."""
 
     dt: float = 1e-3
+    protocol: Protocol = SHIPPED
 
     def _batches(self, params: Params):
-        return (table2_batch(params, dt=self.dt),
+        return (table2_batch(params, self.protocol, dt=self.dt),
                 sweep_batch(params, keep=(), dt=self.dt))
 
     def tasks(self, params: Params) -> list:
@@ -142,6 +145,11 @@ class PaperTargets:
 
     def scores(self, params: Params, results: list) -> Scores:
         return self._scores(params, *self._assemble(params, results))
+
+    def scores_and_table2(self, params: Params, results: list):
+        """`scores` and the Table 2 result they come from (its checks need it)."""
+        table2, steps, sweep = self._assemble(params, results)
+        return self._scores(params, table2, steps, sweep), table2
 
     @staticmethod
     def _scores(params: Params, table2, steps, sweep) -> Scores:
@@ -177,17 +185,17 @@ class PaperTargets:
                 paper.check_all(paper.TABLE2_FINDINGS[1:], table2, math.nan)),
             "sweep": w.sweep * paper.residuals(s.sweep_checks),
             "po_rise": [max(0.0, a - b) / w.po_rise_mpa for a, b in zip(po, po[1:])],
-            "pressure": _pressure_walls(params)}
+            "pressure": _pressure_walls(params, self.protocol)}
         return {k: np.asarray(v, dtype=float) for k, v in groups.items()}
 
     def residuals(self, params: Params, results: list) -> np.ndarray:
         return np.concatenate(list(self.residual_groups(params, results).values()))
 
 
-def _pressure_walls(params: Params) -> list[float]:
+def _pressure_walls(params: Params, protocol: Protocol) -> list[float]:
     """Walls if 150 N at the top step would need more than `pressure_share` of p_max."""
     w, p_max, worst = WEIGHTS, params.pneumatics.p_max, paper.LOADS_N[-1]
-    need_ramp = static_top_pressure(params, worst) / p_max
+    need_ramp = protocol.top(params, worst) / p_max
     need_ff = MuscleModel.from_params(params).equilibrium_pressure(
         STATIC_TOP_MM * MM, worst, params.controller.po_feedforward) / p_max
     return [w.pressure_wall * max(0.0, need - w.pressure_share)
@@ -273,7 +281,8 @@ def _best_start(model: PaperTargets, candidates: list[Params], ex: Executor | No
 
 def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
               progress: bool = True, start: Params | None = None, samples: int = 0,
-              seed: int = 7, max_nfev: int = 6, resume: bool = False) -> CalibrationResult:
+              seed: int = 7, max_nfev: int = 6, resume: bool = False,
+              protocol: Protocol = SHIPPED) -> CalibrationResult:
     """Fit FREE to `PaperTargets` (module docstring) and write the TOML to `out` (None: do
     not write).
 
@@ -285,6 +294,7 @@ def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
       max_nfev: most least-squares steps (each also runs a Jacobian: len(FREE) + 1 sets).
       resume: replay the journal of an interrupted fit to `out` (evaluations already run
         are not run again).
+      protocol: the static ramps' readings (`wpam_mj.protocol`) Table 2 is measured with.
     """
     check_range("samples", samples, *SAMPLES_RANGE, "")
     check_range("max_nfev", max_nfev, *NFEV_RANGE, "")
@@ -294,7 +304,7 @@ def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
     if resume and (journal_file is None or not journal_file.exists()):
         raise ParameterError(f"--resume: no journal {journal_file} of an interrupted fit")
     journal = fitting.Journal(journal_file, keep=resume)
-    model = PaperTargets(dt)
+    model = PaperTargets(dt, protocol)
     started = time.perf_counter()
     with WorkerPool(jobs) if jobs > 1 else nullcontext() as ex:
         if samples:

@@ -7,6 +7,8 @@ Subcommands (each has --help):
   sweep      frequency response to a sinusoidal target (Figs. 17-19)
   reproduce  all of the above into one folder with report.md
   calibrate  fit the parameters the paper does not give
+  search     global search of the credible box and the protocol readings, and the
+             feasibility map of the paper's findings (issue 20)
   fit        fit the parameters to your own measured experiments (CSV)
   synth      synthetic measurements in that CSV format
   render     offscreen video of a simulated run
@@ -45,12 +47,15 @@ from wpam_mj.experiments import (EXPERIMENTS, SINE_AMPLITUDE_MM, SINE_MEAN_MM, S
 from wpam_mj.model import check_dt, check_load
 from wpam_mj.params import (MM, MPA, PRESETS, ParameterError, Params,
                             apply_overrides, check_range, describe, load_toml, preset)
+from wpam_mj.protocol import LOOP_METHODS, SHIPPED, Protocol, remeasure
 from wpam_mj.results import write_text_atomic
 from wpam_mj.simulate import SimulationDiverged
 from wpam_mj.streams import reopen_closed
 from wpam_mj.termination import Interrupted, exit_now, handle_signals, stopped_by_signal
 
 RECORD_DT_S = 0.01  # the period every run records at (`wpam_mj.simulate.simulate`)
+# --gain-reading: controller.command_scale [MPa/u] (docs/physics.md, the unitless gains)
+GAIN_READINGS = {"mpa-per-mm": 1.0, "volts-5": 0.1, "volts-10": 0.05}
 JOBS_PER_CPU = 4  # --jobs above this many per CPU is refused: no run gains from it
 
 
@@ -94,6 +99,16 @@ def _once(text: str, values: tuple) -> tuple:
         raise argparse.ArgumentTypeError(f"{text!r} repeats {repeated[0]!r}; give each "
                                          "value once")
     return values
+
+
+def _ramp_top(text: str) -> float:
+    """--ramp-top: "per-load" (0) or a Pi [MPa], returned in Pa."""
+    if text == "per-load":
+        return 0.0
+    try:
+        return float(text) * MPA
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is neither per-load nor a number") from None
 
 
 def _out_path(text: str) -> Path:
@@ -169,6 +184,33 @@ def build_parser() -> argparse.ArgumentParser:
     def json_flag(p: argparse.ArgumentParser, what: str) -> None:
         p.add_argument("--json", action="store_true", help=f"print {what} on stdout")
 
+    def loop_area_option(p) -> None:
+        p.add_argument("--loop-area", choices=LOOP_METHODS, default=None,
+                       help="loop area of the open-loop ramps: branches (every lobe of a "
+                            "crossing loop counts) or shoelace (signed: lobes cancel) "
+                            f"(default: the shipped {SHIPPED.loop_method})")
+
+    def protocol_options(p: argparse.ArgumentParser) -> None:
+        """The readings the paper does not state (wpam_mj.protocol; docs/physics.md)."""
+        g = p.add_argument_group("protocol readings (the paper does not state them; "
+                                 "defaults: the shipped reading)")
+        g.add_argument("--ramp-top", type=_ramp_top, default=None, metavar="per-load|MPA",
+                       help="top of the open-loop Pi ramps: per-load (the Pi whose "
+                            "contracting branch reaches 50 mm) or one Pi [MPa] for every load")
+        g.add_argument("--top-hold", type=float, default=None, metavar="S",
+                       help="seconds Pi is held at its top with Po on before it falls "
+                            "(0: Po switched on as Pi starts to fall)")
+        loop_area_option(g)
+        g.add_argument("--po-feedforward", type=float, default=None, metavar="MPA",
+                       help="the Po [MPa] the Pi feedforward assumes "
+                            "(controller.po_feedforward)")
+        g.add_argument("--feedforward-friction", type=float, default=None, metavar="PHI",
+                       help="the share of the friction band the Pi feedforward adds "
+                            "(controller.feedforward_friction; 1: eq. 5's contracting branch)")
+        g.add_argument("--gain-reading", choices=tuple(GAIN_READINGS), default=None,
+                       help="unit of the paper's unitless gains: " + ", ".join(
+                           f"{k} ({v:g} MPa/u)" for k, v in GAIN_READINGS.items()))
+
     p = add("static", "open-loop static characteristic: slow Pi ramp up then down "
             "(paper Figs. 3, 8, 9); CSV, PNG and loop areas", _cmd_static)
     p.add_argument("--load", type=float, metavar="N",
@@ -200,6 +242,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true",
                    help="print one JSON object (normalized areas, unit-free) on stdout")
     ramp_time(p)
+    loop_area_option(p)
     out_dir(p, "table2")
 
     p = add("sweep", "frequency response to a sinusoid about 25 mm, 25 mm amplitude unless "
@@ -222,7 +265,28 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = add("reproduce", "every experiment into one folder with report.md (figures, the "
             "paper's numbers beside ours, checks, parameters)", _cmd_reproduce)
+    ramp_time(p)
+    protocol_options(p)
     out_dir(p, "reproduce")
+
+    p = add("search", "global search (differential evolution) of the credible parameter box "
+            "and the protocol readings on every finding of the paper; writes the best "
+            "point and the pairwise feasibility map of the findings", _cmd_search)
+    p.add_argument("--out", type=_out_path, metavar="DIR",
+                   help="output folder (default: out/search): journal.jsonl, best.toml, "
+                        "best.txt, feasibility.md, feasibility.png")
+    p.add_argument("--seed", type=int, default=20, help="seed of the search (default: 20)")
+    p.add_argument("--popsize", type=int, default=2, metavar="K",
+                   help="population K x 15 points (default: 2)")
+    p.add_argument("--maxiter", type=int, default=3, metavar="N",
+                   help="generations after the first population (default: 3; about 30 "
+                        "min on two cores)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted search in --out: journaled points are "
+                        "replayed, not run again (a finished search replays in seconds)")
+    p.add_argument("--map-only", action="store_true",
+                   help="run nothing: the best point and the feasibility map of the points "
+                        "journaled in --out so far (e.g. while the search still runs)")
 
     p = add("calibrate", "fit the parameters the paper does not give (braid angle, Kf, "
             "friction, axial area, regulators) to its Table 2 and findings", _cmd_calibrate)
@@ -238,6 +302,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "start from the best of them and the preset (default: 0)")
     p.add_argument("--seed", type=int, default=7,
                    help="seed of the random samples (default: 7)")
+    ramp_time(p)
+    protocol_options(p)
     p.add_argument("--max-steps", type=int, default=6, metavar="N",
                    help="most least-squares steps, each ~10 parameter sets (default: 6)")
 
@@ -372,6 +438,25 @@ def _run_options(args: argparse.Namespace) -> _Run:
     jobs = _jobs(args.jobs)
     progress = sys.stderr.isatty() if args.progress is None else args.progress
     return _Run(params, dt, jobs, progress)
+
+
+def _protocol(args: argparse.Namespace, params: Params) -> tuple[Params, Protocol]:
+    """The parameters with the controller's readings of --po-feedforward,
+    --feedforward-friction and --gain-reading, and the static ramps' `Protocol`."""
+    readings = {"controller.po_feedforward": None if args.po_feedforward is None
+                else args.po_feedforward * MPA,
+                "controller.feedforward_friction": args.feedforward_friction,
+                "controller.command_scale": GAIN_READINGS.get(args.gain_reading)}
+    params = params.with_values({k: v for k, v in readings.items() if v is not None})
+    given = {"ramp_top": args.ramp_top, "ramp_time": args.ramp_time,
+             "top_hold": args.top_hold, "loop_method": args.loop_area}
+    return params, dataclasses.replace(SHIPPED, **{k: v for k, v in given.items()
+                                                   if v is not None})
+
+
+def _protocol_settings(protocol: Protocol) -> dict:
+    return {"ramp_top_mpa": protocol.ramp_top / MPA, "ramp_time_s": protocol.ramp_time,
+            "top_hold_s": protocol.top_hold, "loop_area": protocol.loop_method}
 
 
 def _writable_dir(path: Path) -> Path:
@@ -515,7 +600,9 @@ def _cmd_table2(args: argparse.Namespace) -> int:
     out = _out_dir(args)
     t2 = studies.table2(run.params, dt=run.dt, jobs=run.jobs_for(3 * len(paper.LOADS_N)),
                         progress=run.progress, ramp_time=ramp_time)
-    settings = {"ramp_time_s": ramp_time, "dt_s": run.dt}
+    loop_area = args.loop_area or SHIPPED.loop_method
+    t2 = remeasure(t2, loop_area)
+    settings = {"ramp_time_s": ramp_time, "dt_s": run.dt, "loop_area": loop_area}
     rid = _run_id(args, run.params, settings)
     written = writers.write_table2_outputs(out, t2, run_id=rid)
     still = [(f"table2 open loop {lp.load:g} N, Po = {lp.po_down / MPA:g} MPa while Pi falls",
@@ -602,16 +689,17 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     summaries, _ = _output_modules()
     from wpam_mj.reproduce import reproduce  # noqa: PLC0415 (matplotlib: slow import)
     run = _run_options(args)
+    params, protocol = _protocol(args, run.params)
     names = ("mckibben", "rlam", "wpam")
-    compare = [run.params if n == args.preset else _params(args, n) for n in names]
-    _loads(paper.LOADS_N, [run.params], "reproduce load")
+    compare = [params if n == args.preset else _params(args, n) for n in names]
+    _loads(paper.LOADS_N, [params], "reproduce load")
     out = _out_dir(args)
-    settings = {"compare_presets": names, "dt_s": run.dt}
-    rid = _run_id(args, run.params, settings)
+    settings = {"compare_presets": names, "dt_s": run.dt, **_protocol_settings(protocol)}
+    rid = _run_id(args, params, settings)
     start = time.perf_counter()
-    rep = reproduce(out, run.params, dt=run.dt, jobs=run.jobs, progress=run.progress,
-                    compare=compare, run_id=rid)
-    manifest = _manifest(args, out, rid, run.params, settings, rep.files)
+    rep = reproduce(out, params, dt=run.dt, jobs=run.jobs, progress=run.progress,
+                    compare=compare, run_id=rid, protocol=protocol)
+    manifest = _manifest(args, out, rid, params, settings, rep.files)
     print(summaries.table2_text(rep.table2))
     print(summaries.checks_text(rep.checks))
     print(f"wrote {rep.report} and {manifest} ({time.perf_counter() - start:.1f} s)")
@@ -623,13 +711,32 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
         raise ParameterError(f"--preset {args.preset}: calibrate fits the wpam preset "
                              "(start from other values with --config)")
     run = _run_options(args)  # the search starts from the preset plus --config
+    start, protocol = _protocol(args, run.params)
     out = _out_file(Path("calibrated.toml") if args.out is None else args.out)
     from wpam_mj.calibrate import calibrate  # noqa: PLC0415 (scipy.optimize: slow import)
+    readings = {} if protocol == SHIPPED else {"protocol": protocol}  # as before: none
     result = calibrate(out=out, jobs=run.jobs, dt=run.dt, progress=run.progress,
-                       start=run.params, samples=args.samples, seed=args.seed,
-                       max_nfev=args.max_steps, resume=args.resume)
+                       start=start, samples=args.samples, seed=args.seed,
+                       max_nfev=args.max_steps, resume=args.resume, **readings)
     print(result.table())
     print(f"wrote {out} (use it with --config {out})")
+    return 0
+
+
+def _cmd_search(args: argparse.Namespace) -> int:
+    if args.preset != "wpam":
+        raise ParameterError(f"--preset {args.preset}: search explores the wpam preset")
+    run = _run_options(args)  # the search's shipped point: the preset plus --config
+    out = _writable_dir(Path("out") / "search" if args.out is None else args.out)
+    from wpam_mj import search  # noqa: PLC0415 (scipy, matplotlib: slow imports)
+    if args.map_only:
+        written = search.write_outputs(out, search.load_records(out), run.params)
+    else:
+        written = search.write_search(out, base=run.params, seed=args.seed,
+                                      popsize=args.popsize, maxiter=args.maxiter,
+                                      jobs=run.jobs, resume=args.resume, progress=run.progress)
+    for path in written:
+        print(f"wrote {path}")
     return 0
 
 

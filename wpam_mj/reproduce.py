@@ -16,7 +16,8 @@ from wpam_mj.params import Params, preset
 from wpam_mj.pool import Batch, TaskPool, submit_batches
 from wpam_mj.report import report_markdown
 from wpam_mj.results import write_text_atomic
-from wpam_mj.studies import StaticTask, StepTask, figure_run_key, sweep_batch, table2_batch
+from wpam_mj.protocol import SHIPPED, Protocol, table2_batch
+from wpam_mj.studies import StaticTask, StepTask, figure_run_key, sweep_batch
 from wpam_mj.study_results import SweepResult, Table2Result
 from wpam_mj.writers import (run_metadata, sine_csv_name, static_csv_name, step_csv_name,
                              write_checks, write_sweep, write_table2)
@@ -63,7 +64,7 @@ class Reproduction:
 
 def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: int = 1,
               progress: bool = False, compare: Sequence[Params] | None = None,
-              run_id: str | None = None) -> Reproduction:
+              run_id: str | None = None, protocol: Protocol = SHIPPED) -> Reproduction:
     """Run every experiment and write CSV/PNG/JSON and `report.md` into `out_dir`.
 
     Args:
@@ -72,6 +73,7 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
         and rlam presets beside `params`.
       dt: physics step [s]; jobs: process-pool size.
       run_id: the run's id (`wpam_mj.manifest.run_id`), recorded in every figure.
+      protocol: the static ramps' readings (`wpam_mj.protocol`) for Figs. 8-9, Table 2.
     """
     out = Path(out_dir)
     data = out / "data"
@@ -97,7 +99,8 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
     # CSVs and figures as soon as its runs are in (they queue behind the remaining runs).
     with TaskPool(jobs, progress=progress, desc="reproduce") as pool:
         table2_response, extra_response, sweep_response = submit_batches(pool, [
-            table2_batch(params, dt=dt), Batch(extra, list), sweep_batch(params, dt=dt)])
+            table2_batch(params, protocol, dt=dt), Batch(extra, list),
+            sweep_batch(params, dt=dt)])
         t2 = table2_response()
         outputs = pool.submit(
             csv_tasks((*t2.open_loops, *t2.po_loops), static_csv_name)
@@ -140,7 +143,7 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
         checks = (*paper.table2_checks(t2), *paper.sweep_checks(sw, params.controller.po_cap))
         files[write_checks(out, checks)] = {}
         pool.results(outputs)
-    text = report_markdown(params, dt, t2, sw, open_step, preset_loops, checks)
+    text = report_markdown(params, dt, t2, sw, open_step, preset_loops, checks, protocol)
     report = write_text_atomic(out / "report.md", text)
     files[report] = {}
     return Reproduction(report=report, table2=t2, sweep=sw, checks=tuple(checks), files=files)

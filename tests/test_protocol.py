@@ -1,0 +1,56 @@
+"""The static ramps' protocol readings (wpam_mj.protocol) and their command options."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from wpam_mj import cli
+from wpam_mj.params import MPA, ParameterError, preset
+from wpam_mj.protocol import SHIPPED, Protocol, ProtocolStaticTask, static_drive
+from wpam_mj.studies import StaticTask
+
+
+def test_the_default_protocol_runs_the_ramps_of_the_static_study():
+    params = preset("wpam")
+    ours = ProtocolStaticTask(params, 100.0, 0.04 * MPA, 1e-3, Protocol(ramp_time=5.0)).run()
+    theirs = StaticTask(params, 100.0, 0.04 * MPA, 1e-3, ramp_time=5.0).run()
+    assert ours.area == theirs.area
+    assert np.array_equal(ours.result.x, theirs.result.x)
+
+
+def test_a_common_top_and_a_hold_shape_the_commands():
+    params = preset("wpam")
+    pr = Protocol(ramp_top=0.2 * MPA, ramp_time=10.0, top_hold=2.0)
+    d = static_drive(params, 150.0, 0.04 * MPA, pr, 1e-3)
+    t = np.arange(len(d.pi_cmd)) * 1e-3
+    assert t[-1] == pytest.approx(1 + 10 + 2 + 10 + 1)
+    held = (t >= 11.0) & (t <= 13.0)
+    assert np.allclose(d.pi_cmd[held], 0.2 * MPA)  # the same top for every load
+    assert np.all(d.po_cmd[t > 11.0] == 0.04 * MPA) and np.all(d.po_cmd[t <= 11.0] == 0.0)
+    assert pr.top(params, 50.0) == pr.top(params, 150.0) == 0.2 * MPA
+    assert SHIPPED.top(params, 50.0) < SHIPPED.top(params, 150.0)  # per load
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(ramp_top=-0.1), "ramp_top"), (dict(ramp_time=0.5), "ramp_time"),
+    (dict(top_hold=-1.0), "top_hold"), (dict(loop_method="area"), "loop_method")])
+def test_bad_readings_are_refused(kwargs, match):
+    with pytest.raises(ParameterError, match=match):
+        Protocol(**kwargs)
+
+
+def test_every_reading_is_a_command_option():
+    args = cli.build_parser().parse_args(
+        ["reproduce", "--ramp-top", "0.19", "--ramp-time", "90", "--top-hold", "1.5",
+         "--loop-area", "shoelace", "--po-feedforward", "0.01",
+         "--feedforward-friction", "0.9", "--gain-reading", "volts-10"])
+    params, protocol = cli._protocol(args, preset("wpam"))
+    assert protocol == Protocol(0.19 * MPA, 90.0, 1.5, "shoelace")
+    c = params.controller
+    assert (c.po_feedforward, c.feedforward_friction, c.command_scale) == (0.01 * MPA, 0.9,
+                                                                          0.05)
+    default = cli.build_parser().parse_args(["reproduce"])
+    assert cli._protocol(default, preset("wpam")) == (preset("wpam"), SHIPPED)
+    per_load = cli.build_parser().parse_args(["reproduce", "--ramp-top", "per-load"])
+    assert cli._protocol(per_load, preset("wpam"))[1].ramp_top == 0.0
