@@ -142,8 +142,8 @@ def main() -> None:
     print(f"{args.algo} {model.num_timesteps} steps in {wall:.0f} s "
           f"({rate:.0f} training steps/s without the curve's evaluations)")
     title = (f"{args.algo.upper()} on {ENV_ID} ({args.frame_skip} ms steps), seed "
-             f"{args.seed}; curve: mean of "
-             f"{args.curve_seeds} validation seeds, lines: {len(seeds)} test seeds")
+             f"{args.seed}\ncurve: mean of {args.curve_seeds} validation seeds; lines: "
+             f"{len(seeds)} test seeds")
     plot(curve.points, refs, args.out / "learning_curve.png", title)
     (args.out / "scores.json").write_text(json.dumps(
         {"env": ENV_ID, "frame_skip": args.frame_skip, "algo": args.algo, "seed": args.seed,
