@@ -1,7 +1,7 @@
 """Shared test setup.
 
-Import wpam_mj before any test module imports mujoco: its __init__ chooses the headless
-EGL backend (MUJOCO_GL=egl when there is no display), which mujoco reads once at import.
+Import wpam_mj first: it registers the muscle's MuJoCo plugin, which the shipped models
+name (no GL backend is chosen on import: `wpam_mj.gl` does that where rendering starts).
 """
 
 import wpam_mj  # noqa: F401
