@@ -9,7 +9,7 @@ physical rig must show: Table 2's Po row falling with load, Pi and Po rising wit
 every step settled, Po inside [p_min, cap] and the lag at 0.1 Hz rising with load.
 
     nice -n 10 python scripts/other_loads.py [--config FILE] [--jobs 2]
-        [--ramp-top per-load|MPA] [--out out/other_loads]
+        [--ramp-top MPA] [--loop-area branches|shoelace] [--out out/other_loads]
 
 About 2 core-minutes; writes OUT/other_loads.json and OUT/other_loads.md.
 """
@@ -25,7 +25,7 @@ import numpy as np
 
 from wpam_mj import paper, pool
 from wpam_mj.params import MM, MPA, apply_overrides, load_toml, preset
-from wpam_mj.protocol import SHIPPED, table2_batch
+from wpam_mj.protocol import LOOP_METHODS, SHIPPED, table2_batch
 from wpam_mj.results import write_text_atomic
 from wpam_mj.studies import PLATEAU_SETTLE_S, sweep_batch
 
@@ -99,6 +99,8 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--ramp-top", type=float, default=None, metavar="MPA",
                     help="one common ramp top [MPa] (default: the shipped protocol's)")
+    ap.add_argument("--loop-area", choices=LOOP_METHODS, default=None,
+                    help="loop-area definition (default: the shipped protocol's)")
     ap.add_argument("--out", type=Path, default=Path("out") / "other_loads")
     a = ap.parse_args()
     params = preset("wpam")
@@ -106,6 +108,8 @@ def main() -> None:
         params = apply_overrides(params, load_toml(a.config))
     protocol = SHIPPED if a.ramp_top is None else dataclasses.replace(
         SHIPPED, ramp_top=a.ramp_top * MPA)
+    if a.loop_area is not None:
+        protocol = dataclasses.replace(protocol, loop_method=a.loop_area)
     rows = measure(params, protocol, a.jobs)
     checks = trends(rows, params)
     a.out.mkdir(parents=True, exist_ok=True)

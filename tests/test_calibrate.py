@@ -145,7 +145,7 @@ class _Quadratic:
     runs = 0
     stop_after: int | None = None
 
-    def __init__(self, dt):
+    def __init__(self, dt, protocol):
         self.target = [fitting.FreeParameter.of(n).from_z(0.3) for n in FREE]
 
     def tasks(self, params):

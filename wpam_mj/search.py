@@ -382,8 +382,8 @@ def planned_evaluations(popsize: int, maxiter: int) -> int:
 def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
            popsize: int = 2, maxiter: int = 5, jobs: int = 2, resume: bool = False,
            progress: bool = True, targets=None) -> SearchResult:
-    """Run DE over SPACE from the shipped point (`base`, default the wpam preset with
-    `Protocol()`), journaling to `out`/journal.jsonl (None: in memory).
+    """Run DE over SPACE from the start point (`base`, default the wpam preset, with the
+    default readings `Protocol()`), journaling to `out`/journal.jsonl (None: in memory).
 
     popsize: DE's multiplier (population popsize * len(SPACE)); maxiter: generations;
     targets: protocol -> `Targets` (default: the paper's, at SEARCH_DT).
