@@ -2,24 +2,37 @@
 
 Figures, measured side by side (interleaved repeats, best of --repeats, us per step):
   bare mj_step           the rig compiled with plain motors (`model.build_model`: what the
-                         Python engine runs), constant ctrl, the tendon's frictionloss set
-                         to the plugin's level at the end of the feedback run (the same
-                         friction constraint to solve), mujoco.mj_step(m, d, nstep=N) in C.
+                         Python engine runs), started in the plugin run's settled state
+                         (the load held at the target), with the muscle's force and the
+                         tendon's frictionloss frozen at the plugin's values there (the
+                         same constraints to solve), mujoco.mj_step(m, d, nstep=N) in C.
                          The reference for the ratios.
-  plugin mj_step         the rig with the wpam_mj.muscle plugin running PI feedback on a
-                         held target, mujoco.mj_step(m, d, nstep=N). Target <= 1.1x.
+  plugin mj_step         the rig with the wpam_mj.muscle plugin running PI feedback on the
+                         held target from the same settled state, mj_step(m, d, nstep=N).
+                         Target <= 1.1x.
   simulate engine="plugin"  a whole PI run through simulate(): model build, chunked
                          mujoco.batch rollout, recording. Information.
   simulate engine="python"  the same run on the Python engine (the readable definition).
 
+  plugin instructions    with --instructions (needs valgrind): the plugin's own instructions
+                         per step against the whole plugin step's, counted by callgrind
+                         (repeatable on a shared machine, unlike wall time). Information.
+
 Run: python benchmarks/bench_step.py [--steps N] [--python-steps N] [--repeats R]
+     [--instructions]
 (benchmarks/run_all.py prints the target figure with the others)
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
+import re
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -31,6 +44,7 @@ from wpam_mj.model import build_model, rig_spec
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.simulate import simulate
 
+HERE = Path(__file__).resolve().parent
 LOAD = 100.0  # N, the paper's nominal load (§4.1)
 DT = 1e-3  # s
 X_REF = 0.02  # m, the held target
@@ -48,33 +62,33 @@ def plugin_model(params) -> mujoco.MjModel:
     return rig_spec(params, LOAD, DT, control="pi", start_at_rest=True).compile()
 
 
-def settled_friction(params) -> float:
-    """The plugin's friction level [N] after 2 s of holding the target."""
+def settled(params) -> mujoco.MjData:
+    """The plugin rig after 5 s of holding the target."""
     model = plugin_model(params)
     data = mujoco.MjData(model)
     data.ctrl[:] = (X_REF, _feedforward(params))
-    mujoco.mj_step(model, data, nstep=2000)
-    return float(data.plugin_state[plugin.STATE_FIELDS.index("friction")])
+    mujoco.mj_step(model, data, nstep=5000)
+    return data
 
 
-def time_bare(params, n: int, friction: float) -> float:
-    """Seconds for n bare mj_steps of the motor rig."""
+def time_bare(params, n: int, state: mujoco.MjData) -> float:
+    """Seconds for n bare mj_steps of the motor rig from the settled state."""
     model = build_model(params, LOAD, DT)
-    model.tendon_frictionloss[model.tendon("muscle").id] = friction
+    muscle = plugin.state_of(state.model, state)
+    model.tendon_frictionloss[model.tendon("muscle").id] = muscle["friction"]
     data = mujoco.MjData(model)
-    data.ctrl[model.actuator("muscle_force").id] = -LOAD
+    data.qpos[:], data.qvel[:] = state.qpos, state.qvel
+    data.ctrl[model.actuator("muscle_force").id] = -muscle["tension"]
     start = time.perf_counter()
     mujoco.mj_step(model, data, nstep=n)
     return time.perf_counter() - start
 
 
-def time_plugin(params, n: int) -> float:
-    """Seconds for n mj_steps of the plugin rig under PI feedback."""
-    model = plugin_model(params)
-    data = mujoco.MjData(model)
-    data.ctrl[:] = (X_REF, _feedforward(params))
+def time_plugin(params, n: int, state: mujoco.MjData) -> float:
+    """Seconds for n mj_steps of the plugin rig under PI feedback from the settled state."""
+    data = copy.copy(state)
     start = time.perf_counter()
-    mujoco.mj_step(model, data, nstep=n)
+    mujoco.mj_step(state.model, data, nstep=n)
     return time.perf_counter() - start
 
 
@@ -92,9 +106,9 @@ def time_simulate(params, n: int, engine: str) -> float:
 def measure(n: int = 20000, n_py: int = 4000, repeats: int = 7) -> dict[str, float]:
     """Best us/step of each figure over `repeats` interleaved rounds."""
     params = preset("wpam")
-    friction = settled_friction(params)
-    timed = {REFERENCE: (n, lambda: time_bare(params, n, friction)),
-             PLUGIN: (n, lambda: time_plugin(params, n)),
+    state = settled(params)
+    timed = {REFERENCE: (n, lambda: time_bare(params, n, state)),
+             PLUGIN: (n, lambda: time_plugin(params, n, state)),
              'simulate engine="plugin"': (n, lambda: time_simulate(params, n, "plugin")),
              'simulate engine="python"': (n_py, lambda: time_simulate(params, n_py, "python"))}
     best = dict.fromkeys(timed, np.inf)
@@ -102,6 +116,29 @@ def measure(n: int = 20000, n_py: int = 4000, repeats: int = 7) -> dict[str, flo
         for name, (k, run) in timed.items():
             best[name] = min(best[name], run() / k * 1e6)
     return best
+
+
+def instructions_per_step(n: int = 5000) -> tuple[float, float]:
+    """(the plugin's own, the whole step's) instructions per plugin step, by callgrind:
+    the difference of n steps and 0 steps from the settled state, and within it the
+    functions of the plugin's library."""
+    counts = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for steps in (0, n):
+            out = Path(tmp) / f"cg.{steps}"
+            code = ("import copy, sys, mujoco; sys.path.insert(0, %r); import bench_step as b;"
+                    "from wpam_mj import preset; s = b.settled(preset('wpam'));"
+                    "mujoco.mj_step(s.model, copy.copy(s), nstep=%d)") % (str(HERE), steps)
+            subprocess.run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={out}",
+                            sys.executable, "-c", code], check=True, capture_output=True)
+            text = subprocess.run(["callgrind_annotate", str(out)], check=True,
+                                  capture_output=True, text=True).stdout
+            total = int(re.search(r"([\d,]+) \(100.0%\)\s+PROGRAM TOTALS", text)[1]
+                        .replace(",", ""))
+            own = sum(int(m[1].replace(",", "")) for m in
+                      re.finditer(r"^\s*([\d,]+) \(.*wpam_muscle", text, re.M))
+            counts[steps] = (own, total)
+    return ((counts[n][0] - counts[0][0]) / n, (counts[n][1] - counts[0][1]) / n)
 
 
 def figures(**kwargs) -> list[Figure]:
@@ -119,6 +156,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="physics steps per timed Python-engine run (default 4000)")
     parser.add_argument("--repeats", type=int, default=7,
                         help="interleaved repeats; the best of each figure is kept (default 7)")
+    parser.add_argument("--instructions", action="store_true",
+                        help="also count the plugin's instructions per step with callgrind")
     args = parser.parse_args(argv)
     if not plugin.available():
         print(f"plugin unavailable: {plugin.unavailable_reason()}")
@@ -131,6 +170,10 @@ def main(argv: list[str] | None = None) -> int:
                      + [Figure(f"{name} [x bare]", us / ref, "<=", TARGET_RATIO)
                         if name == PLUGIN else Figure(f"{name} [x bare]", us / ref, "")
                         for name, us in best.items() if name != REFERENCE])
+    if args.instructions:
+        own, total = instructions_per_step()
+        print(f"callgrind: the plugin's functions {own:.0f} of {total:.0f} instructions per "
+              f"plugin step ({own / total:.1%})")
     return 0 if ok else 1
 
 
