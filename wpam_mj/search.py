@@ -389,7 +389,7 @@ def planned_evaluations(popsize: int, maxiter: int) -> int:
     """Points scored: DE's initial population, `maxiter` generations of it, its best
     once more and at most the `probes`."""
     n = max(5, popsize * len(SPACE))
-    return n * (maxiter + 1) + 1 + len(PROBED) * len(FINDINGS)
+    return n * (maxiter + 1) + 1 + len(PROBED) * (len(FINDINGS) + len(paper.LOADS_N))
 
 
 def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
@@ -431,11 +431,21 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
 PROBED = ("protocol.loop_method", "protocol.common_top")
 
 
+def _cell_error(r: Record, k: int) -> float:
+    """|relative error| of Table 2 "Po = 0.04" cell k (load paper.LOADS_N[k])."""
+    ref = paper.TABLE2["open_po"][paper.LOADS_N[k]]
+    return abs(r.figures["table2_po_row"][k] / ref - 1.0)
+
+
 def probes(records: Sequence[Record]) -> list[list[float]]:
-    """Each finding's best tracking point with one `PROBED` reading flipped (the
-    common top keeps the point's own top coordinate), in FINDINGS order."""
+    """Each finding's best tracking point, then the best point of each Table 2 "Po =
+    0.04" cell (the row's margin is its worst cell: a point that gets one end of the
+    row right is where a reading may bring the rest), each with one `PROBED` reading
+    flipped (the common top keeps the point's own top coordinate)."""
     tracking = [r for r in records if r.tracks]
-    bests = dict.fromkeys(max(tracking, key=lambda r: r.margins[f]).u for f in FINDINGS)
+    bests = dict.fromkeys([max(tracking, key=lambda r: r.margins[f]).u for f in FINDINGS]
+                          + [min(tracking, key=lambda r: _cell_error(r, k)).u
+                             for k in range(len(paper.LOADS_N))])
     out = []
     for u in bests:
         for name in PROBED:
