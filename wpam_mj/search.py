@@ -310,9 +310,11 @@ class Evaluator:
         # an interruption loses little
         self.chunk = 4
         self.ran, self.seen, self.started = 0, 0, time.perf_counter()
+        self.asked: dict[str, None] = {}  # keys scored, in order (a journal may hold more)
 
     def records(self, us: Sequence[Sequence[float]]) -> list[Record]:
         keys = [_key(u) for u in us]
+        self.asked.update(dict.fromkeys(keys))
         todo = {k: u for k, u in zip(keys, us) if k not in self.journal.records}
         self.seen += len(us) - len(todo)
         pending = list(todo)
@@ -379,7 +381,7 @@ def cost(u, evaluator: Evaluator) -> float:
 @dataclass(frozen=True)
 class SearchResult:
     best: Record
-    records: tuple[Record, ...]  # every point evaluated, in journal order
+    records: tuple[Record, ...]  # every point this search scored, in order
     evaluations: int
     seconds: float
     message: str
@@ -420,8 +422,8 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
             integrality=[bool(d.choices) for d in SPACE],
             x0=coordinates_of(Point(base, Protocol())))
         (best,) = ev.records([list(res.x)])
-        ev.records(probes(list(journal.records.values())))
-    records = tuple(journal.records.values())
+        ev.records(probes([journal.records[k] for k in ev.asked]))
+    records = tuple(journal.records[k] for k in ev.asked)
     return SearchResult(best, records, len(records), time.perf_counter() - started,
                         str(res.message))
 
