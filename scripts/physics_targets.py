@@ -22,6 +22,7 @@ import numpy as np
 from wpam_mj import paper, pool, preset
 from wpam_mj.experiments import SineSpec, sine_run
 from wpam_mj.params import MM, MPA, Params
+from wpam_mj.protocol import SHIPPED, remeasure
 from wpam_mj.results import write_text_atomic
 from wpam_mj.studies import static_study, step_study, sweep, table2
 
@@ -47,7 +48,7 @@ class _ReadingTask:
 
 def measure(params: Params, *, dt: float, jobs: int) -> dict:
     """Every figure of the targets at one time step."""
-    t2 = table2(params, dt=dt, jobs=jobs)
+    t2 = remeasure(table2(params, dt=dt, jobs=jobs), SHIPPED.loop_method)
     steps = step_study(params, [(load, c) for c in ("pi", "pid") for load in paper.LOADS_N],
                        dt=dt, jobs=jobs)
     sw = sweep(params, keep=(), dt=dt, jobs=jobs)

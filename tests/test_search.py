@@ -43,7 +43,7 @@ class _Targets:
         margins["table2_po_row"] = kf - 0.8
         margins["gain_spread"] = 0.7 - kf
         r = np.array([max(0.0, -m) for m in margins.values()])
-        return r, margins, {"step_error_mm": {"pi": [0.1]}}
+        return r, margins, {"step_error_mm": {"pi": [0.1]}, "table2_po_row": [kf, mu, 0.06]}
 
 
 def _search(tmp_path, **kw):

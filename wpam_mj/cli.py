@@ -279,8 +279,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--popsize", type=int, default=2, metavar="K",
                    help="population K x 15 points (default: 2)")
     p.add_argument("--maxiter", type=int, default=3, metavar="N",
-                   help="generations after the first population (default: 3; about 30 "
-                        "min on two cores)")
+                   help="generations after the first population (default: 3: about 145 "
+                        "points, 12 min on two free cores; docs/physics.md used 5)")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted search in --out: journaled points are "
                         "replayed, not run again (a finished search replays in seconds)")

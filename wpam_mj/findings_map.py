@@ -16,23 +16,13 @@ from typing import Sequence
 
 import numpy as np
 
-from wpam_mj.search import FINDING_TEXT, FINDINGS, Record
-
-
-TRACK_MM = 5.0  # half a 10 mm step: a PI staircase worse than this does not follow it
-
-
-def tracks(r: Record) -> bool:
-    """Whether the point ran and its PI staircase follows the targets at all. A muscle
-    that never moves meets the feedback row vacuously (no loop), so such points are not
-    reproductions of the experiments and stay out of the map."""
-    return r.margins is not None and max(r.figures["step_error_mm"]["pi"]) <= TRACK_MM
+from wpam_mj.search import FINDING_TEXT, FINDINGS, TRACK_MM, Record
 
 
 def margin_matrix(records: Sequence[Record]) -> np.ndarray:
     """Margins of the points that track, shape (n_points, n_findings); a margin that
     could not be computed (NaN: e.g. no gain where the muscle did not move) fails."""
-    rows = [[r.margins[f] for f in FINDINGS] for r in records if tracks(r)]
+    rows = [[r.margins[f] for f in FINDINGS] for r in records if r.tracks]
     m = np.array(rows, dtype=float).reshape(-1, len(FINDINGS))
     return np.where(np.isnan(m), -np.inf, m)
 
@@ -83,12 +73,12 @@ def best_compromise(records: Sequence[Record]) -> Record:
     """The tracking point of least cost: calibrate's one cost weighs by how much each
     finding is missed, where a count of findings met would take a Table 2 cell 20x
     off the paper for one more frequency-response finding."""
-    return min((r for r in records if tracks(r)), key=lambda r: r.cost)
+    return min((r for r in records if r.tracks), key=lambda r: r.cost)
 
 
 def most_findings(records: Sequence[Record]) -> Record:
     """The tracking point meeting the most findings (least cost among those)."""
-    return min((r for r in records if tracks(r)), key=lambda r: (-r.held, r.cost))
+    return min((r for r in records if r.tracks), key=lambda r: (-r.held, r.cost))
 
 
 def _cell(v: float) -> str:
@@ -105,7 +95,7 @@ def markdown(pm: np.ndarray, records: Sequence[Record]) -> str:
         lines.append(f"| {short[i]} {FINDING_TEXT[f]} | {_cell(pm[i, i])} | "
                      + " | ".join(cells) + " |")
     lines.append("")
-    n = sum(tracks(r) for r in records)
+    n = sum(r.tracks for r in records)
     lines.append(f"Best signed margin of each finding (in units of its margin's scale; "
                  f">= 0 holds) over the {n} points of the {len(records)} searched whose PI "
                  f"staircase follows its targets (worst error <= {TRACK_MM:g} mm), alone "

@@ -13,7 +13,10 @@ The optimiser is scipy's `differential_evolution` (Storn & Price 1997): Latin-hy
 start plus the shipped point, generations evaluated together ("deferred" updating) on a
 process pool, categorical readings as integer coordinates. Seeded and deterministic:
 the simulator is, results come back in task order, and the same seed draws the same
-trials. Every evaluation is appended to a JSON-lines journal, so a search run again
+trials. After DE, each finding's best point is scored once more with each static-ramp
+reading flipped (`probes`): DE meets a categorical value per point, so a reading
+that helps one finding may not have been tried where that finding is best. Every
+evaluation is appended to a JSON-lines journal, so a search run again
 with `resume=True` replays what it has done without running it and continues.
 
 The regulators' lag and dead time and the slide damping stay at their measured values
@@ -54,6 +57,7 @@ RAMP_TIME_RANGE_S = (30.0, 120.0)  # "slow" ramps; 60 s vs 240 s moved Table 2 b
 TOP_HOLD_RANGE_S = (0.0, 5.0)
 STEP_ERROR_MM, STEP_PP_MM = 0.5, 0.2  # the paper's smooth, settled steps (docs/physics.md)
 PO_RISE_SCALE_MPA = 0.01
+TRACK_MM = 5.0  # half a 10 mm step: a PI staircase worse than this does not follow it
 FAILED_COST = 1e6  # DE needs a finite cost where a simulation fails
 SEARCH_DT = 1e-3  # s, the physics step of every evaluation (as reproduce)
 
@@ -190,6 +194,14 @@ class Record:
     figures: dict | None
 
     @property
+    def tracks(self) -> bool:
+        """Whether the point ran and its PI staircase follows the targets at all. A muscle
+        that never moves meets the feedback row vacuously (no loop): such points are not
+        reproductions of the experiments and stay out of the map and the choice."""
+        return self.margins is not None and \
+            max(self.figures["step_error_mm"]["pi"]) <= TRACK_MM
+
+    @property
     def held(self) -> int:
         return 0 if self.margins is None else sum(m >= 0.0 for m in self.margins.values())
 
@@ -298,9 +310,11 @@ class Evaluator:
         # an interruption loses little
         self.chunk = 4
         self.ran, self.seen, self.started = 0, 0, time.perf_counter()
+        self.asked: dict[str, None] = {}  # keys scored, in order (a journal may hold more)
 
     def records(self, us: Sequence[Sequence[float]]) -> list[Record]:
         keys = [_key(u) for u in us]
+        self.asked.update(dict.fromkeys(keys))
         todo = {k: u for k, u in zip(keys, us) if k not in self.journal.records}
         self.seen += len(us) - len(todo)
         pending = list(todo)
@@ -367,16 +381,17 @@ def cost(u, evaluator: Evaluator) -> float:
 @dataclass(frozen=True)
 class SearchResult:
     best: Record
-    records: tuple[Record, ...]  # every point evaluated, in journal order
+    records: tuple[Record, ...]  # every point this search scored, in order
     evaluations: int
     seconds: float
     message: str
 
 
 def planned_evaluations(popsize: int, maxiter: int) -> int:
-    """Points DE scores: the initial population and `maxiter` generations of it."""
+    """Points scored: DE's initial population, `maxiter` generations of it, its best
+    once more and at most the `probes`."""
     n = max(5, popsize * len(SPACE))
-    return n * (maxiter + 1)
+    return n * (maxiter + 1) + 1 + len(PROBED) * (len(FINDINGS) + len(paper.LOADS_N))
 
 
 def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
@@ -407,9 +422,40 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
             integrality=[bool(d.choices) for d in SPACE],
             x0=coordinates_of(Point(base, Protocol())))
         (best,) = ev.records([list(res.x)])
-    records = tuple(journal.records.values())
+        ev.records(probes([journal.records[k] for k in ev.asked]))
+    records = tuple(journal.records[k] for k in ev.asked)
     return SearchResult(best, records, len(records), time.perf_counter() - started,
                         str(res.message))
+
+
+# The static ramps' categorical readings: DE draws them per point, so a finding's best
+# point has met only one value of each; `probes` tries the other at that point.
+PROBED = ("protocol.loop_method", "protocol.common_top")
+
+
+def _cell_error(r: Record, k: int) -> float:
+    """|relative error| of Table 2 "Po = 0.04" cell k (load paper.LOADS_N[k])."""
+    ref = paper.TABLE2["open_po"][paper.LOADS_N[k]]
+    return abs(r.figures["table2_po_row"][k] / ref - 1.0)
+
+
+def probes(records: Sequence[Record]) -> list[list[float]]:
+    """Each finding's best tracking point, then the best point of each Table 2 "Po =
+    0.04" cell (the row's margin is its worst cell: a point that gets one end of the
+    row right is where a reading may bring the rest), each with one `PROBED` reading
+    flipped (the common top keeps the point's own top coordinate)."""
+    tracking = [r for r in records if r.tracks]
+    bests = dict.fromkeys([max(tracking, key=lambda r: r.margins[f]).u for f in FINDINGS]
+                          + [min(tracking, key=lambda r: _cell_error(r, k)).u
+                             for k in range(len(paper.LOADS_N))])
+    out = []
+    for u in bests:
+        for name in PROBED:
+            i = [d.name for d in SPACE].index(name)
+            v = list(u)
+            v[i] = 1.0 - round(u[i])
+            out.append(v)
+    return out
 
 
 def load_records(out: Path) -> list[Record]:
