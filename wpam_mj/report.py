@@ -146,8 +146,8 @@ GIVEN_UP = {
     "gains of the loads within": (
         "above the limit velocity (0.5-1 Hz) the lines' air flow sets the speed and the "
         "heavier load runs at a higher Pi, so the same restriction passes more air; the "
-        "search meets it only where every load is flow-limited and the staircases stall "
-        "(best: 4.7 % with PI plateaus 1.2-4.6 mm off), never with settled steps."),
+        "search meets it, with other frequency-response findings too, but never together "
+        "with settled steps (best margin -4.5 there; 204 and 294 points searched)."),
     "below 0.5 Hz the phase lag": (
         "the order needs Po to rest deep in the friction band (a feedforward Po above "
         "the regulator minimum), where the paper's slow integral (Kp/Ki = 12.5 s) cannot "
