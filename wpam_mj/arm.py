@@ -86,10 +86,9 @@ def run(pair: Pair, theta_ref: np.ndarray, *, record_every: int = 10) -> ArmRun:
     sim.reset()
     out = sim.rollout(len(theta_ref), control=pair.targets(theta_ref)[None],
                       record=("qpos", "plugin_state"))
-    field = {name: i for i, name in enumerate(plugin.STATE_FIELDS)}
+    field = plugin.FIELD
     state = out["plugin_state"][0, ::record_every]
-    adr = [model.plugin_stateadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_PLUGIN, m)]
-           for m in MUSCLES]
+    adr = [plugin.state_address(model, m) for m in MUSCLES]
     if np.any(state[:, [a + field["status"] for a in adr]]):
         raise RuntimeError("the arm's pneumatics diverged; reduce the timestep")
     n = len(state)

@@ -17,13 +17,10 @@ from pathlib import Path
 import mujoco
 
 from wpam_mj import engine, plugin
-from wpam_mj.loop_contract import SimulationDiverged, contraction_diverged, pressure_diverged
+from wpam_mj.loop_contract import SimulationDiverged, state_failure
 from wpam_mj.model import INSTANCE, check_chamber_step, rig_spec
 from wpam_mj.params import Params
 from wpam_mj.paths import MODEL_XML
-
-_FIELD = {name: i for i, name in enumerate(plugin.STATE_FIELDS)}
-
 
 @dataclass
 class LiveRig:
@@ -45,8 +42,7 @@ class LiveRig:
         names = [f"{INSTANCE}_{c}" for c in plugin.CONTROL_BY_NAME["open"].channels]
         if plugin.available():
             model, muscles = spec.compile(), None
-            state = int(model.plugin_stateadr[mujoco.mj_name2id(
-                model, mujoco.mjtObj.mjOBJ_PLUGIN, INSTANCE)])
+            state = plugin.state_address(model, INSTANCE)
         else:
             model, muscles = engine.python_model(spec)
             state = -1
@@ -64,13 +60,8 @@ class LiveRig:
         new state, as dm_control's own step). Raises SimulationDiverged."""
         if self.muscles is None:
             mujoco.mj_step(self.model, data, nstep=nstep)
-            status = data.plugin_state[self.state + _FIELD["status"]]
-            if status:
-                s = data.plugin_state[self.state:]
-                raise SimulationDiverged(
-                    contraction_diverged(float(s[_FIELD["x"]]))
-                    if status == plugin.FAIL_CONTRACTION
-                    else pressure_diverged(float(s[_FIELD["p_i"]]), float(s[_FIELD["p_o"]])))
+            if data.plugin_state[self.state + plugin.FIELD["status"]]:
+                raise SimulationDiverged(state_failure(data.plugin_state[self.state:]))
         else:
             (muscle,) = self.muscles
             with engine.stepping(self.model, self.muscles):
@@ -93,15 +84,9 @@ class LiveRig:
         """Chamber gauge pressures (Pi, Po) [Pa] the next step's force uses."""
         if self.muscles is None:
             s = data.plugin_state
-            return (float(s[self.state + _FIELD["p_i"]]) - self.atmosphere,
-                    float(s[self.state + _FIELD["p_o"]]) - self.atmosphere)
+            return (float(s[self.state + plugin.FIELD["p_i"]]) - self.atmosphere,
+                    float(s[self.state + plugin.FIELD["p_o"]]) - self.atmosphere)
         return self.muscles[0].plant.pressures
-
-    def reading(self, data: mujoco.MjData, name: str) -> float:
-        """A field of the muscle's last step (`wpam_mj.plugin.STATE_FIELDS[:11]`)."""
-        if self.muscles is None:
-            return float(data.plugin_state[self.state + _FIELD[name]])
-        return float(self.muscles[0].record[name])
 
     def reset(self) -> None:
         """After mj_resetData: the Python engine's muscle back to its start (the plugin's

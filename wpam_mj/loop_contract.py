@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 from wpam_mj import pneumatics as pn
 from wpam_mj.params import Params, ParameterError
-from wpam_mj.plugin import STATE_FIELDS
+from wpam_mj.plugin import FAIL_CONTRACTION, FIELD, STATE_FIELDS
 
 # Rows of the recording array, in this order: the time, then the plugin state's recorded
 # fields; `SimResult` has a field of each name.
@@ -30,6 +30,14 @@ def contraction_diverged(x: float) -> str:
 def pressure_diverged(p_i: float, p_o: float) -> str:
     """Why a run stopped: a chamber pressure [Pa, absolute] is not positive."""
     return f"chamber pressure Pi = {p_i!r} Pa, Po = {p_o!r} Pa (absolute)"
+
+
+def state_failure(state) -> str:
+    """Why a plugin instance stopped, from its state (starting at its first field) whose
+    "status" is set."""
+    if state[FIELD["status"]] == FAIL_CONTRACTION:
+        return contraction_diverged(float(state[FIELD["x"]]))
+    return pressure_diverged(float(state[FIELD["p_i"]]), float(state[FIELD["p_o"]]))
 
 
 @dataclass(frozen=True)

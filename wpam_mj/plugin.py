@@ -54,6 +54,7 @@ STATE_FIELDS = (
     "next_integral", "next_derivative", "next_e",  # what advance commits
     "rest_pending", "status", "head")  # start at rest; FAIL_* code; dead-time ring head
 FAIL_CONTRACTION, FAIL_PRESSURE = 1, 2  # values of the "status" field
+FIELD = {name: i for i, name in enumerate(STATE_FIELDS)}  # offset of each named field
 
 
 @dataclass(frozen=True)
@@ -116,14 +117,17 @@ def config_of(model, instance: int) -> dict[str, str]:
     return {k: v.decode() for k, v in zip(attribute_names(), values) if v}
 
 
+def state_address(model, instance: int | str = 0) -> int:
+    """Where an instance's state starts in `data.plugin_state`, by id or name."""
+    if isinstance(instance, str):
+        instance = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_PLUGIN, instance)
+    return int(model.plugin_stateadr[instance])
+
+
 def state_of(model, data, instance: int | str = 0) -> dict[str, float]:
     """The named fields of a muscle's state (`STATE_FIELDS`; SI, pressures `pi`, `po` gauge
     and `p_i`, `p_o` absolute [Pa]) in `data`, the instance given by id or name."""
-    import mujoco  # noqa: PLC0415
-
-    if isinstance(instance, str):
-        instance = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_PLUGIN, instance)
-    start = model.plugin_stateadr[instance]
+    start = state_address(model, instance)
     return dict(zip(STATE_FIELDS, map(float, data.plugin_state[start:start + len(STATE_FIELDS)])))
 
 

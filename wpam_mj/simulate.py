@@ -26,7 +26,7 @@ from wpam_mj import engine as pyengine
 from wpam_mj import plugin, termination
 from wpam_mj.control import make_controller
 from wpam_mj.loop_contract import (REC_FIELDS, REC_ROWS, RunConstants, SimulationDiverged,
-                                   contraction_diverged, pressure_diverged)
+                                   state_failure)
 from wpam_mj.model import INSTANCE, check_chamber_step, check_dt, check_load, rig_spec
 from wpam_mj.params import MPA, Params, ParameterError
 from wpam_mj.results import SimResult
@@ -194,10 +194,9 @@ def run_batch(models: list[mujoco.MjModel], inputs: list[np.ndarray], record_eve
     Returns (record, failure) per run, as `run_plugin`."""
     n = len(inputs[0])
     model = models[0]
-    fields = {name: i for i, name in enumerate(plugin.STATE_FIELDS)}
-    adr = model.plugin_stateadr[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_PLUGIN, INSTANCE)]
+    adr = plugin.state_address(model, INSTANCE)
     recorded = slice(adr, adr + REC_ROWS - 1)
-    status = adr + fields["status"]
+    status = adr + plugin.FIELD["status"]
     recs = [np.zeros(_record_shape(n, record_every)) for _ in models]
     failures: list[tuple[int, str] | None] = [None] * len(models)
     sim = mjbatch.Batch(model, len(models), nthread=nthread)
@@ -219,13 +218,7 @@ def run_batch(models: list[mujoco.MjModel], inputs: list[np.ndarray], record_eve
             rec[1:, steps // record_every] = out[i, first::record_every, recorded].T
             bad = np.flatnonzero(out[i, :, status])
             if bad.size:
-                row = out[i, bad[0], adr:]
-                step = start + int(bad[0])
-                if row[fields["status"]] == plugin.FAIL_CONTRACTION:
-                    failures[i] = (step, contraction_diverged(float(row[fields["x"]])))
-                else:
-                    failures[i] = (step, pressure_diverged(float(row[fields["p_i"]]),
-                                                           float(row[fields["p_o"]])))
+                failures[i] = (start + int(bad[0]), state_failure(out[i, bad[0], adr:]))
     return list(zip(recs, failures))
 
 
