@@ -169,16 +169,26 @@ def test_in_plugin_feedforward_equals_the_drives():
     full = simulate(params, load, drive, dt=dt, control="pi", engine="plugin")
     from wpam_mj.model import rig_spec  # noqa: PLC0415
 
-    spec = rig_spec(params, load, dt, control="pi", start_at_rest=True, feedforward_load=load)
-    spec.delete(spec.actuator("muscle_pi_cmd"))
-    model = spec.compile()
-    data = mujoco.MjData(model)
-    xs = []
-    for step in range(len(t)):
-        xs.append(data.qpos[0])  # recorded at the start of the step, as simulate does
-        data.ctrl[0] = x_ref[step]
-        mujoco.mj_step(model, data)
-    np.testing.assert_allclose(np.array(xs)[::10], full.x, atol=1e-12)
+    def one_channel():
+        spec = rig_spec(params, load, dt, control="pi", start_at_rest=True,
+                        feedforward_load=load)
+        spec.delete(spec.actuator("muscle_pi_cmd"))
+        return spec
+
+    def run(model, muscles=()):
+        data, xs = mujoco.MjData(model), []
+        with engine.stepping(model, list(muscles)):
+            for step in range(len(t)):
+                xs.append(data.qpos[0])  # recorded at the start of the step, as simulate
+                data.ctrl[0] = x_ref[step]
+                mujoco.mj_step(model, data)
+                for muscle in muscles:
+                    muscle.advance()
+        return np.array(xs)
+
+    compiled = run(one_channel().compile())
+    np.testing.assert_allclose(compiled[::10], full.x, atol=1e-12)
+    np.testing.assert_array_equal(run(*engine.python_model(one_channel())), compiled)
 
 
 def test_state_save_restore_and_reset_carry_the_pneumatics():

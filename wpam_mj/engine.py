@@ -34,8 +34,9 @@ import mujoco
 import numpy as np
 
 from wpam_mj import plugin
-from wpam_mj.control import CONTROLLERS, PoController, make_controller
-from wpam_mj.loop_contract import RunConstants, SimulationDiverged, contraction_diverged
+from wpam_mj.control import CONTROLLERS, PoController, make_controller, pi_feedforward
+from wpam_mj.loop_contract import (REC_FIELDS, RunConstants, SimulationDiverged,
+                                   contraction_diverged)
 from wpam_mj.muscle import MuscleModel
 from wpam_mj.params import ParameterError, Params, check_range, preset
 from wpam_mj.plant import Plant
@@ -122,7 +123,7 @@ class PythonMuscle:
         self.rest_pending = self.config.start_at_rest
         self.pending: tuple | None = None  # what compute computed and advance keeps
         self.status = ""  # why the state left its range ("" while it has not)
-        self.record = dict.fromkeys(plugin.STATE_FIELDS[:11], 0.0)
+        self.record = dict.fromkeys(REC_FIELDS[1:], 0.0)
         self.record["x_ref"] = math.nan
 
     def _inputs(self, ctrl: np.ndarray) -> tuple[float, float, float]:
@@ -134,11 +135,9 @@ class PythonMuscle:
         if len(values) > 1:
             pi_cmd = values[1]
         else:
-            c = self.params.controller
-            pi = self.muscle.equilibrium_pressure(x_ref, self.config.feedforward_load,
-                                                  c.po_feedforward, c.feedforward_friction)
-            pn = self.params.pneumatics
-            pi_cmd = min(max(pi, pn.p_min), pn.p_max)
+            pi_cmd = float(pi_feedforward(self.muscle, self.params, x_ref,
+                                          self.config.feedforward_load,
+                                          self.params.controller.po_feedforward))
         return x_ref, pi_cmd, values[2] if len(values) > 2 else 0.0
 
     def compute(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
