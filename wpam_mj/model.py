@@ -117,10 +117,10 @@ def rig_spec(params: Params, load: float, dt: float = 1e-3, *, control: str = "o
     return spec
 
 
-def build_model(params: Params, load: float, dt: float = 1e-3, *, xml: str | Path = MODEL_XML,
-                **run) -> mujoco.MjModel:
+def build_model(params: Params, load: float, dt: float = 1e-3, *,
+                xml: str | Path = MODEL_XML) -> mujoco.MjModel:
     """The rig compiled as the Python engine sees it (plain motors; `MuscleIndex` finds
-    the muscle): for readers of its mechanics (the linear model) and the bare-step
-    benchmark. `run`: the keyword settings of `rig_spec`."""
-    model, _ = engine.python_model(rig_spec(params, load, dt, xml=xml, **run))
+    the muscle): for readers of its mechanics (the linear model, drawing) and the
+    bare-step benchmark."""
+    model, _ = engine.python_model(rig_spec(params, load, dt, xml=xml))
     return model
