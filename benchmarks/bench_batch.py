@@ -1,4 +1,4 @@
-"""Many short runs through `mujoco.batch` (`wpam_mj.simulate.simulate_many`): threads.
+"""Many short runs through `mujoco.batch` (`wpam_mj.simulation.simulate.simulate_many`): threads.
 
 100 PI runs of 20 s (a 0 -> 10 -> 20 mm staircase, loads spread over 50-150 N), each on
 its own model, stepped by one batch on 1 and on 2 threads (best of --repeats). Figures:
@@ -19,9 +19,10 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from common import Figure, parallel_capacity, print_table
-from wpam_mj import plugin, preset
-from wpam_mj.experiments import drive_for_targets, step_targets
-from wpam_mj.simulate import Run, simulate, simulate_many
+from wpam_mj import preset
+from wpam_mj.simulation import plugin
+from wpam_mj.experiments.drives import drive_for_targets, step_targets
+from wpam_mj.simulation.simulate import Run, simulate, simulate_many
 
 DT = 1e-3  # s
 TARGET_SPEEDUP = 1.8  # 2 threads / 1 thread

@@ -4,13 +4,14 @@ Every row advances the same physics: the hung muscle at 100 N, 1 ms physics step
 control step, Pi from the feedforward for a 20 mm target and a constant Po command (no
 policy, so only the layers differ). Figures in control steps per second of wall time
 (best of --repeats, interleaved):
-  direct rig steps       `wpam_mj.live.LiveRig`: commands set, then 10 physics steps of the
+  direct rig steps       `wpam_mj.simulation.live.LiveRig`: commands set, then 10 physics steps of
+  the
                          plugin (what the environments call), no environment layers; the
                          reference
   simulate               `simulate(engine="plugin")` for the same physics steps (model build
                          and result assembly included); information
-  dm_control env.step    `wpam_mj.env.make_env(flat_observation=True)`
-  gymnasium env.step     `wpam_mj.gym_env.WPAMEnv`, bare
+  dm_control env.step    `wpam_mj.environments.dm_env_task.make_env(flat_observation=True)`
+  gymnasium env.step     `wpam_mj.environments.gym_env.WPAMEnv`, bare
   gymnasium.make         the same through `gymnasium.make` (its order-enforcing and
                          passive-checker wrappers)
 The ratio column is the reference's time per control step over the row's; the overhead
@@ -29,13 +30,13 @@ import mujoco
 import numpy as np
 
 import wpam_mj
-from wpam_mj.control import pi_feedforward
-from wpam_mj.env import make_env
-from wpam_mj.gym_env import ENV_ID, WPAMEnv
-from wpam_mj.live import LiveRig
-from wpam_mj.muscle import MuscleModel
-from wpam_mj.params import MM, MPA
-from wpam_mj.simulate import Drive, simulate
+from wpam_mj.control.controllers import pi_feedforward
+from wpam_mj.environments.dm_env_task import make_env
+from wpam_mj.environments.gym_env import ENV_ID, WPAMEnv
+from wpam_mj.simulation.live import LiveRig
+from wpam_mj.physics.muscle import MuscleModel
+from wpam_mj.physics.params import MM, MPA
+from wpam_mj.simulation.simulate import Drive, simulate
 
 LOAD = 100.0  # N, the paper's nominal load (§4.1)
 DT = 1e-3  # s, physics step

@@ -20,10 +20,10 @@ import numpy as np
 
 import wpam_mj
 from common import Figure, describe, print_table
-from wpam_mj.control import pi_feedforward
-from wpam_mj.muscle import MuscleModel
-from wpam_mj.params import MM
-from wpam_mj.render import render_video
+from wpam_mj.control.controllers import pi_feedforward
+from wpam_mj.physics.muscle import MuscleModel
+from wpam_mj.physics.params import MM
+from wpam_mj.visualisation.render import render_video
 
 TARGET_S = 3.0  # s for 10 s of 640x480 at 30 fps (the project's rendering target, README)
 DURATION_S = 10.0
@@ -39,7 +39,8 @@ def make_run(params: wpam_mj.Params, load: float = 100.0) -> wpam_mj.SimResult:
     muscle = MuscleModel.from_params(params)
     pi = pi_feedforward(muscle, params, x_ref, load, params.controller.po_feedforward)
     drive = wpam_mj.Drive(pi_cmd=pi, po_cmd=np.zeros_like(t), x_ref=x_ref)
-    return wpam_mj.simulate.simulate(params, load, drive, dt=dt, control="pi", engine="python")
+    return wpam_mj.simulation.simulate.simulate(params, load, drive, dt=dt, control="pi",
+                                                engine="python")
 
 
 def _children_cpu() -> float:

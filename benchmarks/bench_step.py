@@ -38,11 +38,12 @@ import mujoco
 import numpy as np
 
 from common import Figure, print_table
-from wpam_mj import Drive, plugin, preset
-from wpam_mj.control import pi_feedforward
-from wpam_mj.model import build_model, rig_spec
-from wpam_mj.muscle import MuscleModel
-from wpam_mj.simulate import simulate
+from wpam_mj import Drive, preset
+from wpam_mj.simulation import plugin
+from wpam_mj.control.controllers import pi_feedforward
+from wpam_mj.simulation.model import build_model, rig_spec
+from wpam_mj.physics.muscle import MuscleModel
+from wpam_mj.simulation.simulate import simulate
 
 HERE = Path(__file__).resolve().parent
 LOAD = 100.0  # N, the paper's nominal load (§4.1)

@@ -34,10 +34,10 @@ import time
 from pathlib import Path
 
 from common import Figure, describe, print_table
-from wpam_mj import study
-from wpam_mj.executors import open_workers
-from wpam_mj.experiments import STEP_LEVELS_MM, step_run
-from wpam_mj.params import preset
+from wpam_mj.design import study
+from wpam_mj.infra.executors import open_workers
+from wpam_mj.experiments.drives import STEP_LEVELS_MM, step_run
+from wpam_mj.physics.params import preset
 
 REPO = Path(__file__).resolve().parent.parent
 JOBS2_TARGET = 0.8  # fraction of the floor's runs/s (issue target)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wpam_mj.experiments import STEP_HOLD_S
+from wpam_mj.experiments.drives import STEP_HOLD_S
 
 SETTLED_S = 3.0  # the end of each plateau averaged [s]
 

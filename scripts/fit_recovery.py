@@ -19,11 +19,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from wpam_mj import fitting, preset
-from wpam_mj.datafit import fit_data
-from wpam_mj.measurements import experiment_files, read_experiment
-from wpam_mj.params import MM
-from wpam_mj.synth import HOLDOUT_DIR, synth
+from wpam_mj import preset
+from wpam_mj.fitting import estimation as fitting
+from wpam_mj.fitting.measured_fit import fit_data
+from wpam_mj.fitting.measurements import experiment_files, read_experiment
+from wpam_mj.physics.params import MM
+from wpam_mj.fitting.synthetic import HOLDOUT_DIR, synth
 
 # Relative offsets of the true values from the shipped ones, in default_free() order;
 # the sign flips (then the offset shrinks to 20 %) where a value would leave its range.
@@ -93,7 +94,7 @@ def main() -> int:
         "load_average_before": load_before, "load_average_after": load,
     }
     if args.keep:
-        from wpam_mj.datafit import write_figures  # noqa: PLC0415 (matplotlib)
+        from wpam_mj.fitting.measured_fit import write_figures  # noqa: PLC0415 (matplotlib)
         write_figures(result, args.keep / "figures")
     if args.json:
         print(json.dumps(summary, indent=2))

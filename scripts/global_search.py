@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from wpam_mj import search
+from wpam_mj.reproduction import search
 
 
 def main() -> None:

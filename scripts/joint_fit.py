@@ -1,6 +1,6 @@
 """The joint fit behind the shipped parameters: random search, then Nelder-Mead.
 
-Every fitted parameter moves inside its plausible range (`wpam_mj.params`), the three
+Every fitted parameter moves inside its plausible range (`wpam_mj.physics.params`), the three
 readings of the paper's gains (`controller.command_scale` 1, 0.1, 0.05) are drawn as a
 category, and one cost adds (docs/physics.md): the squared log errors of Table 2's
 "Po = 0.04" row; the PI step runs' settled plateau error beyond 0.45 mm and peak-to-peak
@@ -16,7 +16,7 @@ contracting-branch feedforward reading; docs/physics.md, Calibration), before th
 and sine runs started at rest: rerun today it searches a slightly different cost and need
 not land on those values. It prints the best
 cost and writes calibrated-joint.toml in the current folder. Its cost predates
-`wpam_mj.calibrate.PaperTargets`, which adds the PID steps and the whole sweep.
+`wpam_mj.reproduction.calibrate.PaperTargets`, which adds the PID steps and the whole sweep.
 """
 
 from __future__ import annotations
@@ -29,10 +29,10 @@ import numpy as np
 from scipy.optimize import minimize
 
 from wpam_mj import paper, preset
-from wpam_mj.experiments import SineSpec, sine_run
-from wpam_mj.params import MM, MPA, Params, plausible_range
-from wpam_mj.results import write_text_atomic
-from wpam_mj.studies import StaticTask, StepTask
+from wpam_mj.experiments.drives import SineSpec, sine_run
+from wpam_mj.physics.params import MM, MPA, Params, plausible_range
+from wpam_mj.simulation.results import write_text_atomic
+from wpam_mj.experiments.studies import StaticTask, StepTask
 
 FREE = ("braid.braid_angle", "muscle.output_coeff", "muscle.friction_coeff",
         "muscle.friction_const", "muscle.axial_area", "pneumatics.outer_conductance",

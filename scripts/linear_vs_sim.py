@@ -16,13 +16,15 @@ from pathlib import Path
 
 import numpy as np
 
-from wpam_mj import linear_study, paper, pool
-from wpam_mj import pneumatics as pn
-from wpam_mj.experiments import SineSpec, sine_run
-from wpam_mj.linear_study import AGREEMENT_FREQS_HZ, GAIN_TOL_DB, LAG_TOL_DEG
-from wpam_mj.muscle import MuscleModel
-from wpam_mj.params import MM, MPA, preset
-from wpam_mj.results import write_text_atomic
+from wpam_mj import paper
+from wpam_mj.design import linear_study
+from wpam_mj.infra import pool
+from wpam_mj.physics import pneumatics as pn
+from wpam_mj.experiments.drives import SineSpec, sine_run
+from wpam_mj.design.linear_study import AGREEMENT_FREQS_HZ, GAIN_TOL_DB, LAG_TOL_DEG
+from wpam_mj.physics.muscle import MuscleModel
+from wpam_mj.physics.params import MM, MPA, preset
+from wpam_mj.simulation.results import write_text_atomic
 
 SCAN_AMPLITUDES_MM = (0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 25.0)
 

@@ -23,11 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
-from wpam_mj import paper, pool
-from wpam_mj.params import MM, MPA, apply_overrides, load_toml, preset
-from wpam_mj.protocol import LOOP_METHODS, SHIPPED, table2_batch
-from wpam_mj.results import write_text_atomic
-from wpam_mj.studies import PLATEAU_SETTLE_S, sweep_batch
+from wpam_mj import paper
+from wpam_mj.infra import pool
+from wpam_mj.physics.params import MM, MPA, apply_overrides, load_toml, preset
+from wpam_mj.experiments.protocol import LOOP_METHODS, SHIPPED, table2_batch
+from wpam_mj.simulation.results import write_text_atomic
+from wpam_mj.experiments.studies import PLATEAU_SETTLE_S, sweep_batch
 
 LOADS_N = (50.0, 75.0, 100.0, 125.0, 150.0, 200.0)
 LAG_FREQ_HZ = 0.1

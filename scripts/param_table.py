@@ -1,4 +1,4 @@
-"""Write the parameter table of models/README.md from wpam_mj.params (the one source).
+"""Write the parameter table of models/README.md from wpam_mj.physics.params (the one source).
 
     python scripts/param_table.py          # rewrite the table between its markers
     python scripts/param_table.py --check  # exit 1 if the file's table is stale
@@ -15,7 +15,7 @@ import math
 import sys
 from pathlib import Path
 
-from wpam_mj.params import describe_with_ranges, preset
+from wpam_mj.physics.params import describe_with_ranges, preset
 
 README = Path(__file__).resolve().parent.parent / "models" / "README.md"
 BEGIN, END = "<!-- parameter table: scripts/param_table.py -->", "<!-- end of table -->"

@@ -19,12 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
-from wpam_mj import paper, pool, preset
-from wpam_mj.experiments import SineSpec, sine_run
-from wpam_mj.params import MM, MPA, Params
-from wpam_mj.protocol import SHIPPED, remeasure
-from wpam_mj.results import write_text_atomic
-from wpam_mj.studies import static_study, step_study, sweep, table2
+from wpam_mj import paper, preset
+from wpam_mj.infra import pool
+from wpam_mj.experiments.drives import SineSpec, sine_run
+from wpam_mj.physics.params import MM, MPA, Params
+from wpam_mj.experiments.protocol import SHIPPED, remeasure
+from wpam_mj.simulation.results import write_text_atomic
+from wpam_mj.experiments.studies import static_study, step_study, sweep, table2
 
 READINGS = {"MPa/mm": 1.0, "V/mm, 0-5 V input": 0.1, "V/mm, 0-10 V input": 0.05}
 SETTLE_S = 5.0  # the last 5 s of each 10 s plateau

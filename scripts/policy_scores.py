@@ -3,7 +3,7 @@
     python scripts/policy_scores.py [--seeds 10]
 
 Constant Po at the regulator minimum (the Pi feedforward alone), random actions and the
-paper's PI on Po (`wpam_mj.policies`), each over the seeds 0..N-1; the ratio is the
+paper's PI on Po (`wpam_mj.environments.policies`), each over the seeds 0..N-1; the ratio is the
 constant policy's score over the PI's. docs/learning.md quotes its output.
 """
 
@@ -13,8 +13,8 @@ import argparse
 import time
 
 import wpam_mj  # noqa: F401 (registers the ids)
-from wpam_mj.policies import POLICIES, mean_return
-from wpam_mj.registry import VARIANTS
+from wpam_mj.environments.policies import POLICIES, mean_return
+from wpam_mj.environments.registry import VARIANTS
 
 
 def main() -> None:

@@ -16,10 +16,11 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from wpam_mj import paper, pool
-from wpam_mj.analysis import loop_area
-from wpam_mj.params import MPA, apply_overrides, load_toml, preset
-from wpam_mj.protocol import LOOP_METHODS, Protocol, ProtocolStaticTask
+from wpam_mj import paper
+from wpam_mj.infra import pool
+from wpam_mj.experiments.analysis import loop_area
+from wpam_mj.physics.params import MPA, apply_overrides, load_toml, preset
+from wpam_mj.experiments.protocol import LOOP_METHODS, Protocol, ProtocolStaticTask
 
 TOPS_MPA = (0.0, 0.10, 0.13, 0.16, 0.19, 0.22, 0.26, 0.30)  # 0: per load
 

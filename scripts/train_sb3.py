@@ -28,7 +28,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from sb3_contrib import ARS
 
 import wpam_mj  # noqa: F401 (registers the ids)
-from wpam_mj.policies import POLICIES, episode_return
+from wpam_mj.environments.policies import POLICIES, episode_return
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402

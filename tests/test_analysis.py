@@ -1,4 +1,5 @@
-"""Tests of wpam_mj.analysis on loops and signals whose answer is known in closed form."""
+"""Tests of wpam_mj.experiments.analysis on loops and signals whose answer is known in closed
+form."""
 
 from __future__ import annotations
 
@@ -7,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from wpam_mj.analysis import (FrequencyPoint, fit_sinusoid, frequency_response, loop_area,
-                              steady_state_means)
-from wpam_mj.params import ParameterError
+from wpam_mj.experiments.analysis import (FrequencyPoint, fit_sinusoid, frequency_response,
+                                          loop_area, steady_state_means)
+from wpam_mj.physics.params import ParameterError
 
 
 def polyline(vertices, points_per_edge):

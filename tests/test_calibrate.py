@@ -9,12 +9,14 @@ import math
 import numpy as np
 import pytest
 
-from wpam_mj import fitting, paper
-from wpam_mj.calibrate import (FREE, KEPT, READINGS, WEIGHTS, CalibrationResult, PaperTargets,
-                               calibrate, random_starts)
-from wpam_mj.params import MPA, ParameterError, apply_overrides, load_toml, plausible_range, preset
-from wpam_mj.report import GIVEN_UP
-from wpam_mj.search import finding_margins
+from wpam_mj import paper
+from wpam_mj.fitting import estimation as fitting
+from wpam_mj.reproduction.calibrate import (FREE, KEPT, READINGS, WEIGHTS, CalibrationResult,
+                                            PaperTargets, calibrate, random_starts)
+from wpam_mj.physics.params import (MPA, ParameterError, apply_overrides, load_toml,
+                                    plausible_range, preset)
+from wpam_mj.reproduction.report import GIVEN_UP
+from wpam_mj.reproduction.search import finding_margins
 
 # what `wpam reproduce` passes on the shipped point (docs/physics.md, the feasibility map)
 HELD = ("PID lag < PI lag", "Po reaches the", "the cap is the heavy")
@@ -166,7 +168,7 @@ class _Quadratic:
 def test_an_interrupted_calibration_resumes_from_its_journal(tmp_path, monkeypatch):
     """Ctrl-C mid-fit keeps the journal; --resume replays it without running those sets
     again and ends exactly where an uninterrupted calibration does."""
-    import wpam_mj.calibrate as cal
+    import wpam_mj.reproduction.calibrate as cal
 
     monkeypatch.setattr(cal, "PaperTargets", _Quadratic)
     out = tmp_path / "fit.toml"

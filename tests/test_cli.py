@@ -16,7 +16,7 @@ import pytest
 
 from wpam_mj import paper
 from wpam_mj.cli import main
-from wpam_mj.params import CALIBRATION_FILE, preset
+from wpam_mj.physics.params import CALIBRATION_FILE, preset
 
 
 def _run(capsys, *argv):
@@ -177,7 +177,7 @@ def test_calibrate_calls_the_library(files, capsys, monkeypatch):
         seen["start"] = start
         return _FakeCalibration()
 
-    monkeypatch.setitem(sys.modules, "wpam_mj.calibrate",
+    monkeypatch.setitem(sys.modules, "wpam_mj.reproduction.calibrate",
                         types.SimpleNamespace(calibrate=calibrate))
     code, out, err = _run(capsys, "calibrate", "--out", "fit.toml", "--jobs", "3",
                           "--dt", "0.0005", "--no-progress", "--samples", "5", "--seed", "3",
@@ -201,7 +201,7 @@ def test_calibrate_refuses_other_presets(files, capsys):
 
 
 def test_render_simulates_only_what_it_shows(files, capsys, monkeypatch):
-    import wpam_mj.render
+    import wpam_mj.visualisation.render
 
     calls = []
 
@@ -210,7 +210,7 @@ def test_render_simulates_only_what_it_shows(files, capsys, monkeypatch):
         Path(out).write_bytes(run_id.encode())  # the manifest records the file's digest
         return out
 
-    monkeypatch.setattr(wpam_mj.render, "render_video", render_video)
+    monkeypatch.setattr(wpam_mj.visualisation.render, "render_video", render_video)
     code, out, err = _run(capsys, "render", "--experiment", "sweep", "--freq", "1",
                           "--duration", "1.5", "--fps", "24", "--size", "320x240",
                           "--out", "v.gif")
@@ -238,7 +238,7 @@ def test_reproduce_writes_every_output(files, capsys):
     assert {p.name for p in rep.iterdir() if p.is_file()} == figures | summaries | {
         manifests[0]}
     # the manifest lists every file of the run, unchanged; every figure carries its id
-    from wpam_mj import manifest
+    from wpam_mj.infra import manifest
     written = {p.relative_to(rep).as_posix() for p in rep.rglob("*")
                if p.is_file() and p.name != manifests[0]}
     assert manifest.check_files(rep / manifests[0]) == dict.fromkeys(written, "ok")

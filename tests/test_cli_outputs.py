@@ -16,11 +16,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from wpam_mj import manifest, paper, pool, studies
+from wpam_mj import paper
+from wpam_mj.infra import manifest
+from wpam_mj.infra import pool
+from wpam_mj.experiments import studies
 from wpam_mj.cli import JOBS_PER_CPU, main
-from wpam_mj.params import MPA, ParameterError
-from wpam_mj.simulate import Drive, SimulationDiverged
-from wpam_mj.study_results import StepRun, SweepPoint, SweepResult
+from wpam_mj.physics.params import MPA, ParameterError
+from wpam_mj.simulation.simulate import Drive, SimulationDiverged
+from wpam_mj.experiments.responses import StepRun, SweepPoint, SweepResult
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = ("--dt", "0.002", "--no-progress")
@@ -79,12 +82,12 @@ def test_refused_with_one_line_naming_value_and_range(here, capsys, argv, words)
 
 
 def test_largest_liftable_load_is_the_boundary(here, capsys):
-    from wpam_mj.feasibility import max_liftable_load
-    from wpam_mj.params import preset
+    from wpam_mj.experiments.feasibility import max_liftable_load
+    from wpam_mj.physics.params import preset
     limit = max_liftable_load(preset("wpam"))
     code, _, err = _run(capsys, "step", "--load", f"{limit * 1.01:.3f}", *FAST)
     assert code == 2 and f"{limit:.1f}" in err
-    from wpam_mj.feasibility import check_liftable
+    from wpam_mj.experiments.feasibility import check_liftable
     assert check_liftable(preset("wpam"), [limit * 0.99]) == (limit * 0.99,)
 
 
@@ -192,7 +195,7 @@ def test_help_lists_each_command_once(capsys):
 
 
 def test_step_text_has_no_negative_zero():
-    from wpam_mj.summaries import step_text
+    from wpam_mj.experiments.tables import step_text
     run = StepRun(load=100.0, control="open", preset="wpam", settle=5.0,
                   target=np.array([0.0]), x_mean=np.array([-1e-9]),
                   pi_mean=np.array([0.05 * MPA]), po_mean=np.array([-3e-3]), result=None)
@@ -220,8 +223,8 @@ def test_checks_print_one_decimal_and_no_bare_dash():
 
 
 def test_report_and_figure_say_what_they_show():
-    from wpam_mj.plots import sweep_figure
-    from wpam_mj.report import _sweep_table
+    from wpam_mj.experiments.figures import sweep_figure
+    from wpam_mj.reproduction.report import _sweep_table
     sw = _sweep([0.9, 0.5, 0.9, 0.5])
     table = _sweep_table(sw)
     assert "regulator gauge" in table and "chamber Po" not in table

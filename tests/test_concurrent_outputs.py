@@ -12,10 +12,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from wpam_mj import manifest, outputs, render
+from wpam_mj.infra import manifest
+from wpam_mj.infra import outputs
+from wpam_mj.visualisation import render
 from wpam_mj.cli import main
-from wpam_mj.params import ParameterError, preset
-from wpam_mj.results import SimResult
+from wpam_mj.physics.params import ParameterError, preset
+from wpam_mj.simulation.results import SimResult
 
 ROOT = Path(__file__).resolve().parents[1]
 DTS = ("0.005", "0.0025", "0.002")  # the files are named alike (by load and control)
@@ -49,7 +51,7 @@ def test_concurrent_runs_into_one_folder_each_list_their_own_files(tmp_path):
 
 
 def test_a_second_claim_of_a_folder_waits_for_the_first(tmp_path):
-    code = ("import sys, time\nfrom wpam_mj import outputs\n"
+    code = ("import sys, time\nfrom wpam_mj.infra import outputs\n"
             "outputs.claim(sys.argv[1]); print('held', flush=True); time.sleep(60)")
     holder = subprocess.Popen([sys.executable, "-c", code, str(tmp_path)],
                               env={**os.environ, "PYTHONPATH": str(ROOT)},

@@ -18,17 +18,18 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from wpam_mj.analysis import frequency_response, loop_area
-from wpam_mj.control import CONTROLS, PIControl, PIDControl, make_controller, pi_feedforward
-from wpam_mj.experiments import SineSpec, sine_run, static_top_pressure
-from wpam_mj.model import build_model, check_dt, check_load
-from wpam_mj.muscle import MuscleModel
-from wpam_mj.params import (MM, MPA, Controller, Params, ParameterError, check_range,
+from wpam_mj.experiments.analysis import frequency_response, loop_area
+from wpam_mj.control.controllers import (CONTROLS, PIControl, PIDControl, make_controller,
+                                         pi_feedforward)
+from wpam_mj.experiments.drives import SineSpec, sine_run, static_top_pressure
+from wpam_mj.simulation.model import build_model, check_dt, check_load
+from wpam_mj.physics.muscle import MuscleModel
+from wpam_mj.physics.params import (MM, MPA, Controller, Params, ParameterError, check_range,
                             preset)
 from wpam_mj.paths import MODEL_XML, SCENE_XML
-from wpam_mj import results
-from wpam_mj.results import SimResult
-from wpam_mj.simulate import Drive, SimulationDiverged, simulate
+from wpam_mj.simulation import results
+from wpam_mj.simulation.results import SimResult
+from wpam_mj.simulation.simulate import Drive, SimulationDiverged, simulate
 
 ENGINE = "python"
 DT = 1e-3  # s
@@ -472,9 +473,9 @@ def test_bad_parameters_are_rejected():
 def test_diverging_run_raises_instead_of_returning_nans(monkeypatch):
     """A chamber update too fast for dt is refused up front (test_plugin.py); with that
     check removed, the run must still stop with a message rather than return NaNs."""
-    import wpam_mj.simulate  # noqa: PLC0415
+    import wpam_mj.simulation.simulate  # noqa: PLC0415
 
-    monkeypatch.setattr(wpam_mj.simulate, "check_chamber_step", lambda params, dt: None)
+    monkeypatch.setattr(wpam_mj.simulation.simulate, "check_chamber_step", lambda params, dt: None)
     bad = WPAM.replace(pneumatics={"inner_conductance": 1e-6, "outer_conductance": 1e-6})
     with pytest.raises(SimulationDiverged, match=r"diverged at t = [0-9.]+ s: .*reduce dt"):
         open_loop(bad, 100.0, hold(0.3 * MPA, 2.0, 0.005), dt=0.005)

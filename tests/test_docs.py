@@ -4,7 +4,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from wpam_mj.params import describe_with_ranges, preset
+from wpam_mj.physics.params import describe_with_ranges, preset
 
 ROOT = Path(__file__).resolve().parent.parent
 

@@ -11,9 +11,10 @@ import textwrap
 SCRIPT = textwrap.dedent("""
     import mujoco, numpy as np
     import wpam_mj
-    from wpam_mj import plugin, preset
-    from wpam_mj.env import make_env
-    from wpam_mj.experiments import step_run
+    from wpam_mj import preset
+    from wpam_mj.simulation import plugin
+    from wpam_mj.environments.dm_env_task import make_env
+    from wpam_mj.experiments.drives import step_run
     from wpam_mj.paths import MODEL_XML
     assert not plugin.available()
     run = step_run(preset(), 100.0, "pi", levels_mm=(0, 10), hold=2.0)

@@ -9,11 +9,11 @@ from dm_env import test_utils
 
 import wpam_mj
 from wpam_mj import paper
-from wpam_mj.control import PIControl
-from wpam_mj.env import OBSERVATIONS, make_env
-from wpam_mj.feasibility import max_liftable_load
-from wpam_mj.params import MM, MPA, STANDARD_GRAVITY, ParameterError
-from wpam_mj.simulate import Drive
+from wpam_mj.control.controllers import PIControl
+from wpam_mj.environments.dm_env_task import OBSERVATIONS, make_env
+from wpam_mj.experiments.feasibility import max_liftable_load
+from wpam_mj.physics.params import MM, MPA, STANDARD_GRAVITY, ParameterError
+from wpam_mj.simulation.simulate import Drive
 
 # Code defaults, not the calibration file: these tests pin the environment, not the fit.
 PARAMS = wpam_mj.preset("wpam", calibration=None)
@@ -72,9 +72,9 @@ def test_steps_match_simulate_exactly() -> None:
     env.reset()
     obs = [env.step([pi_cmd, po_cmd]).observation for _ in range(n_ctrl)]
     n = 10 * n_ctrl + 1
-    ref = wpam_mj.simulate.simulate(PARAMS, load, Drive(np.full(n, pi_cmd), np.full(n, po_cmd),
-                                               np.full(n, np.nan)),
-                           dt=1e-3, control="open", record_dt=0.01, engine="python")
+    ref = wpam_mj.simulation.simulate.simulate(
+        PARAMS, load, Drive(np.full(n, pi_cmd), np.full(n, po_cmd), np.full(n, np.nan)),
+        dt=1e-3, control="open", record_dt=0.01, engine="python")
     # the env observes after each control step; simulate records before each step
     for name, field in (("x_m", "x"), ("velocity_m_s", "velocity"), ("pi_pa", "pi"),
                         ("po_pa", "po")):

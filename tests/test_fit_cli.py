@@ -4,11 +4,11 @@ domain-randomisation ranges they export for the environment."""
 import numpy as np
 import pytest
 
-from wpam_mj import plugin
+from wpam_mj.simulation import plugin
 from wpam_mj.cli import main
-from wpam_mj.env import make_env
-from wpam_mj.params import apply_overrides, load_toml, preset
-from wpam_mj.randomize import ParameterRanges
+from wpam_mj.environments.dm_env_task import make_env
+from wpam_mj.physics.params import apply_overrides, load_toml, preset
+from wpam_mj.fitting.randomize import ParameterRanges
 
 
 def _run(capsys, *argv):

@@ -7,10 +7,11 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from wpam_mj import fitting, preset
-from wpam_mj.datafit import fit_data, replay
-from wpam_mj.params import MM, ParameterError, describe_with_ranges
-from wpam_mj.synth import SynthTask, measured
+from wpam_mj import preset
+from wpam_mj.fitting import estimation as fitting
+from wpam_mj.fitting.measured_fit import fit_data, replay
+from wpam_mj.physics.params import MM, ParameterError, describe_with_ranges
+from wpam_mj.fitting.synthetic import SynthTask, measured
 
 
 def test_scaling_is_log_for_wide_positive_ranges_and_round_trips():

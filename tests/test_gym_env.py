@@ -14,12 +14,12 @@ from gymnasium.utils.env_checker import check_env  # noqa: E402
 
 import wpam_mj  # noqa: E402
 from wpam_mj import paper  # noqa: E402
-from wpam_mj.control import PIControl  # noqa: E402
-from wpam_mj.env import OBSERVATIONS, make_env  # noqa: E402
-from wpam_mj.gym_env import ENV_ID, WPAMEnv  # noqa: E402
-from wpam_mj.params import MM, MPA, ParameterError  # noqa: E402
-from wpam_mj.policies import mean_return  # noqa: E402
-from wpam_mj.registry import VARIANTS  # noqa: E402
+from wpam_mj.control.controllers import PIControl  # noqa: E402
+from wpam_mj.environments.dm_env_task import OBSERVATIONS, make_env  # noqa: E402
+from wpam_mj.environments.gym_env import ENV_ID, WPAMEnv  # noqa: E402
+from wpam_mj.physics.params import MM, MPA, ParameterError  # noqa: E402
+from wpam_mj.environments.policies import mean_return  # noqa: E402
+from wpam_mj.environments.registry import VARIANTS  # noqa: E402
 
 # Code defaults, not the calibration file: these tests pin the environment, not the fit.
 PARAMS = wpam_mj.preset("wpam", calibration=None)
@@ -159,8 +159,8 @@ def test_a_chamber_too_fast_for_dt_is_refused_naming_the_dt_it_needs() -> None:
 def test_divergence_ends_the_episode_cleanly(monkeypatch) -> None:
     """A divergence reported by the physics step (stood in for: the step raises after
     20 steps) ends the episode with the last valid observation."""
-    from wpam_mj import live  # noqa: PLC0415
-    from wpam_mj.loop_contract import SimulationDiverged  # noqa: PLC0415
+    from wpam_mj.simulation import live  # noqa: PLC0415
+    from wpam_mj.simulation.loop_contract import SimulationDiverged  # noqa: PLC0415
 
     real_step, calls = live.LiveRig.step, []
 
@@ -209,7 +209,7 @@ def test_rgb_array_render_follows_the_load() -> None:
     env.reset(seed=0)
     try:
         rest = env.render()
-    except RuntimeError as err:  # wpam_mj.render: no OpenGL context here
+    except RuntimeError as err:  # wpam_mj.visualisation.render: no OpenGL context here
         pytest.skip(str(err))
     for _ in range(100):  # 1 s at full Pi: the muscle contracts
         obs, *_ = env.step([0.5 * MPA, 0.0])

@@ -19,18 +19,19 @@ import pytest
 from dm_control.rl.control import PhysicsError
 
 import wpam_mj
-from wpam_mj import manifest, render
+from wpam_mj.infra import manifest
+from wpam_mj.visualisation import render
 from wpam_mj.cli import main
 from wpam_mj.display import fmt
-from wpam_mj.env import SEED_RANGE, make_env
-from wpam_mj.experiments import SineSpec, step_run
-from wpam_mj.geometry import BraidGeometry
-from wpam_mj.model import check_dt
-from wpam_mj.params import (MAX_TOML_BYTES, MM, MPA, Braid, ParameterError, apply_overrides,
+from wpam_mj.environments.dm_env_task import SEED_RANGE, make_env
+from wpam_mj.experiments.drives import SineSpec, step_run
+from wpam_mj.physics.geometry import BraidGeometry
+from wpam_mj.simulation.model import check_dt
+from wpam_mj.physics.params import (MAX_TOML_BYTES, MM, MPA, Braid, ParameterError, apply_overrides,
                             load_toml, preset)
-from wpam_mj.pneumatics import chamber_volumes, outer_bag_volume
-from wpam_mj.results import SimResult, write_atomic
-from wpam_mj.simulate import Drive, SimulationDiverged, simulate
+from wpam_mj.physics.pneumatics import chamber_volumes, outer_bag_volume
+from wpam_mj.simulation.results import SimResult, write_atomic
+from wpam_mj.simulation.simulate import Drive, SimulationDiverged, simulate
 
 ROOT = Path(__file__).resolve().parent.parent
 PARAMS = preset()
@@ -76,7 +77,7 @@ def test_config_larger_than_the_bound_is_refused(tmp_path) -> None:
 @pytest.mark.skipif(not Path("/dev/zero").exists(), reason="no /dev/zero")
 def test_config_dev_zero_is_refused_without_reading_it() -> None:
     """An endless file: refused as a device before any read (before: memory grew)."""
-    code = ("from wpam_mj.params import load_toml, ParameterError\n"
+    code = ("from wpam_mj.physics.params import load_toml, ParameterError\n"
             "try:\n    load_toml('/dev/zero')\nexcept ParameterError as e:\n    print(e)")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                           timeout=60, env={**os.environ, "PYTHONPATH": str(ROOT)})
@@ -213,7 +214,7 @@ def test_result_series_must_share_one_length() -> None:
 def test_env_refuses_to_step_after_a_divergence_until_reset(monkeypatch) -> None:
     """A divergence reported by the physics step (stood in for: a chamber too fast for dt
     is now refused when the rig is built) ends stepping until reset()."""
-    from wpam_mj import live  # noqa: PLC0415
+    from wpam_mj.simulation import live  # noqa: PLC0415
 
     real_step = live.LiveRig.step
 
@@ -313,7 +314,7 @@ def test_csv_loads_with_plain_genfromtxt_and_pandas(tmp_path) -> None:
 def _figure_png(path: Path, run: str) -> Path:
     from matplotlib.figure import Figure
 
-    from wpam_mj.plots import save_figure
+    from wpam_mj.experiments.figures import save_figure
     fig = Figure(figsize=(1, 1))
     fig.add_subplot().plot([0, 1])
     return save_figure(fig, path, run_id=run)
@@ -388,7 +389,7 @@ def test_manifest_refuses_files_outside_its_folder(tmp_path) -> None:
 
 _KILLED_WRITER = textwrap.dedent("""
     import os, signal, sys
-    from wpam_mj.results import write_atomic
+    from wpam_mj.simulation.results import write_atomic
     def write(p):
         p.write_bytes(b"partial")
         os.kill(os.getpid(), signal.SIGKILL)
@@ -418,8 +419,8 @@ def test_killed_render_leaves_no_partial_video(tmp_path) -> None:
     target = tmp_path / "run.mp4"
     code = textwrap.dedent(f"""
         import numpy as np, wpam_mj
-        from wpam_mj.render import render_video
-        from wpam_mj.results import SimResult
+        from wpam_mj.visualisation.render import render_video
+        from wpam_mj.simulation.results import SimResult
         n = 6000
         z = np.zeros(n)
         r = SimResult(time=np.arange(n) * 0.01, x=0.02 * (1 - np.cos(np.arange(n) / 50)),

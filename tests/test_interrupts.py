@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from wpam_mj import termination
-from wpam_mj.pool import TaskPool, WorkerPool
+from wpam_mj.infra import termination
+from wpam_mj.infra.pool import TaskPool, WorkerPool
 
 ROOT = Path(__file__).resolve().parents[1]
 STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143, signal.SIGHUP: 129}
@@ -139,7 +139,7 @@ def test_ctrl_c_to_the_process_group_of_reproduce_never_hangs(tmp_path):
 def test_temporary_files_of_stopped_workers_go_with_the_command(tmp_path):
     """A worker stopped mid-write leaves its hidden temporary file; the command removes
     it as it ends (`outputs.release`), and never touches a live writer's."""
-    from wpam_mj import outputs  # noqa: PLC0415
+    from wpam_mj.infra import outputs  # noqa: PLC0415
     outputs.claim(tmp_path / "o")
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
                           capture_output=True, text=True).stdout.strip()
@@ -213,7 +213,7 @@ def test_check_raises_a_pending_signal_once_and_later_signals_only_record():
 
 def test_leaving_dask_workers_on_an_exception_cancels_instead_of_waiting():
     distributed = pytest.importorskip("distributed")
-    from wpam_mj.executors import open_workers  # noqa: PLC0415
+    from wpam_mj.infra.executors import open_workers  # noqa: PLC0415
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster:
         start = time.monotonic()

@@ -10,13 +10,14 @@ import control as ct
 import numpy as np
 import pytest
 
-from wpam_mj import linear, linear_study
-from wpam_mj import pneumatics as pn
+from wpam_mj.design import linear
+from wpam_mj.design import linear_study
+from wpam_mj.physics import pneumatics as pn
 from wpam_mj.cli import main
-from wpam_mj.muscle import MuscleModel
-from wpam_mj.experiments import SineSpec, drive_for_targets, sine_run
-from wpam_mj.params import MM, MPA, STANDARD_GRAVITY, preset
-from wpam_mj.simulate import simulate
+from wpam_mj.physics.muscle import MuscleModel
+from wpam_mj.experiments.drives import SineSpec, drive_for_targets, sine_run
+from wpam_mj.physics.params import MM, MPA, STANDARD_GRAVITY, preset
+from wpam_mj.simulation.simulate import simulate
 
 X_OP = 25 * MM
 

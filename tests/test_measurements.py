@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from wpam_mj import preset
-from wpam_mj.geometry import BraidGeometry
-from wpam_mj.measurements import Experiment, experiment_files, read_experiment
-from wpam_mj.params import MM, MPA, ParameterError
+from wpam_mj.physics.geometry import BraidGeometry
+from wpam_mj.fitting.measurements import Experiment, experiment_files, read_experiment
+from wpam_mj.physics.params import MM, MPA, ParameterError
 
 HEADER = "time_s,load_n,pi_mpa,po_mpa,x_mm"
 

@@ -8,9 +8,10 @@ import numpy as np
 import pytest
 
 import wpam_mj  # noqa: F401 (registers the plugin)
-from wpam_mj import arm, plugin
-from wpam_mj.geometry import BraidGeometry
-from wpam_mj.params import MPA, preset
+from wpam_mj.simulation import arm
+from wpam_mj.simulation import plugin
+from wpam_mj.physics.geometry import BraidGeometry
+from wpam_mj.physics.params import MPA, preset
 from wpam_mj.paths import MODELS_DIR
 
 # Where a C compiler exists the plugin must build: these tests then fail, never skip.

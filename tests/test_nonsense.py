@@ -13,12 +13,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from wpam_mj import budget, study, writers
+from wpam_mj.infra import budget
+from wpam_mj.design import study
+from wpam_mj.experiments import writers
 from wpam_mj.cli import main
-from wpam_mj.datafit import check_replay
-from wpam_mj.experiments import SineSpec, sine_run, step_run
-from wpam_mj.measurements import Experiment, experiment_files, read_experiment
-from wpam_mj.params import MPA, ParameterError, check_range, load_toml, preset
+from wpam_mj.fitting.measured_fit import check_replay
+from wpam_mj.experiments.drives import SineSpec, sine_run, step_run
+from wpam_mj.fitting.measurements import Experiment, experiment_files, read_experiment
+from wpam_mj.physics.params import MPA, ParameterError, check_range, load_toml, preset
 
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS = preset()

@@ -5,9 +5,9 @@ come from the same margins."""
 import pytest
 
 from wpam_mj import paper
-from wpam_mj.params import MPA, preset
-from wpam_mj.study_results import SweepPoint, SweepResult
-from wpam_mj.summaries import checks_text
+from wpam_mj.physics.params import MPA, preset
+from wpam_mj.experiments.responses import SweepPoint, SweepResult
+from wpam_mj.experiments.tables import checks_text
 
 CAP = paper.PO_CAP_MPA * MPA
 

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 import wpam_mj
-from wpam_mj import plots
-from wpam_mj.params import MM, MPA
-from wpam_mj.results import SimResult
-from wpam_mj.study_results import StaticLoop, StepRun
+from wpam_mj.experiments import figures as plots
+from wpam_mj.physics.params import MM, MPA
+from wpam_mj.simulation.results import SimResult
+from wpam_mj.experiments.responses import StaticLoop, StepRun
 
 PARAMS = wpam_mj.preset()
 LOADS = (50.0, 100.0, 150.0)

@@ -15,13 +15,14 @@ import pytest
 from mujoco import batch as mjbatch
 
 import wpam_mj  # noqa: F401 (registers the plugin)
-from wpam_mj import engine, plugin
-from wpam_mj.analysis import frequency_response
-from wpam_mj.experiments import SineSpec, drive_for_targets, sine_run, step_targets
-from wpam_mj.loop_contract import REC_FIELDS
-from wpam_mj.muscle import MuscleModel
-from wpam_mj.params import MPA, STANDARD_GRAVITY, preset
-from wpam_mj.simulate import Drive, simulate
+from wpam_mj.simulation import engine
+from wpam_mj.simulation import plugin
+from wpam_mj.experiments.analysis import frequency_response
+from wpam_mj.experiments.drives import SineSpec, drive_for_targets, sine_run, step_targets
+from wpam_mj.simulation.loop_contract import REC_FIELDS
+from wpam_mj.physics.muscle import MuscleModel
+from wpam_mj.physics.params import MPA, STANDARD_GRAVITY, preset
+from wpam_mj.simulation.simulate import Drive, simulate
 
 # Where a C compiler exists the plugin must build: these tests then fail, never skip.
 pytestmark = pytest.mark.skipif(plugin.compiler() is None or plugin.disabled(),
@@ -167,7 +168,7 @@ def test_in_plugin_feedforward_equals_the_drives():
     x_ref = step_targets(t, (0, 10, 20), hold=1.0) * 1e-3
     drive = drive_for_targets(params, load, x_ref, "pi", dt)
     full = simulate(params, load, drive, dt=dt, control="pi", engine="plugin")
-    from wpam_mj.model import rig_spec  # noqa: PLC0415
+    from wpam_mj.simulation.model import rig_spec  # noqa: PLC0415
 
     def one_channel():
         spec = rig_spec(params, load, dt, control="pi", start_at_rest=True,
@@ -237,7 +238,7 @@ def test_halving_the_step_moves_the_sine_gain_and_lag_little():
 
 def test_simulate_many_equals_simulate_at_any_thread_count():
     """Runs of two layouts (PI and open loop) and three loads through mujoco.batch."""
-    from wpam_mj.simulate import Run, simulate_many  # noqa: PLC0415
+    from wpam_mj.simulation.simulate import Run, simulate_many  # noqa: PLC0415
 
     params, dt = preset("wpam"), 1e-3
     t = np.arange(1500) * dt

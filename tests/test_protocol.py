@@ -1,4 +1,4 @@
-"""The static ramps' protocol readings (wpam_mj.protocol) and their command options."""
+"""The static ramps' protocol readings (wpam_mj.experiments.protocol) and their command options."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from wpam_mj import cli
-from wpam_mj.params import MPA, ParameterError, preset
-from wpam_mj.protocol import SHIPPED, Protocol, ProtocolStaticTask, static_drive
-from wpam_mj.studies import StaticTask
+from wpam_mj.physics.params import MPA, ParameterError, preset
+from wpam_mj.experiments.protocol import SHIPPED, Protocol, ProtocolStaticTask, static_drive
+from wpam_mj.experiments.studies import StaticTask
 
 
 def test_the_default_protocol_runs_the_ramps_of_the_static_study():

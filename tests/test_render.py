@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 
 import wpam_mj
-import wpam_mj.gl
-from wpam_mj import render
-from wpam_mj.model import build_model
-from wpam_mj.params import MM, MPA, ParameterError
+import wpam_mj.visualisation.gl
+from wpam_mj.visualisation import render
+from wpam_mj.simulation.model import build_model
+from wpam_mj.physics.params import MM, MPA, ParameterError
 from wpam_mj.paths import SCENE_XML
-from wpam_mj.results import SimResult
+from wpam_mj.simulation.results import SimResult
 
 PARAMS = wpam_mj.preset()
 SIZE = (320, 240)  # px: small frames keep the tests fast
@@ -32,18 +32,19 @@ STEP = 40 * MM  # m: contraction of the synthetic step
 def gl() -> None:
     """Skip (with the reason) where no offscreen OpenGL context can be made."""
     try:
-        wpam_mj.gl.offscreen_context_class()  # headless: EGL, as wpam_mj.render chooses
+        # headless: EGL, as wpam_mj.visualisation.render chooses
+        wpam_mj.visualisation.gl.offscreen_context_class()
         with mujoco.Renderer(mujoco.MjModel.from_xml_string("<mujoco/>"), 16, 16) as r:
             r.render()
     except Exception as err:  # noqa: BLE001 (EGL/OSMesa/GLFW raise different types)
-        pytest.skip(f"no OpenGL context ({wpam_mj.gl.backend_hint()}): {err}")
+        pytest.skip(f"no OpenGL context ({wpam_mj.visualisation.gl.backend_hint()}): {err}")
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/self/maps")
 def test_importing_the_package_chooses_no_gl_backend() -> None:
     """PyTorch's triton segfaults with EGL loaded: importing must neither set MUJOCO_GL nor
     load libEGL; the backend is chosen where offscreen rendering starts."""
-    code = ("import os, wpam_mj, wpam_mj.env, wpam_mj.gym_env\n"
+    code = ("import os, wpam_mj, wpam_mj.environments.dm_env_task, wpam_mj.environments.gym_env\n"
             "maps = open('/proc/self/maps').read()\n"
             "print(os.environ.get('MUJOCO_GL'), 'libEGL' in maps)")
     env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}

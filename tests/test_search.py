@@ -9,9 +9,10 @@ import json
 import numpy as np
 import pytest
 
-from wpam_mj import findings_map, search
-from wpam_mj.params import ParameterError, preset
-from wpam_mj.protocol import Protocol
+from wpam_mj.reproduction import findings_map
+from wpam_mj.reproduction import search
+from wpam_mj.physics.params import ParameterError, preset
+from wpam_mj.experiments.protocol import Protocol
 
 
 class _Task:

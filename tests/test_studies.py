@@ -6,10 +6,12 @@ import json
 import numpy as np
 import pytest
 
-from wpam_mj import paper, plots, studies
-from wpam_mj.analysis import loop_area
-from wpam_mj.pool import TaskPool, run_tasks
-from wpam_mj.params import MPA, ParameterError, preset
+from wpam_mj import paper
+from wpam_mj.experiments import figures as plots
+from wpam_mj.experiments import studies
+from wpam_mj.experiments.analysis import loop_area
+from wpam_mj.infra.pool import TaskPool, run_tasks
+from wpam_mj.physics.params import MPA, ParameterError, preset
 
 
 @pytest.fixture(scope="module")

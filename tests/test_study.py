@@ -1,4 +1,4 @@
-"""Design-space studies: sampling, flagged rows, executors, resume (wpam_mj.study)."""
+"""Design-space studies: sampling, flagged rows, executors, resume (wpam_mj.design.study)."""
 
 from __future__ import annotations
 
@@ -9,12 +9,13 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
-from wpam_mj import executors, study
+from wpam_mj.infra import executors
+from wpam_mj.design import study
 from wpam_mj.cli import main
-from wpam_mj.executors import Workers, open_workers
-from wpam_mj.params import ParameterError, preset
-from wpam_mj.pool import run_tasks
-from wpam_mj.studies import StepTask
+from wpam_mj.infra.executors import Workers, open_workers
+from wpam_mj.physics.params import ParameterError, preset
+from wpam_mj.infra.pool import run_tasks
+from wpam_mj.experiments.studies import StepTask
 
 # A small study: 6 seeded random step runs of 2.2 s (0.2 s plateaus), 2 runs per task,
 # varying the load, a model parameter and the controller.

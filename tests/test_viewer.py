@@ -16,8 +16,9 @@ import pytest
 from PIL import Image
 
 import wpam_mj
-from wpam_mj import paper, viewer
-from wpam_mj.params import MM, ParameterError
+from wpam_mj import paper
+from wpam_mj.visualisation import viewer
+from wpam_mj.physics.params import MM, ParameterError
 
 # The shipped plant under the PI policy of tests/test_env.py (the paper's Kp, ten times its
 # Ki): 0.21 mm off 1.5 s after the pull below (the paper's Ki: 0.35 mm).
@@ -166,7 +167,7 @@ VIEWER_SCRIPT = textwrap.dedent("""
     import json, subprocess, sys
     import mujoco
     import wpam_mj
-    from wpam_mj import viewer
+    from wpam_mj.visualisation import viewer
 
     from PIL import Image, ImageStat
 

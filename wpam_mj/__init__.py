@@ -2,15 +2,17 @@
 
 import importlib.util as _importlib_util
 
-# No GL backend is chosen here (loading EGL breaks PyTorch): wpam_mj.gl, where rendering starts.
-from wpam_mj import engine as _engine
-from wpam_mj import plugin as _plugin
-from wpam_mj.params import Params, ParameterError, preset
-from wpam_mj.results import SimResult
-from wpam_mj.loop_contract import SimulationDiverged
-from wpam_mj.simulate import Drive
+# No GL backend is chosen here (loading EGL breaks PyTorch): wpam_mj.visualisation.gl, where
+# rendering starts.
+from wpam_mj.simulation import engine as _engine
+from wpam_mj.simulation import plugin as _plugin
+from wpam_mj.physics.params import Params, ParameterError, preset
+from wpam_mj.simulation.results import SimResult
+from wpam_mj.simulation.loop_contract import SimulationDiverged
+from wpam_mj.simulation.simulate import Drive
 
-# `wpam_mj.simulate` is the module; run a simulation with `wpam_mj.simulate.simulate`.
+# `wpam_mj.simulation.simulate` is the module; run a simulation with
+# `wpam_mj.simulation.simulate.simulate`.
 __all__ = ["Drive", "Params", "ParameterError", "SimResult", "SimulationDiverged", "preset"]
 __version__ = "0.1.0"
 
@@ -20,6 +22,6 @@ if _plugin.load() is None:
     _engine.register_stand_in()
 
 if _importlib_util.find_spec("gymnasium") is not None:  # the optional `rl` extra
-    from wpam_mj.registry import register_all as _register_all
+    from wpam_mj.environments.registry import register_all as _register_all
 
     _register_all()

@@ -30,7 +30,7 @@ SWEEP_FREQS_HZ = (0.1, 0.2, 0.25, 0.5, 1.0)  # §4.2
 SWEEP_CONTROLLERS = ("pi", "pid")  # §4.2
 FIG18_LOAD_N = 150.0  # Figs. 18-19
 FIG18_FREQ_HZ = 0.5  # Figs. 18-19
-KP = 0.1  # §4.1, read as MPa/mm (see wpam_mj.control)
+KP = 0.1  # §4.1, read as MPa/mm (see wpam_mj.control.controllers)
 KI = 0.008  # §4.1, MPa/(mm s)
 KD = 0.004  # §4.2, MPa s/mm (PID only)
 PO_CAP_MPA = 0.08  # §4.2: Po limit for the outer bag's durability
@@ -139,7 +139,7 @@ def residuals(checks: Sequence[Check]) -> np.ndarray:
                      for c in checks for m in c.margins])
 
 
-# ---- §4.2, the frequency response (on a `wpam_mj.study_results.SweepResult`)
+# ---- §4.2, the frequency response (on a `wpam_mj.experiments.responses.SweepResult`)
 
 
 def _falls_and_grows(sw, po_cap):
@@ -294,7 +294,7 @@ SWEEP_FINDINGS = (
 )
 
 
-# ---- Table 2 (on a `wpam_mj.study_results.Table2Result`)
+# ---- Table 2 (on a `wpam_mj.experiments.responses.Table2Result`)
 
 
 def _po_row_errors(t2) -> dict[float, float]:
@@ -338,10 +338,10 @@ TABLE2_FINDINGS = (
 
 
 def sweep_checks(sw, po_cap: float) -> list[Check]:
-    """The §4.2 findings on a `wpam_mj.study_results.SweepResult` (po_cap [Pa])."""
+    """The §4.2 findings on a `wpam_mj.experiments.responses.SweepResult` (po_cap [Pa])."""
     return check_all(SWEEP_FINDINGS, sw, po_cap)
 
 
 def table2_checks(t2) -> list[Check]:
-    """The Table 2 targets on a `wpam_mj.study_results.Table2Result`."""
+    """The Table 2 targets on a `wpam_mj.experiments.responses.Table2Result`."""
     return check_all(TABLE2_FINDINGS, t2, math.nan)

@@ -1,0 +1,1 @@
+"""The external-pressure controllers and the Pi feedforward."""

@@ -1,0 +1,1 @@
+"""Design studies: parameter studies over many runs, and linear models for controller design."""

@@ -1,0 +1,1 @@
+"""Learning and control environments: dm_env, Gymnasium, vectorised, reference policies."""

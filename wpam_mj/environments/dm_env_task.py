@@ -1,0 +1,432 @@
+"""The W-PAM as a control / reinforcement-learning environment (dm_env interface).
+
+    env = make_env(seed=0)                      # action: Po command [Pa]
+    timestep = env.reset()
+    while not timestep.last():
+        timestep = env.step(policy(timestep.observation))
+
+Built on dm_control's `rl.control.Environment` with a `Task` (reward, observations,
+random targets and loads) and a `dm_control.mujoco.Physics` subclass, `MusclePhysics`,
+whose `step` is the project's physics step: the muscle is the rig's `wpam_mj.muscle`
+actuator plugin (docs/plugin.md), whose input channels are the two regulator commands, and
+`MusclePhysics.step(n)` runs n full `mj_step`s (dm_control's default legacy step would run
+`mj_step2` on constraints `mj_step1` already built), so an episode reproduces
+`wpam_mj.simulation.simulate.simulate(..., control="open")` driven by the same commands exactly
+(tests/test_env.py checks this), and no force code is duplicated.
+
+Observations (each a float64 array of shape (1,), SI units, named with their unit):
+    x_m           contraction x [m] (positive = shorter muscle)
+    velocity_m_s  contraction velocity dx/dt [m/s]
+    pi_pa         inner-chamber gauge pressure Pi [Pa]
+    po_pa         outer-chamber gauge pressure Po [Pa]
+    target_m      target contraction x_r [m] at the current time
+    load_n        hanging load F [N] (constant over an episode)
+Actions (`BoundedArray`, float64, [Pa]; out-of-range values are clipped):
+    action="po"   shape (1,): Po command in [p_min, po_cap]; Pi is the equilibrium-model
+                  feedforward for (target, load) at the nominal Po (`control.pi_feedforward`,
+                  as in the paper's §4 controller).
+    action="both" shape (2,): (Pi command in [p_min, p_max], Po command in [p_min, po_cap]);
+                  Po keeps the bag's 0.08 MPa durability cap (paper §4.2).
+Targets (`reference`):
+    "step"  x_r constant over the episode, reached from rest at x = 0 (paper §4.1);
+    "sine"  x_r(t) = 25 mm - 25 mm cos(2 pi f t) (paper §4.2, `experiments.SineSpec`),
+            f drawn from `sine_freq_range` [Hz] (or fixed with `sine_freq=`);
+    "staircase"  a new level every `STAIR_HOLD` s, each drawn from `target_range`, so
+            targets also fall (what the Po feedback is for, paper §4: the friction holds
+            a falling muscle over-contracted); under action="po" the Pi feedforward
+            follows x_r at the start of each control step (sine and staircase).
+Reward (`reward=`): "tolerance" (default), `dm_control.utils.rewards.tolerance(x - x_r)`:
+1 within +-0.5 mm of the target, Gaussian fall-off to 0.1 at 2 mm outside that band;
+"tracking", max(0, 1 - |x - x_r| / `TRACKING_SCALE`) (docs/learning.md: why).
+Discount 1; episodes end at `time_limit` [s]. A load the muscle cannot lift to the
+highest target at the regulator maximum is refused, naming the largest it can
+(`feasibility.check_liftable`). At each reset the muscle hangs at rest at x = 0 with
+vented chambers, and target and load are drawn uniformly from `target_range` [m] and
+`load_range` [N] with the task's seeded `numpy.random.RandomState` (or fixed with
+`target=` / `load=`), then any `randomize` parameters, then for "sine" the frequency or
+for "staircase" its levels; the load mass is load / g.
+A divergence (negative absolute chamber pressure, non-finite state, MuJoCo warning) raises
+`dm_control.rl.control.PhysicsError`; from then on `step` refuses, with the same cause,
+until `reset()`: the state it would continue from has no meaning.
+"""
+
+from __future__ import annotations
+
+import collections
+import math
+from pathlib import Path
+
+import mujoco
+import numpy as np
+from dm_env import specs
+
+from wpam_mj.visualisation import gl
+from wpam_mj.control.controllers import pi_feedforward
+from wpam_mj.experiments.drives import SineSpec
+from wpam_mj.experiments.feasibility import check_liftable
+from wpam_mj.physics.geometry import BraidGeometry
+from wpam_mj.simulation.live import LiveRig
+from wpam_mj.simulation.model import check_dt, check_load
+from wpam_mj.physics.muscle import MuscleModel
+from wpam_mj.physics.params import MM, STANDARD_GRAVITY, ParameterError, Params, check_range, preset
+from wpam_mj.simulation.loop_contract import SimulationDiverged
+from wpam_mj.fitting.randomize import ParameterRanges, ranges_of
+
+with gl.quiet_display_probe():  # dm_control probes GLFW on import; we never render with it
+    from dm_control.mujoco import engine
+    from dm_control.mujoco.wrapper import core as wrapper
+    from dm_control.rl import control
+    from dm_control.utils import rewards
+
+ACTIONS = ("po", "both")
+REFERENCES = ("step", "sine", "staircase")
+REWARDS = ("tolerance", "tracking")
+STAIR_HOLD = 2.5  # s per staircase level: our choice, long enough for a PI to act
+SINE_FREQ_RANGE = (0.1, 1.0)  # Hz: the paper's frequency sweep (§4.2, Fig. 17)
+TARGET_RANGE = (0.0, 50 * MM)  # m: the paper's step experiment spans 0-50 mm (§4.1)
+LOAD_RANGE = (50.0, 150.0)  # N: the paper's loads (§4)
+REWARD_BOUND = 0.5 * MM  # m: reward 1 inside +-bound
+REWARD_MARGIN = 2 * MM  # m: reward 0.1 this far outside the bound
+TRACKING_SCALE = 5 * MM  # m: the "tracking" reward falls linearly to 0 at this error
+TIME_LIMIT_RANGE = (1e-3, 3600.0)  # s
+CONTROL_TIMESTEP_RANGE = (1e-5, 1.0)  # s
+
+OBSERVATIONS = ("x_m", "velocity_m_s", "pi_pa", "po_pa", "target_m", "load_n")
+
+
+class MusclePhysics(engine.Physics):
+    """dm_control Physics of the hung muscle whose `step` is the project's physics step.
+
+    The muscle is the rig's `wpam_mj.muscle` plugin (or the Python engine where it is
+    unavailable), stepped by `wpam_mj.simulation.live.LiveRig`: its pneumatic state lives in
+    MuJoCo's
+    data, so `reset` and `copy` carry it. Set the regulator commands with `set_commands`
+    before stepping.
+    """
+
+    @classmethod
+    def create(cls, params: Params, dt: float = 1e-3, load: float = 100.0) -> MusclePhysics:
+        """Build the MJCF model for `params`, physics step `dt` [s], `load` [N]."""
+        dt = check_dt(dt)
+        rig = LiveRig.build(params, load, dt)
+        physics = cls(wrapper.MjData(mujoco.MjData(rig.model)))
+        physics._setup(params, rig)
+        return physics
+
+    def _setup(self, params: Params, rig: LiveRig) -> None:
+        self.params = params
+        self.rig = rig
+        self._load_body = rig.model.body("load").id
+        self.pi_cmd = self.po_cmd = 0.0
+        self.diverged: str | None = None
+
+    def reset(self, keyframe_id=None) -> None:
+        """Reset MuJoCo's state and the pneumatics (chambers vented, regulators at 0)."""
+        super().reset(keyframe_id)
+        self.rig.reset()
+        self.pi_cmd = self.po_cmd = 0.0
+        self.diverged = None
+
+    def copy(self, share_model: bool = False) -> MusclePhysics:
+        """A copy with its own MuJoCo data and pneumatic state."""
+        new = super().copy(share_model)
+        new._setup(self.params, self.rig.copy())
+        new.pi_cmd, new.po_cmd, new.diverged = self.pi_cmd, self.po_cmd, self.diverged
+        return new
+
+    def set_params(self, params: Params) -> None:
+        """Use `params` from now on (domain randomisation, at the start of an episode): the
+        model is rebuilt for them with the same load and time step, from rest."""
+        rig = LiveRig.build(params, self.load(), self.rig.model.opt.timestep)
+        self._reload_from_data(wrapper.MjData(mujoco.MjData(rig.model)))
+        self._setup(params, rig)
+
+    def set_load(self, load: float) -> None:
+        """Hang `load` [N]: the load body's mass becomes load / g, and the constants MuJoCo
+        derives from masses (the constraints' inverse weights) follow, so the model is the
+        one built for this load whatever load it held before."""
+        self.model.ptr.body_mass[self._load_body] = check_load(load) / STANDARD_GRAVITY
+        mujoco.mj_setConst(self.model.ptr, self.data.ptr)
+
+    def load(self) -> float:
+        """Hanging load [N]."""
+        return float(self.model.ptr.body_mass[self._load_body]) * STANDARD_GRAVITY
+
+    def set_commands(self, pi_cmd: float, po_cmd: float) -> None:
+        """Regulator commands [Pa] (gauge) applied from the next physics step on."""
+        self.pi_cmd, self.po_cmd = float(pi_cmd), float(po_cmd)
+
+    def contraction(self) -> float:
+        """x [m]."""
+        return self.rig.contraction(self.data.ptr)
+
+    def velocity(self) -> float:
+        """dx/dt [m/s]."""
+        return self.rig.velocity(self.data.ptr)
+
+    def pressures(self) -> tuple[float, float]:
+        """Chamber gauge pressures (Pi, Po) [Pa]."""
+        return self.rig.pressures(self.data.ptr)
+
+    def step(self, nstep: int = 1) -> None:
+        """Advance `nstep` physics steps of the muscle and the load (`LiveRig.step`: the
+        physics step of `wpam_mj.simulation.simulate`), ending with `mj_step1` so that positions,
+        sensors and rendering match the new state (as dm_control's own step)."""
+        if self.diverged is not None:  # the state is meaningless until reset
+            raise control.PhysicsError(f"the muscle diverged ({self.diverged}); call reset() "
+                                       "before stepping again")
+        d = self.data.ptr
+        try:
+            with self.check_invalid_state():
+                self.rig.set_commands(d, self.pi_cmd, self.po_cmd)
+                try:
+                    self.rig.step(d, nstep)
+                except SimulationDiverged as err:
+                    raise control.PhysicsError(f"at t = {d.time:.4f} s: {err}") from err
+        except control.PhysicsError as err:
+            self.diverged = str(err)
+            raise
+
+
+class TrackingTask(control.Task):
+    """Hold the load at a target contraction; see the module docstring for the specs."""
+
+    def __init__(self, params: Params, *, action: str = "po", target: float | None = None,
+                 load: float | None = None, target_range: tuple[float, float] = TARGET_RANGE,
+                 load_range: tuple[float, float] = LOAD_RANGE,
+                 random: int | np.random.RandomState | None = None,
+                 flat_observation: bool = False, reference: str = "step",
+                 sine_freq: float | None = None,
+                 sine_freq_range: tuple[float, float] = SINE_FREQ_RANGE,
+                 randomize: ParameterRanges | None = None, reward: str = "tolerance",
+                 time_limit: float = 10.0) -> None:
+        if action not in ACTIONS:
+            raise ParameterError(f"action = {action!r}; valid actions: {', '.join(ACTIONS)}")
+        if reference not in REFERENCES:
+            raise ParameterError(f"reference = {reference!r}; valid references: "
+                                 f"{', '.join(REFERENCES)}")
+        if reward not in REWARDS:
+            raise ParameterError(f"reward = {reward!r}; valid rewards: {', '.join(REWARDS)}")
+        self._reference, self._reward = reference, reward
+        self._levels = np.zeros(1)  # staircase targets [m], one per STAIR_HOLD
+        self._n_levels = math.ceil(time_limit / STAIR_HOLD) + 1
+        self._freq_range = _check_interval("sine_freq_range", sine_freq_range, 1e-3, 20.0, "Hz")
+        self._fixed_freq = None if sine_freq is None else SineSpec(sine_freq).freq
+        self._sine: SineSpec | None = None
+        x_max = BraidGeometry.from_params(params.braid).max_contraction
+        if reference == "sine":  # its peak must be a reachable contraction
+            spec = SineSpec(self._freq_range[0])
+            check_range("sine target peak", (spec.mean + spec.amplitude) / MM, 0.0,
+                        x_max / MM, "mm")
+        self._target_range = _check_interval("target_range", target_range, 0.0, x_max, "m")
+        self._load_range = tuple(check_load(v) for v in _check_interval(
+            "load_range", load_range, -np.inf, np.inf, "N"))
+        self._fixed_target = None if target is None else check_range("target", target, 0.0,
+                                                                      x_max, "m")
+        self._fixed_load = None if load is None else check_load(load)
+        heaviest = self._load_range[1] if load is None else self._fixed_load
+        check_liftable(params, [heaviest], "load" if load is not None else "load_range high",
+                       x=self._highest_target(x_max))
+        self._params, self._action = params, action
+        self._base, self._randomize = params, randomize
+        self._flat = flat_observation
+        self._muscle = MuscleModel.from_params(params)
+        if not isinstance(random, np.random.RandomState):
+            random = np.random.RandomState(check_seed(random))
+        self._random = random
+        self.target = self._fixed_target if target is not None else 0.0
+        self._pi_ff = 0.0
+        self._next: tuple[float | None, float | None] = (None, None)
+        pn, c = params.pneumatics, params.controller
+        if action == "po":
+            self._lo, self._hi = np.array([pn.p_min]), np.array([c.po_cap])
+            self._name = "po_cmd_pa"
+        else:
+            self._lo, self._hi = np.array([pn.p_min, pn.p_min]), np.array([pn.p_max, c.po_cap])
+            self._name = "pi_cmd_pa,po_cmd_pa"
+
+    def _highest_target(self, x_max: float) -> float:
+        """The highest contraction [m] an episode may ask for."""
+        if self._reference == "sine":
+            spec = SineSpec(self._freq_range[0])
+            return min(spec.mean + spec.amplitude, x_max)
+        if self._fixed_target is not None and self._reference == "step":
+            return self._fixed_target
+        return self._target_range[1]
+
+    def fix_next_episode(self, target: float | None = None, load: float | None = None) -> None:
+        """Use `target` [m] and `load` [N] for the next episode only (gym reset options);
+        the random draws still happen, so the sequence of later episodes is unchanged."""
+        x_max = BraidGeometry.from_params(self._base.braid).max_contraction
+        self._next = (None if target is None else check_range("target", target, 0.0, x_max,
+                                                               "m"),
+                      None if load is None else check_load(load))
+        if self._next[1] is not None:
+            check_liftable(self._base, [self._next[1]], x=self._highest_target(x_max))
+
+    @property
+    def random(self) -> np.random.RandomState:
+        """The task's random state (targets and loads)."""
+        return self._random
+
+    def initialize_episode(self, physics: MusclePhysics) -> None:
+        # draw both every episode so fixing one does not shift the other's sequence
+        target = self._random.uniform(*self._target_range)
+        load = self._random.uniform(*self._load_range)
+        next_target, next_load = self._next
+        self._next = (None, None)
+        target = next_target if next_target is not None else (
+            target if self._fixed_target is None else self._fixed_target)
+        load = next_load if next_load is not None else (
+            load if self._fixed_load is None else self._fixed_load)
+        self.target = target
+        if self._randomize is not None:  # drawn after target and load: same sequence
+            self._params = self._randomize.sample(self._base, self._random)
+            self._muscle = MuscleModel.from_params(self._params)
+            physics.set_params(self._params)
+        physics.set_load(load)
+        if self._reference == "sine":
+            freq = self._random.uniform(*self._freq_range)
+            self._sine = SineSpec(freq if self._fixed_freq is None else self._fixed_freq)
+        if self._reference == "staircase":
+            self._levels = self._random.uniform(*self._target_range, size=self._n_levels)
+        self._pi_ff = self._feedforward(self.target_at(0.0), physics.load())
+
+    def _feedforward(self, target: float, load: float) -> float:
+        """Pi [Pa] holding `target` [m] under `load` [N] at the nominal Po."""
+        return float(pi_feedforward(self._muscle, self._params, [target], load,
+                                    self._params.controller.po_feedforward)[0])
+
+    def target_at(self, t: float) -> float:
+        """Target contraction x_r [m] at episode time `t` [s]."""
+        if self._reference == "staircase":
+            k = int(t / STAIR_HOLD + 1e-9)  # t sums physics steps: 2.4999999 s is 2.5 s
+            return float(self._levels[min(k, self._n_levels - 1)])
+        return self.target if self._sine is None else float(self._sine.target(t))
+
+    def action_spec(self, physics: MusclePhysics) -> specs.BoundedArray:
+        return specs.BoundedArray(shape=self._lo.shape, dtype=np.float64, minimum=self._lo,
+                                  maximum=self._hi, name=self._name)
+
+    def before_step(self, action, physics: MusclePhysics) -> None:
+        a = np.asarray(action, dtype=np.float64).reshape(-1)
+        if a.shape != self._lo.shape or not np.all(np.isfinite(a)):
+            raise ParameterError(f"action = {action!r} must be {self._lo.size} finite "
+                                 f"number(s) [Pa] ({self._name})")
+        a = np.clip(a, self._lo, self._hi)
+        if self._action == "po" and self._reference != "step":
+            self._pi_ff = self._feedforward(self.target_at(physics.time()), physics.load())
+        if self._action == "po":
+            physics.set_commands(self._pi_ff, a[0])
+        else:
+            physics.set_commands(a[0], a[1])
+
+    def observation_spec(self, physics: MusclePhysics) -> collections.OrderedDict:
+        if self._flat:  # as control.flatten_observation: the values in OBSERVATIONS order
+            key = control.FLAT_OBSERVATION_KEY
+            return collections.OrderedDict(
+                [(key, specs.Array(shape=(len(OBSERVATIONS),), dtype=np.float64, name=key))])
+        return collections.OrderedDict(
+            (name, specs.Array(shape=(1,), dtype=np.float64, name=name))
+            for name in OBSERVATIONS)
+
+    def get_observation(self, physics: MusclePhysics) -> collections.OrderedDict:
+        pi, po = physics.pressures()
+        values = (physics.contraction(), physics.velocity(), pi, po,
+                  self.target_at(physics.time()), physics.load())
+        return collections.OrderedDict(
+            (name, np.array([v], dtype=np.float64)) for name, v in zip(OBSERVATIONS, values))
+
+    def get_reward(self, physics: MusclePhysics) -> float:
+        error = physics.contraction() - self.target_at(physics.time())
+        if self._reward == "tracking":
+            return max(0.0, 1.0 - abs(error) / TRACKING_SCALE)
+        return float(rewards.tolerance(error, bounds=(-REWARD_BOUND, REWARD_BOUND),
+                                       margin=REWARD_MARGIN, sigmoid="gaussian",
+                                       value_at_margin=0.1))
+
+    def get_termination(self, physics: MusclePhysics) -> None:
+        return None  # episodes end at the time limit only
+
+
+def make_env(params: Params | None = None, *, action: str = "po", time_limit: float = 10.0,
+             control_timestep: float = 0.01, dt: float = 1e-3, seed: int | None = None,
+             target: float | None = None, load: float | None = None,
+             target_range: tuple[float, float] = TARGET_RANGE,
+             load_range: tuple[float, float] = LOAD_RANGE,
+             flat_observation: bool = False, reference: str = "step",
+             sine_freq: float | None = None,
+             sine_freq_range: tuple[float, float] = SINE_FREQ_RANGE,
+             randomize: str | Path | float | ParameterRanges | None = None,
+             reward: str = "tolerance") -> control.Environment:
+    """The hung W-PAM as a `dm_control.rl.control.Environment`.
+
+    Args:
+      params: muscle parameters (default: the calibrated ``wpam`` preset).
+      action: "po" (Po command) or "both" (Pi and Po commands), see the module docstring.
+      time_limit: episode length [s].
+      control_timestep: time between actions [s], a whole multiple of `dt`.
+      dt: physics step [s].
+      seed: seed of the task's RandomState (targets, loads): None or an integer in
+        [0, 2**32 - 1].
+      target: fix the target contraction [m] instead of drawing it.
+      load: fix the load [N] instead of drawing it.
+      target_range: (low, high) [m] for random targets.
+      load_range: (low, high) [N] for random loads.
+      flat_observation: concatenate the observations, in `OBSERVATIONS` order, into one
+        array of shape (6,) under the key "observations".
+      reference: "step" (constant target) or "sine" (sinusoidal target), see above.
+      sine_freq: fix the sine target's frequency [Hz] instead of drawing it.
+      sine_freq_range: (low, high) [Hz] for random sine frequencies.
+      randomize: domain randomisation: a ranges file (`wpam fit --randomize-out`),
+        `ParameterRanges`, or a relative spread (0.1: each fitted plant parameter of
+        `randomize.PLANT_PARAMETERS` within +-10 %); each episode draws the listed
+        parameters from their ranges (with the task's RandomState, after target and load).
+      reward: "tolerance" (1 within +-0.5 mm, Gaussian tail) or "tracking" (1 - |x - x_r|
+        / 5 mm, floored at 0); see the module docstring.
+    """
+    params = preset() if params is None else params
+    randomize = ranges_of(randomize, params)
+    time_limit = check_range("time_limit", time_limit, *TIME_LIMIT_RANGE, "s")
+    control_timestep = check_range("control_timestep", control_timestep,
+                                   *CONTROL_TIMESTEP_RANGE, "s")
+    dt = check_dt(dt)
+    n_sub = round(control_timestep / dt)
+    if n_sub < 1 or abs(n_sub * dt - control_timestep) > 1e-9 * control_timestep:
+        raise ParameterError(f"control_timestep = {control_timestep} s must be a whole "
+                             f"multiple of dt = {dt} s")
+    physics = MusclePhysics.create(params, dt)
+    task = TrackingTask(params, action=action, target=target, load=load,
+                        target_range=target_range, load_range=load_range, random=seed,
+                        flat_observation=flat_observation, reference=reference,
+                        sine_freq=sine_freq, sine_freq_range=sine_freq_range,
+                        randomize=randomize, reward=reward, time_limit=time_limit)
+    return control.Environment(physics, task, time_limit=time_limit, n_sub_steps=n_sub,
+                               flat_observation=flat_observation)
+
+
+SEED_RANGE = (0, 2**32 - 1)  # numpy.random.RandomState's seed range
+
+
+def check_seed(seed: int | None) -> int | None:
+    """A RandomState seed: None (fresh entropy) or an integer in `SEED_RANGE`."""
+    if seed is None:
+        return None
+    lo, hi = SEED_RANGE
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) \
+            or not lo <= seed <= hi:
+        raise ParameterError(f"seed = {seed!r} must be None or an integer in [{lo}, {hi}]")
+    return int(seed)
+
+
+def _check_interval(name: str, interval, lo: float, hi: float,
+                    unit: str) -> tuple[float, float]:
+    try:
+        a, b = (float(v) for v in interval)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{name} = {interval!r} must be a pair (low, high) {unit}") \
+            from None
+    if not (lo <= a <= b <= hi):
+        raise ParameterError(f"{name} = ({a:g}, {b:g}) {unit} must satisfy "
+                             f"{lo:g} <= low <= high <= {hi:g} {unit}")
+    return a, b

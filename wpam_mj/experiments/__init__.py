@@ -1,0 +1,1 @@
+"""The paper's experiments: protocols, drives, studies, their analysis, tables and figures."""

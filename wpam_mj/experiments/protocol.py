@@ -1,0 +1,159 @@
+"""The static experiments' protocol readings that the paper does not state (issue 20).
+
+Figs. 8-9 and Table 2 come from "slow" Pi ramps up and back down (§2.3), with Po applied
+"only when the internal pressure Pi is decreased" in Fig. 9. The paper does not give:
+
+  * the top of the Pi ramp: per load (ours before: the Pi whose contracting branch,
+    paper eq. 5, reaches the step runs' 50 mm top) or one common Pi for every load, as
+    one set of axes in Fig. 8 suggests (`ramp_top`, 0 = per load);
+  * the ramp rate (`ramp_time`, the duration of each direction);
+  * when Po is switched on at the top: at the instant Pi starts to fall, or after Pi has
+    been held at its top with Po on for `top_hold` seconds;
+  * the loop-area definition when a loop crosses itself, as the paper notes Fig. 9's
+    loops do (§2.3): "branches" counts every lobe positive, "shoelace" takes the signed
+    polygon area, where the lobes of a figure-eight cancel
+    (`wpam_mj.experiments.analysis.loop_area`).
+
+The Po feedforward's nominal Po, its share phi of the friction band and the gain reading
+are readings of the controller and live in `wpam_mj.physics.params.Controller`
+(`po_feedforward`, `feedforward_friction`, `command_scale`). `SHIPPED` is the reading
+`wpam reproduce` ships (docs/physics.md, "The protocol readings").
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Iterable
+
+import numpy as np
+
+from wpam_mj.experiments.analysis import loop_area
+from wpam_mj.experiments.drives import STATIC_RAMP_S, check_po, static_top_pressure
+from wpam_mj.simulation.model import check_dt, check_load
+from wpam_mj.paper import LOADS_N, PO_DOWN_STATIC_MPA
+from wpam_mj.physics.params import MPA, ParameterError, Params, check_range
+from wpam_mj.infra.pool import Batch
+from wpam_mj.simulation.simulate import Drive, simulate
+from wpam_mj.experiments.studies import StepTask, check_ramp_time
+from wpam_mj.experiments.responses import StaticLoop, Table2Result
+
+LOOP_METHODS = ("branches", "shoelace")
+TOP_HOLD_RANGE_S = (0.0, 60.0)
+DWELL_S = 1.0  # at p_min before and after the ramps, as `experiments.static_loop`
+
+
+@dataclass(frozen=True)
+class Protocol:
+    """The static experiments' readings (module docstring); SI units."""
+
+    ramp_top: float = 0.0  # Pa; 0: per load, the contracting branch's Pi at 50 mm
+    ramp_time: float = STATIC_RAMP_S  # s, each direction
+    top_hold: float = 0.0  # s at the top with Po on before Pi falls
+    loop_method: str = "branches"
+
+    def __post_init__(self) -> None:
+        if self.ramp_top != 0.0:
+            check_range("ramp_top", self.ramp_top / MPA, 0.0, 1.0, "MPa", lo_open=True)
+        check_ramp_time(self.ramp_time)
+        check_range("top_hold", self.top_hold, *TOP_HOLD_RANGE_S, "s")
+        if self.loop_method not in LOOP_METHODS:
+            raise ParameterError(f"loop_method {self.loop_method!r}; valid: "
+                                 + ", ".join(LOOP_METHODS))
+
+    def top(self, params: Params, load: float) -> float:
+        """The ramp's top Pi [Pa] at `load` [N] (at most the regulator's p_max)."""
+        if self.ramp_top == 0.0:
+            return static_top_pressure(params, load)
+        return min(self.ramp_top, params.pneumatics.p_max)
+
+    def describe(self) -> str:
+        top = ("per load (contracting branch at 50 mm)" if self.ramp_top == 0.0
+               else f"{self.ramp_top / MPA:g} MPa for every load")
+        return (f"ramp top {top}, {self.ramp_time:g} s each way, Po on after "
+                f"{self.top_hold:g} s at the top, loop area '{self.loop_method}'")
+
+
+# What `wpam reproduce`, `wpam table2` and `wpam calibrate` use: the ramps as before and
+# the signed loop area, where the lobes of a crossing loop cancel as in a closed-curve
+# integral of x dPi. The paper does not say; on the shipped plant it is the reading that
+# meets the paper best (calibrate's cost 1.130 against 1.231 with "branches"; the ramp
+# top and the hold at the top help no cell: docs/physics.md, the feasibility map).
+SHIPPED = Protocol(loop_method="shoelace")
+
+
+def remeasure(t2: Table2Result, method: str) -> Table2Result:
+    """`t2` with its open-loop loops' areas measured by `method` (same runs)."""
+    if method not in LOOP_METHODS:
+        raise ParameterError(f"loop_method {method!r}; valid: " + ", ".join(LOOP_METHODS))
+
+    def area(loops):
+        return tuple(dataclasses.replace(lp, area=loop_area(lp.result.pi, lp.result.x,
+                                                            method=method)) for lp in loops)
+    return dataclasses.replace(t2, open_loops=area(t2.open_loops), po_loops=area(t2.po_loops))
+
+
+def static_drive(params: Params, load: float, po_down: float, protocol: Protocol,
+                 dt: float) -> Drive:
+    """Pi p_min -> top -> (hold) -> p_min, Po = `po_down` [Pa] from the top on."""
+    p_min, top = params.pneumatics.p_min, protocol.top(params, load)
+    r, h = protocol.ramp_time, protocol.top_hold
+    knots_t = [0.0, DWELL_S, DWELL_S + r]
+    knots_p = [p_min, p_min, top]
+    if h > 0.0:
+        knots_t.append(DWELL_S + r + h)
+        knots_p.append(top)
+    knots_t += [DWELL_S + 2 * r + h, 2 * DWELL_S + 2 * r + h]
+    knots_p += [p_min, p_min]
+    n = int(round(knots_t[-1] / dt)) + 1
+    t = np.arange(n) * dt
+    pi_cmd = np.interp(t, knots_t, knots_p)
+    po_cmd = np.where(t > DWELL_S + r, po_down, 0.0)
+    return Drive(pi_cmd=pi_cmd, po_cmd=po_cmd, x_ref=np.full(n, np.nan))
+
+
+@dataclass(frozen=True)
+class ProtocolStaticTask:
+    """One open-loop ramp under `protocol` (a pool task, as `studies.StaticTask`)."""
+
+    params: Params
+    load: float
+    po_down: float
+    dt: float
+    protocol: Protocol = SHIPPED
+
+    @property
+    def cost(self) -> float:
+        return (2.0 * self.protocol.ramp_time + self.protocol.top_hold) / self.dt
+
+    def run(self) -> StaticLoop:
+        drive = static_drive(self.params, self.load, self.po_down, self.protocol, self.dt)
+        r = simulate(self.params, self.load, drive, dt=self.dt, control="open",
+                     record_dt=0.01)
+        return StaticLoop(load=self.load, po_down=self.po_down, preset=self.params.preset,
+                          area=loop_area(r.pi, r.x, method=self.protocol.loop_method),
+                          result=r)
+
+
+def table2_batch(params: Params, protocol: Protocol = SHIPPED, *,
+                 loads: Iterable[float] = LOADS_N,
+                 po_down: float = PO_DOWN_STATIC_MPA * MPA, dt: float = 1e-3) -> Batch:
+    """`studies.table2_batch` under `protocol`: the open-loop ramps with and without Po
+    and the PI staircase at each load [N]. `Protocol()` runs the same ramps as it."""
+    loads = tuple(check_load(v) for v in loads)
+    if not loads:
+        raise ParameterError("no loads given")
+    dt, po_down = check_dt(dt), check_po("po_down", po_down, params)
+    tasks = ([ProtocolStaticTask(params, load, 0.0, dt, protocol) for load in loads]
+             + [ProtocolStaticTask(params, load, po_down, dt, protocol) for load in loads]
+             + [StepTask(params, load, "pi", dt) for load in loads])
+
+    def assemble(res: list) -> Table2Result:
+        n = len(loads)
+        for o in res[:n]:
+            if not o.area > 0.0:
+                raise ParameterError(f"the open-loop Po = 0 loop at {o.load:g} N has no "
+                                     "area; cannot normalize Table 2 (is there friction?)")
+        return Table2Result(loads=loads, po_down=po_down, open_loops=tuple(res[:n]),
+                            po_loops=tuple(res[n:2 * n]), feedback_runs=tuple(res[2 * n:]))
+    return Batch(tasks, assemble)

@@ -1,0 +1,245 @@
+"""The response objects of the paper's studies (beside `wpam_mj.simulation.results.SimResult`, the
+time series of one run): static loops, staircase runs, Table 2 and the frequency sweep.
+
+SI inside (m, Pa, N, s; frequency in Hz); loop areas in Pa m (the normalized Table 2
+values are unit-free). No plotting here: the `.plot()` methods call `wpam_mj.experiments.figures`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Mapping
+
+import numpy as np
+
+from wpam_mj.experiments.analysis import loop_area
+from wpam_mj.experiments.feasibility import load_moved
+from wpam_mj.paper import (PO_DOWN_STATIC_MPA, SINE_AMPLITUDE_MM, STEP_HOLD_S, TABLE2,
+                           TABLE2_SOURCE)
+from wpam_mj.physics.params import MM, MPA
+from wpam_mj.simulation.results import SimResult
+
+LOOP_METHOD = "branches"  # one loop-area method for every Table 2 cell
+
+
+def load_key(load: float) -> str:
+    """JSON/CSV key of a load [N]: "50", "100", "112.5"."""
+    return f"{load:g}"
+
+
+@dataclass(frozen=True)
+class StaticLoop:
+    """One open-loop Pi ramp up then down (paper Figs. 3, 8, 9).
+
+    load [N]; po_down: Po while Pi falls [Pa]; preset: muscle type;
+    area: loop area of the measured (Pi, x) trace [Pa m]; result: the run.
+    """
+
+    load: float
+    po_down: float
+    preset: str
+    area: float
+    result: SimResult
+
+    @property
+    def area_mpa_mm(self) -> float:
+        return self.area / (MPA * MM)
+
+    def plot(self):
+        """x against Pi with direction arrows (`wpam_mj.experiments.figures.static_figure`)."""
+        from wpam_mj.experiments import figures as plots  # noqa: PLC0415 (matplotlib only when plotting)
+        return plots.static_figure([self])
+
+
+@dataclass(frozen=True)
+class StepRun:
+    """A staircase run (paper Figs. 12-15) and its settled plateau means (Fig. 16).
+
+    Plateau arrays have shape (n_plateaus,), averaged over the last `settle` seconds of
+    each plateau: target [m], x [m], measured chamber Pi and Po [Pa].
+    """
+
+    load: float
+    control: str
+    preset: str
+    settle: float
+    target: np.ndarray
+    x_mean: np.ndarray
+    pi_mean: np.ndarray
+    po_mean: np.ndarray
+    result: SimResult
+
+    @property
+    def area(self) -> float:
+        """Loop area of the plateau means (Pi, x), up branch then down branch [Pa m]."""
+        return loop_area(self.pi_mean, self.x_mean, method=LOOP_METHOD)
+
+    @property
+    def error(self) -> np.ndarray:
+        """Settled error x - target per plateau [m]."""
+        return self.x_mean - self.target
+
+    def _settled(self, settle: float) -> np.ndarray:
+        r = self.result
+        return (r.time % STEP_HOLD_S) >= STEP_HOLD_S - settle
+
+    def worst_error(self, settle: float = 3.0) -> float:
+        """Largest |x - x_r| over the last `settle` s of every plateau [m]."""
+        r = self.result
+        return float(np.max(np.abs(r.x - r.x_ref)[self._settled(settle)]))
+
+    def worst_peak_to_peak(self, settle: float = 3.0) -> float:
+        """Largest x peak-to-peak over the last `settle` s of any plateau [m]."""
+        r = self.result
+        plateau = (r.time // STEP_HOLD_S).astype(int)
+        late = self._settled(settle)
+        return max(float(np.ptp(r.x[late & (plateau == k)])) for k in np.unique(plateau))
+
+    def plot(self):
+        """Figure of x, target, Pi and Po against time
+        (`wpam_mj.experiments.figures.step_figure`)."""
+        from wpam_mj.experiments import figures as plots  # noqa: PLC0415 (matplotlib only when plotting)
+        return plots.step_figure([self.result])
+
+
+@dataclass(frozen=True)
+class Table2Result:
+    """Hysteresis-loop areas behind the paper's Table 2, per load.
+
+    open_loops: open loop, Po = 0 (Fig. 8); po_loops: open loop, Po = `po_down` while Pi
+    falls (Fig. 9); feedback_runs: PI staircase runs (Figs. 14-16). Normalized values
+    divide each area by the open-loop, Po = 0 area of the same load.
+    """
+
+    loads: tuple[float, ...]
+    po_down: float
+    open_loops: tuple[StaticLoop, ...]
+    po_loops: tuple[StaticLoop, ...]
+    feedback_runs: tuple[StepRun, ...]
+
+    @property
+    def open_po(self) -> dict[float, float]:
+        return {o.load: p.area / o.area for o, p in zip(self.open_loops, self.po_loops)}
+
+    @property
+    def feedback(self) -> dict[float, float]:
+        return {o.load: f.area / o.area for o, f in zip(self.open_loops, self.feedback_runs)}
+
+    @property
+    def load_moved(self) -> dict[float, bool]:
+        """Per load: whether the load moved in all three runs (else its ratios mean
+        nothing; `feasibility.load_moved`)."""
+        return {o.load: all(load_moved(r.result) for r in (o, p, f))
+                for o, p, f in zip(self.open_loops, self.po_loops, self.feedback_runs)}
+
+    def paper(self) -> dict[str, dict[float, float]]:
+        """The paper's rows for the loads of this study that the paper has."""
+        return {row: {load: v[load] for load in self.loads if load in v}
+                for row, v in TABLE2.items()}
+
+    def as_json(self) -> dict:
+        """{"open_po": {"50": a, ...}, "feedback": {...}, "load_moved": {"50": true, ...},
+        "paper": {...}}."""
+        paper: dict = {row: {load_key(k): v for k, v in vals.items()}
+                       for row, vals in self.paper().items()}
+        paper["po_down_mpa"] = PO_DOWN_STATIC_MPA
+        paper["source"] = TABLE2_SOURCE
+        return {"open_po": {load_key(k): v for k, v in self.open_po.items()},
+                "feedback": {load_key(k): v for k, v in self.feedback.items()},
+                "load_moved": {load_key(k): v for k, v in self.load_moved.items()},
+                "paper": paper}
+
+    def plot(self):
+        """Bar chart of the normalized areas beside the paper's (`plots.table2_figure`)."""
+        from wpam_mj.experiments import figures as plots  # noqa: PLC0415 (matplotlib only when plotting)
+        return plots.table2_figure(self)
+
+    def rows(self) -> list[dict]:
+        """One dict per load: raw areas [MPa mm] and normalized values, ours and paper's."""
+        paper = self.paper()
+        out = []
+        for o, p, f in zip(self.open_loops, self.po_loops, self.feedback_runs):
+            out.append({
+                "load_n": o.load,
+                "open_area_mpa_mm": o.area_mpa_mm,
+                "open_po_area_mpa_mm": p.area_mpa_mm,
+                "feedback_area_mpa_mm": f.area / (MPA * MM),
+                "open_po": p.area / o.area,
+                "feedback": f.area / o.area,
+                "paper_open_po": paper["open_po"].get(o.load, math.nan),
+                "paper_feedback": paper["feedback"].get(o.load, math.nan),
+                "load_moved": self.load_moved[o.load],
+            })
+        return out
+
+
+@dataclass(frozen=True)
+class SweepPoint:
+    """Response to a sinusoidal target at one (load, frequency, controller).
+
+    load [N]; freq [Hz]; gain [1]; phase_lag_deg [deg], positive = lag; po_max: highest
+    Po read by the regulator's own gauge over the analysed cycles [Pa] (what the paper
+    plots, §2.3); po_chamber_max: highest Po inside the outer chamber, behind the line
+    restriction [Pa]; po_cmd_max: highest Po command (capped at po_cap) [Pa]; load_moved:
+    whether x spanned `feasibility.MOVE_MIN_MM` (else the gain and lag mean nothing).
+    """
+
+    load: float
+    freq: float
+    controller: str
+    gain: float
+    phase_lag_deg: float
+    po_max: float
+    po_chamber_max: float = float("nan")
+    po_cmd_max: float = float("nan")
+    load_moved: bool = True
+
+    def as_json(self) -> dict:
+        return {"load_n": self.load, "freq_hz": self.freq, "controller": self.controller,
+                "gain": self.gain, "phase_lag_deg": self.phase_lag_deg,
+                "po_max_mpa": self.po_max / MPA, "load_moved": self.load_moved}
+
+
+SweepKey = tuple[float, float, str]  # (load [N], freq [Hz], controller)
+
+
+@dataclass(frozen=True)
+class SweepResult:
+    """Points in (load, freq, controller) loop order; `series` holds the kept runs;
+    amplitude: of the sinusoidal target [m]."""
+
+    points: tuple[SweepPoint, ...]
+    series: Mapping[SweepKey, SimResult] = field(default_factory=dict)
+    amplitude: float = SINE_AMPLITUDE_MM * MM
+
+    def as_json(self) -> list[dict]:
+        return [p.as_json() for p in self.points]
+
+    def point(self, load: float, freq: float, controller: str) -> SweepPoint | None:
+        for p in self.points:
+            if p.load == load and p.freq == freq and p.controller == controller:
+                return p
+        return None
+
+    def curve(self, load: float, controller: str) -> list[SweepPoint]:
+        """The points of one (load, controller), by increasing frequency."""
+        return sorted((p for p in self.points if p.load == load and
+                       p.controller == controller), key=lambda p: p.freq)
+
+    def plot(self):
+        """Gain and phase lag against frequency (`wpam_mj.experiments.figures.sweep_figure`)."""
+        from wpam_mj.experiments import figures as plots  # noqa: PLC0415 (matplotlib only when plotting)
+        return plots.sweep_figure(self)
+
+    @property
+    def loads(self) -> list[float]:
+        return sorted({p.load for p in self.points})
+
+    @property
+    def freqs(self) -> list[float]:
+        return sorted({p.freq for p in self.points})
+
+    @property
+    def controllers(self) -> list[str]:
+        return list(dict.fromkeys(p.controller for p in self.points))

@@ -1,0 +1,1 @@
+"""Fitting parameters: the estimation engine, measured and synthetic data, randomisation."""

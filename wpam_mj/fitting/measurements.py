@@ -1,0 +1,260 @@
+"""Measured experiments: the CSV format `wpam fit` reads and `wpam synth` writes.
+
+One file per experiment (a static ramp, a step run, a sine, any mix), comma-separated,
+lines starting with '#' ignored, then a header row naming the columns (any order; other
+columns are ignored):
+
+    time_s      sample time [s], strictly increasing
+    load_n      hanging load [N], the same on every row (one load per experiment)
+    pi_mpa      inner-chamber gauge pressure as read at its regulator [MPa]
+    po_mpa      outer-chamber gauge pressure as read at its regulator [MPa]
+    x_mm        contraction [mm], positive = shorter muscle
+  optional:
+    pi_cmd_mpa  Pi regulator command [MPa]
+    po_cmd_mpa  Po regulator command [MPa]
+    x_ref_mm    target contraction of a feedback run [mm] (shown, not replayed)
+
+Every value must be a finite number (an empty cell or NaN is a gap and is refused), except
+x_ref_mm, which may be empty where there is no target. `read_experiment` refuses, with one
+line naming the file, line and column, data that are malformed or physically impossible
+for the muscle it will be fitted to: a missing column, time not increasing, pressures that
+look like kPa or lie outside the regulator range, contraction beyond the braid's limit.
+
+Inside, an `Experiment` holds SI arrays (s, N, Pa, m).
+"""
+
+from __future__ import annotations
+
+import io
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from wpam_mj.physics.geometry import BraidGeometry
+from wpam_mj.simulation.model import check_load
+from wpam_mj.infra.budget import check_duration
+from wpam_mj.physics.params import MM, MPA, Params, ParameterError, check_regular_file, file_kind
+from wpam_mj.simulation.results import write_text_atomic
+
+REQUIRED = ("time_s", "load_n", "pi_mpa", "po_mpa", "x_mm")
+OPTIONAL = ("pi_cmd_mpa", "po_cmd_mpa", "x_ref_mm")
+# column -> (Experiment field, factor from the column's unit to SI)
+_UNITS = {"time_s": ("time", 1.0), "load_n": ("load", 1.0), "pi_mpa": ("pi", MPA),
+          "po_mpa": ("po", MPA), "x_mm": ("x", MM), "pi_cmd_mpa": ("pi_cmd", MPA),
+          "po_cmd_mpa": ("po_cmd", MPA), "x_ref_mm": ("x_ref", MM)}
+
+MIN_ROWS = 10
+# Tolerances for measured (noisy) values against hard limits: a gauge reading may pass a
+# limit by sensor noise, not by more (2 % of the ITV2031's 0.5 MPa span; 1 mm of x).
+PRESSURE_TOL = 0.01 * MPA  # Pa
+CONTRACTION_TOL = 1.0 * MM  # m
+MIN_CONTRACTION = -5.0 * MM  # m: a hanging muscle cannot stretch this far past its length
+LOAD_RTOL = 0.01  # one load per file: rows agree within 1 %
+KPA_LOOKALIKE = 10.0  # MPa: a gauge column above this is in kPa or Pa, not MPa
+MAX_SAMPLE_INTERVAL = 1.0  # s: a median step above this means time is not in seconds
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """One measured run, SI units; arrays of shape (n,).
+
+    time [s]; load [N]; pi, po regulator gauge pressures [Pa]; x contraction [m];
+    pi_cmd, po_cmd regulator commands [Pa] or None; x_ref target [m] (NaN where none) or None.
+    """
+
+    name: str
+    load: float
+    time: np.ndarray
+    pi: np.ndarray
+    po: np.ndarray
+    x: np.ndarray
+    pi_cmd: np.ndarray | None = None
+    po_cmd: np.ndarray | None = None
+    x_ref: np.ndarray | None = None
+
+    @property
+    def has_commands(self) -> bool:
+        """Both regulator commands were recorded (the replay then uses them)."""
+        return self.pi_cmd is not None and self.po_cmd is not None
+
+    @property
+    def duration(self) -> float:
+        return float(self.time[-1] - self.time[0])
+
+    def to_csv_text(self) -> str:
+        cols = [c for c in (*REQUIRED, *OPTIONAL)
+                if c == "load_n" or getattr(self, _UNITS[c][0]) is not None]
+        buf = io.StringIO()
+        buf.write(f"# {self.name}: measurement format of wpam_mj.fitting.measurements\n")
+        buf.write(",".join(cols) + "\n")
+        table = np.column_stack([
+            np.full(len(self.time), self.load) if c == "load_n"
+            else getattr(self, _UNITS[c][0]) / _UNITS[c][1] for c in cols])
+        fmt = ",".join("%.9g" if c == "time_s" else "%.6g" for c in cols) + "\n"
+        data = "".join(fmt % tuple(row) for row in table.tolist())
+        buf.write(data.replace("nan", ""))  # an empty x_ref_mm cell: no target there
+        return buf.getvalue()
+
+    def to_csv(self, path: str | Path) -> Path:
+        """Write the experiment in the measurement format, whole or not at all."""
+        return write_text_atomic(path, self.to_csv_text())
+
+
+def read_experiment(path: str | Path, params: Params) -> Experiment:
+    """Read and check one measurement CSV against the muscle `params` (regulator range,
+    braid limit). Raises ParameterError with one line naming file, line and column."""
+    path = check_regular_file(path, "measurement file")
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as err:
+        raise ParameterError(f"{path}: cannot read ({getattr(err, 'strerror', None) or err})") \
+            from None
+    where = _Where(path)
+    lines = [(i + 1, ln) for i, ln in enumerate(text.splitlines())
+             if ln.strip() and not ln.lstrip().startswith("#")]
+    if not lines:
+        raise ParameterError(f"{path}: no header row (expected columns {', '.join(REQUIRED)})")
+    header_line, header = lines[0]
+    names = [h.strip() for h in header.split(",")]
+    missing = [c for c in REQUIRED if c not in names]
+    if missing:
+        raise ParameterError(f"{where.at(header_line)}: missing column(s) {', '.join(missing)} "
+                             f"(header has {', '.join(names)})")
+    rows = lines[1:]
+    if len(rows) < MIN_ROWS:
+        raise ParameterError(f"{path}: {len(rows)} data rows; at least {MIN_ROWS} needed")
+    where.line_numbers = np.array([n for n, _ in rows])
+    cells = []
+    for n, ln in rows:
+        parts = ln.split(",")
+        if len(parts) != len(names):
+            raise ParameterError(f"{where.at(n)}: {len(parts)} values, the header has "
+                                 f"{len(names)} columns")
+        cells.append(parts)
+    table = np.array(cells, dtype=object)
+    cols = {c: _column(table[:, names.index(c)], c, where, allow_gaps=c == "x_ref_mm")
+            for c in (*REQUIRED, *OPTIONAL) if c in names}
+    _check(cols, params, where)
+    check_duration(f"{path} (rows from {cols['time_s'][0]:g} to {cols['time_s'][-1]:g} s)",
+                   float(cols["time_s"][-1] - cols["time_s"][0]))
+    si = {_UNITS[c][0]: v * _UNITS[c][1] for c, v in cols.items()}
+    load = float(si.pop("load")[0])
+    return Experiment(name=path.stem, load=load, **si)
+
+
+class _Where:
+    """Names a place in the file: `file line N column c`."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.line_numbers = np.zeros(0, dtype=int)
+
+    def at(self, line: int, column: str | None = None) -> str:
+        return f"{self.path} line {line}" + (f" column {column}" if column else "")
+
+    def row(self, i: int, column: str) -> str:
+        return self.at(int(self.line_numbers[i]), column)
+
+
+def _column(cells: np.ndarray, name: str, where: _Where, *, allow_gaps: bool) -> np.ndarray:
+    out = np.empty(len(cells))
+    for i, c in enumerate(cells):
+        s = c.strip()
+        if s == "" or s.lower() == "nan":
+            if not allow_gaps:
+                raise ParameterError(f"{where.row(i, name)}: empty or NaN (a gap in the "
+                                     "data; every row needs a value)")
+            out[i] = math.nan
+            continue
+        try:
+            out[i] = float(s)
+        except ValueError:
+            raise ParameterError(f"{where.row(i, name)}: {s!r} is not a number") from None
+        if not math.isfinite(out[i]):
+            raise ParameterError(f"{where.row(i, name)}: {s!r} is not a finite number")
+    return out
+
+
+def _check(cols: dict[str, np.ndarray], params: Params, where: _Where) -> None:
+    """Refuse malformed or physically impossible data (see the module docstring)."""
+    t = cols["time_s"]
+    back = np.flatnonzero(np.diff(t) <= 0.0)
+    if back.size:
+        i = back[0] + 1
+        raise ParameterError(f"{where.row(i, 'time_s')}: time {t[i]:g} s does not increase "
+                             f"(previous row {t[i - 1]:g} s)")
+    step = float(np.median(np.diff(t)))
+    if step > MAX_SAMPLE_INTERVAL:
+        raise ParameterError(f"{where.row(1, 'time_s')}: median sample interval {step:g} s "
+                             f"exceeds {MAX_SAMPLE_INTERVAL:g} s; is time in ms? (seconds "
+                             "expected)")
+    load = cols["load_n"]
+    check_load_cell(load[0], where.row(0, "load_n"))
+    off = np.flatnonzero(np.abs(load - load[0]) > LOAD_RTOL * abs(load[0]))
+    if off.size:
+        i = off[0]
+        raise ParameterError(f"{where.row(i, 'load_n')}: load {load[i]:g} N differs from the "
+                             f"first row's {load[0]:g} N; one load per file")
+    p_max = params.pneumatics.p_max
+    for c in ("pi_mpa", "po_mpa", "pi_cmd_mpa", "po_cmd_mpa"):
+        if c not in cols:
+            continue
+        v = cols[c] * MPA
+        tol = 0.0 if "cmd" in c else PRESSURE_TOL
+        i = int(np.argmax(v))
+        if v[i] > KPA_LOOKALIKE * MPA:
+            raise ParameterError(f"{where.row(i, c)}: {cols[c][i]:g} MPa; the column is in MPa "
+                                 "(is it in kPa or Pa?)")
+        if v[i] > p_max + tol:
+            raise ParameterError(f"{where.row(i, c)}: {cols[c][i]:g} MPa is above the "
+                                 f"regulator range [0, {p_max / MPA:g}] MPa "
+                                 "(pneumatics.p_max)")
+        i = int(np.argmin(v))
+        if v[i] < -tol:
+            raise ParameterError(f"{where.row(i, c)}: {cols[c][i]:g} MPa is below the "
+                                 f"regulator range [0, {p_max / MPA:g}] MPa (gauge pressure)")
+    x_max = BraidGeometry.from_params(params.braid).max_contraction
+    for c in ("x_mm", "x_ref_mm"):
+        if c not in cols:
+            continue
+        v = cols[c] * MM
+        with np.errstate(invalid="ignore"):
+            over = np.flatnonzero(v > x_max + CONTRACTION_TOL)
+            under = np.flatnonzero(v < MIN_CONTRACTION)
+        if over.size:
+            i = over[0]
+            raise ParameterError(f"{where.row(i, c)}: {cols[c][i]:g} mm is beyond the braid's "
+                                 f"limit of {x_max / MM:.1f} mm contraction (the bag at "
+                                 "braid.max_diameter)")
+        if under.size:
+            i = under[0]
+            raise ParameterError(f"{where.row(i, c)}: {cols[c][i]:g} mm; contraction is "
+                                 f"positive and at least {MIN_CONTRACTION / MM:g} mm (is the "
+                                 "sign or the unit off?)")
+
+
+def check_load_cell(value: float, where: str) -> float:
+    try:
+        return check_load(value)
+    except ParameterError as err:
+        raise ParameterError(f"{where}: {err}") from None
+
+
+def experiment_files(paths: list[str | Path]) -> list[Path]:
+    """The CSV files named by `paths`: files as given, folders by their *.csv (sorted)."""
+    out: list[Path] = []
+    for p in map(Path, paths):
+        if file_kind(p) == "folder":
+            found = sorted(p.glob("*.csv"))
+            if not found:
+                raise ParameterError(f"{p}: no *.csv files in this folder")
+            out += found
+        elif file_kind(p) == "missing":
+            raise ParameterError(f"{p}: no such file or folder")
+        else:
+            out.append(check_regular_file(p, "measurement file"))
+    if len({f.resolve() for f in out}) != len(out):
+        raise ParameterError("the same file is given twice: " + ", ".join(map(str, out)))
+    return out

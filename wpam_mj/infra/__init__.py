@@ -1,0 +1,1 @@
+"""Infrastructure: worker pools, signals, output folders, manifests, run budgets."""

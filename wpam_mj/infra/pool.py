@@ -1,0 +1,205 @@
+"""Running many independent, deterministic tasks: in this process or in one process pool.
+
+A task is any picklable object with `.run()` (its result) and `.cost` (a relative run
+time, so that the longest start first). Results come back in task order and do not
+depend on the number of workers.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import signal
+import sys
+from concurrent.futures import FIRST_EXCEPTION, Executor, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+from tqdm import tqdm
+
+from wpam_mj.infra import termination
+from wpam_mj.physics.params import ParameterError, shown
+
+_PR_SET_PDEATHSIG = 1  # prctl option (linux/prctl.h): signal this process when its parent dies
+_STOP_GRACE_S = 0.5  # our choice: a worker still alive this long after SIGTERM is killed
+
+
+def check_jobs(jobs: int) -> int:
+    """Process-pool size: an integer >= 1."""
+    if isinstance(jobs, bool) or not isinstance(jobs, (int, np.integer)) or jobs < 1:
+        raise ParameterError(f"jobs = {shown(jobs)} must be an integer >= 1")
+    return int(jobs)
+
+
+def default_jobs() -> int:
+    return os.cpu_count() or 1
+
+
+def _worker_init(parent: int) -> None:
+    """Pool worker start-up: die with the parent, leave signals to it.
+
+    SIGINT (Ctrl-C reaches the whole process group) is ignored: the parent stops the
+    workers itself, so they print no tracebacks. SIGTERM kills at once, even in compiled
+    code. On Linux the kernel sends SIGKILL when the parent dies, however it dies
+    (SIGKILL included); a parent gone before that was set up ends the worker here.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    for stop in termination.STOP_SIGNALS:
+        signal.signal(stop, signal.SIG_DFL)
+    if sys.platform.startswith("linux"):
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    if os.getppid() != parent:
+        os._exit(1)
+
+
+class WorkerPool(ProcessPoolExecutor):
+    """A process pool whose workers never outlive the command.
+
+    Its workers die with this process (`_worker_init`); submitting is shielded from
+    signals (`termination.deferred`: a pool half started cannot be torn down); and leaving
+    it on an exception, or shutting it down after a signal, stops the workers at once
+    instead of waiting for their tasks.
+    """
+
+    def __init__(self, jobs: int) -> None:
+        super().__init__(max_workers=check_jobs(jobs), initializer=_worker_init,
+                         initargs=(os.getpid(),))
+
+    def submit(self, fn, /, *args, **kwargs) -> Future:
+        with termination.deferred():
+            return super().submit(fn, *args, **kwargs)
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        if termination.stopping():
+            self.stop()
+        else:
+            super().shutdown(wait, cancel_futures=cancel_futures)
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.shutdown(wait=True)
+        else:
+            self.stop()
+
+    def stop(self) -> None:
+        """Stop the workers now (SIGTERM, SIGKILL after a grace), drop queued tasks."""
+        workers = list((self._processes or {}).values())
+        for proc in workers:
+            proc.terminate()
+        for proc in workers:
+            proc.join(_STOP_GRACE_S)
+            if proc.is_alive():
+                proc.kill()
+                proc.join()
+        super().shutdown(wait=False, cancel_futures=True)
+
+
+def _execute(task):
+    """Worker entry point (module level, so the pool can pickle it)."""
+    return task.run()
+
+
+class TaskPool:
+    """Runs task objects (`.run()`, `.cost`) in this process or in one process pool.
+
+    jobs = 1 runs each task as it is submitted; jobs > 1 starts a pool (default start
+    method) and queues each submitted group longest first. Tasks submitted after others
+    queue behind them, so follow-up work (figures of finished runs) keeps the cores busy
+    without a second pool. The first failure cancels every task not yet started and is
+    re-raised (by `submit` when jobs = 1, else by `results`). Use as a context manager.
+    `executor`: any concurrent.futures.Executor (e.g. Dask's, `wpam_mj.infra.executors`) to
+    run on instead of a pool of its own, whatever `jobs` is; the caller shuts it down.
+    """
+
+    def __init__(self, jobs: int = 1, *, progress: bool = False, desc: str = "runs",
+                 executor: Executor | None = None) -> None:
+        self.jobs = check_jobs(jobs)
+        self._executor = executor
+        self._pool: ProcessPoolExecutor | None = None
+        self._submitted: list[Future] = []
+        self._bar = tqdm(total=0, desc=desc, unit="run", file=sys.stderr,
+                         disable=not progress, leave=False)
+
+    def __enter__(self) -> TaskPool:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        for fut in self._submitted:
+            fut.cancel()
+        if self._pool is not None:
+            self._pool.__exit__(exc_type, exc, tb)  # on an exception: stop the workers now
+        self._bar.close()
+
+    def submit(self, tasks: Sequence) -> list[Future]:
+        """Futures of `task.run()` for each task, in task order."""
+        tasks = list(tasks)
+        self._bar.total += len(tasks)
+        self._bar.refresh()
+        futures: list[Future | None] = [None] * len(tasks)
+        if self.jobs == 1 and self._executor is None:  # a failure propagates at once
+            for i, task in enumerate(tasks):
+                futures[i] = Future()
+                futures[i].set_result(task.run())
+                self._bar.update()
+            return futures
+        if self._pool is None and self._executor is None:
+            self._pool = WorkerPool(self.jobs)
+        pool = self._pool if self._executor is None else self._executor
+        with termination.deferred():  # every future recorded, so that all are cancelled
+            for i in sorted(range(len(tasks)), key=lambda i: -tasks[i].cost):
+                futures[i] = fut = pool.submit(_execute, tasks[i])
+                fut.add_done_callback(lambda _: self._bar.update())
+            self._submitted += futures
+        return futures
+
+    def results(self, futures: Sequence[Future]) -> list:
+        """The results of `futures` (from `submit`), in order; raises the first failure."""
+        done, _ = wait(futures, return_when=FIRST_EXCEPTION)
+        for fut in done:
+            if fut.exception() is not None:
+                for other in self._submitted:
+                    other.cancel()
+                raise fut.exception()
+        return [fut.result() for fut in futures]
+
+    def run(self, tasks: Sequence) -> list:
+        """`submit` then `results`."""
+        return self.results(self.submit(tasks))
+
+
+def run_tasks(tasks: Sequence, *, jobs: int = 1, progress: bool = False,
+              desc: str = "runs", executor: Executor | None = None) -> list:
+    """Run `task.run()` for every task (see `TaskPool`); results in task order."""
+    with TaskPool(jobs, progress=progress, desc=desc, executor=executor) as pool:
+        return pool.run(tasks)
+
+
+@dataclass(frozen=True)
+class Batch:
+    """Tasks of one study and the function that turns their results into its response."""
+
+    tasks: Sequence
+    assemble: Callable[[list], object]
+
+
+def submit_batches(pool: TaskPool, batches: Sequence[Batch]) -> list[Callable[[], object]]:
+    """Submit the tasks of several studies at once (longest first across all of them, so
+    they balance each other on few cores); returns one callable per study that waits for
+    its runs and returns its assembled response."""
+    futures = pool.submit([t for b in batches for t in b.tasks])
+    out, start = [], 0
+    for b in batches:
+        mine = futures[start:start + len(b.tasks)]
+        out.append(lambda b=b, mine=mine: b.assemble(pool.results(mine)))
+        start += len(b.tasks)
+    return out
+
+
+def run_batches(batches: Sequence[Batch], *, jobs: int = 1, progress: bool = False,
+                desc: str = "runs", executor: Executor | None = None) -> list:
+    """Run the tasks of several studies in one pool and return each study's assembled
+    response, in the order given."""
+    with TaskPool(jobs, progress=progress, desc=desc, executor=executor) as pool:
+        return [response() for response in submit_batches(pool, batches)]

@@ -1,0 +1,170 @@
+"""Signals: SIGINT, SIGTERM and SIGHUP end a command at once, with one line and its status.
+
+`handle_signals` installs one handler for the three. The first signal raises its
+exception (`Interrupted` for SIGINT, `Terminated`, `HungUp`; all KeyboardInterrupts, so
+every cleanup that Ctrl-C runs runs too, e.g. `write_atomic` removing its temporary file)
+in the main thread; later signals only record themselves, so that the cleanup they
+interrupt is not itself interrupted. Inside `deferred()` (e.g. while a process pool
+starts, whose half-made state cannot be torn down) a signal is recorded and raised when
+the block ends.
+
+A loop that runs long in compiled code without returning to Python calls `check()`
+between chunks: it costs one attribute read, and raises the pending signal's exception.
+Pool workers (`wpam_mj.infra.pool.WorkerPool`) ignore SIGINT and die of SIGTERM; the process
+that started them stops them (`stopping()` tells it not to wait for their tasks).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import signal
+import sys
+import threading
+from concurrent.futures import InvalidStateError
+from pathlib import Path
+from typing import Iterator
+
+from wpam_mj.simulation.results import _process_exists
+
+# write_atomic's temporary names: ".<name>.wpam<pid>-<random><suffix>"
+_TEMPORARY = re.compile(r"\..+\.wpam(\d+)-\w+(\.\w+)?")
+
+
+class Interrupted(KeyboardInterrupt):
+    """SIGINT received (exit status 130 = 128 + SIGINT)."""
+
+    status, message = 130, "interrupted"
+
+
+class Terminated(Interrupted):
+    """SIGTERM received (exit status 143 = 128 + SIGTERM)."""
+
+    status, message = 143, "terminated"
+
+
+class HungUp(Interrupted):
+    """SIGHUP received, e.g. the terminal closed (exit status 129 = 128 + SIGHUP)."""
+
+    status, message = 129, "hung up"
+
+
+_EXCEPTIONS = {getattr(signal, name): exc for name, exc in  # no SIGHUP on Windows
+               (("SIGINT", Interrupted), ("SIGTERM", Terminated), ("SIGHUP", HungUp))
+               if hasattr(signal, name)}
+STOP_SIGNALS = tuple(sig for sig in _EXCEPTIONS if sig != signal.SIGINT)
+
+
+class _State:
+    """What the handler has seen, in this process (reset by `handle_signals`)."""
+
+    def __init__(self) -> None:
+        self.main_pid = os.getpid()
+        self.pending: type[Interrupted] | None = None  # received, not yet raised
+        self.raised = False  # the command is stopping: later signals are only noted
+        self.defer = 0  # depth of `deferred()` blocks
+
+
+_state = _State()
+_last_signalled = False
+
+
+def check() -> None:
+    """Raise the exception of a signal received but not yet raised (see the docstring)."""
+    if _state.pending is not None and not _state.raised and not _state.defer:
+        _raise_pending()
+
+
+def stopping() -> bool:
+    """Whether a signal has been received: cleanup must not wait for running work."""
+    return _state.pending is not None
+
+
+def stopped_by_signal() -> bool:
+    """Whether the last `handle_signals` block ended because of a signal."""
+    return _last_signalled
+
+
+def exit_now(status: int) -> None:
+    """End the process with `status` once its own cleanup is done: flush the standard
+    streams and skip the interpreter's teardown (about a second with MuJoCo and
+    matplotlib loaded, on a busy machine), so that a signal ends it promptly."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):  # e.g. a closed pipe: nothing left to say
+            stream.flush()
+    os._exit(status)
+
+
+@contextlib.contextmanager
+def deferred() -> Iterator[None]:
+    """A block no signal interrupts; a signal received inside is raised when it ends."""
+    _state.defer += 1
+    try:
+        yield
+    finally:
+        _state.defer -= 1
+    check()
+
+
+@contextlib.contextmanager
+def handle_signals() -> Iterator[None]:
+    """Within the block, SIGINT, SIGTERM and SIGHUP raise their exception in this process
+    (see the module docstring); the previous handlers come back afterwards. Only in the
+    main thread (where Python runs signal handlers); elsewhere a no-op."""
+    global _state, _last_signalled
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    _state = _State()
+    _last_signalled = False
+    previous = {sig: signal.signal(sig, _on_signal) for sig in _EXCEPTIONS}
+    hook = threading.excepthook
+    threading.excepthook = _quiet_broken_pool
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        threading.excepthook = hook
+        _last_signalled = _state.pending is not None
+        _state = _State()
+
+
+def _on_signal(signum, frame) -> None:
+    if os.getpid() != _state.main_pid:  # a forked child that kept the handler: die of it
+        signal.signal(signum, signal.SIG_DFL)
+        os.kill(os.getpid(), signum)
+        return
+    if _state.pending is None:
+        _state.pending = _EXCEPTIONS[signal.Signals(signum)]
+    check()
+
+
+def _raise_pending() -> None:
+    _state.raised = True
+    raise _state.pending
+
+
+def _quiet_broken_pool(hook_args) -> None:
+    """A process pool whose workers were just stopped fails, in Python 3.11, to mark its
+    cancelled futures broken (InvalidStateError in its manager thread). That is the
+    expected end of the pool, not an error worth a traceback; anything else goes to the
+    default hook."""
+    if not issubclass(hook_args.exc_type, InvalidStateError):
+        threading.__excepthook__(hook_args)
+
+
+def remove_dead_temporaries(folder: str | Path) -> list[Path]:
+    """Delete write_atomic's temporary files in `folder` and its subfolders (one level,
+    where the commands write: parts/, plots/, holdout/) whose writer has exited; returns
+    them. A live process's file is kept (a concurrent run is not disturbed). Not deeper:
+    `folder` may be a large tree (calibrate writes into the current folder)."""
+    removed = []
+    folder = Path(folder)
+    for path in (*folder.glob(".*.wpam*"), *folder.glob("*/.*.wpam*")):
+        match = _TEMPORARY.fullmatch(path.name)
+        if match and path.is_file() and not _process_exists(int(match.group(1))):
+            path.unlink(missing_ok=True)
+            removed.append(path)
+    return removed

@@ -1,0 +1,436 @@
+"""Model parameters: one frozen, typed, validated object per concern, SI units.
+
+Every field carries its unit, its allowed range and its source in the field metadata;
+`validate` checks them all in one place. Users read mm and MPa: conversion happens at
+the edges (CLI, plots, CSV headers), never here.
+
+Presets:
+  * ``wpam``     the paper's double-air-chamber muscle (RLAM inside an outer bag);
+                 calibrated values come from ``models/wpam/calibrated.toml``.
+  * ``rlam``     the same inner muscle with no usable outer chamber (Po is forced to the
+                 regulator minimum by the experiments).
+  * ``mckibben`` a rubber-tube McKibben muscle of the same braid: elastic Fco term
+                 (paper eq. 7), low bag/sleeve friction.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+import os
+import stat
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from wpam_mj import paper
+from wpam_mj.paths import MODELS_DIR
+from wpam_mj.units import MM, MPA  # noqa: F401 (MM re-exported: modules take units from here)
+
+STANDARD_GRAVITY = 9.80665  # m/s^2, ISO 80000-3
+
+
+class ParameterError(ValueError):
+    """A parameter or input lies outside its allowed range."""
+
+
+def _p(default: float, unit: str, lo: float, hi: float, source: str, *,
+       lo_open: bool = False, plausible: tuple[float, float] | None = None) -> Any:
+    """A parameter field: [lo, hi] is what the code accepts (other muscles and rigs);
+    `plausible` is the physically credible range for the paper's W-PAM, with its source in
+    `source`, and the bounds of `wpam calibrate` (None: not fitted)."""
+    return field(default=default, metadata=dict(unit=unit, lo=lo, hi=hi, source=source,
+                                                lo_open=lo_open, plausible=plausible))
+
+
+def shown(value: Any) -> str:
+    """A value as a message shows it: numpy scalars as the Python number they hold
+    (-100.0, not np.float64(-100.0)), anything else as its repr."""
+    if isinstance(value, np.generic):
+        value = value.item()
+    return repr(value)
+
+
+def check_range(name: str, value: float, lo: float, hi: float, unit: str = "", *,
+                lo_open: bool = False) -> float:
+    """Return ``float(value)`` or raise ParameterError naming the value and the range
+    (or saying that no value is allowed when a computed range is empty)."""
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise ParameterError(f"{name} = {shown(value)} is not a number") from None
+    if not lo <= hi:
+        raise ParameterError(f"{name} = {shown(value)} {unit}: no value is allowed (the "
+                             f"lower bound {lo:g} is above the upper {hi:g})")
+    below = v <= lo if lo_open else v < lo
+    if not math.isfinite(v) or below or v > hi:
+        bracket = "(" if lo_open else "["
+        raise ParameterError(f"{name} = {shown(value)} {unit} is outside the allowed range "
+                             f"{bracket}{lo:g}, {hi:g}] {unit}".replace("  ", " "))
+    return v
+
+
+def _is_number(value: Any) -> bool:
+    """A real number that is not a bool: TOML strings ("0.1") and booleans are refused,
+    although float() would accept them."""
+    return isinstance(value, numbers.Real) and not isinstance(value, bool)
+
+
+class _Validated:
+    """Mixin: type- and range-check every float field from its metadata after construction."""
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):  # type: ignore[arg-type]
+            md = f.metadata
+            if "lo" in md:
+                name, value = f"{type(self).__name__.lower()}.{f.name}", getattr(self, f.name)
+                if not _is_number(value):
+                    bracket = "(" if md["lo_open"] else "["
+                    raise ParameterError(
+                        f"{name} = {value!r} is a {type(value).__name__}; expected a number "
+                        f"in {bracket}{md['lo']:g}, {md['hi']:g}] {md['unit']}")
+                check_range(name, value, md["lo"], md["hi"], md["unit"], lo_open=md["lo_open"])
+                object.__setattr__(self, f.name, float(value))
+
+
+@dataclass(frozen=True)
+class Braid(_Validated):
+    """Braided sleeve and bags (pantograph geometry, see `wpam_mj.physics.geometry`)."""
+
+    natural_length: float = _p(0.350, "m", 0.05, 2.0, "paper §2.3 (effective natural length)")
+    natural_diameter: float = _p(0.022, "m", 0.003, 0.2, "paper §2.3")
+    max_diameter: float = _p(0.042, "m", 0.004, 0.4, "paper §2.3 (bag at maximum inflation)")
+    braid_angle: float = _p(0.3477, "rad", math.radians(5), math.radians(50),
+                            "calibrated: thread angle to the axis at natural length; the "
+                            "50 mm step target must lie inside the stroke (>= 18 deg) and the "
+                            "bag must fill before the 54.7 deg locking angle (<= 25.3 deg)",
+                            plausible=(math.radians(18.0), math.radians(25.0)))
+    outer_bag_length: float = _p(0.420, "m", 0.05, 3.0, "paper §2.3")
+    outer_bag_diameter: float = _p(0.060, "m", 0.005, 0.5, "paper §2.3")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.max_diameter <= self.natural_diameter:
+            raise ParameterError(f"braid.max_diameter = {self.max_diameter} m must exceed "
+                                 f"braid.natural_diameter = {self.natural_diameter} m")
+        if self.outer_bag_diameter <= self.max_diameter:
+            raise ParameterError(f"braid.outer_bag_diameter = {self.outer_bag_diameter} m must"
+                                 f" exceed braid.max_diameter = {self.max_diameter} m")
+        if self.outer_bag_length < self.natural_length:
+            raise ParameterError(f"braid.outer_bag_length = {self.outer_bag_length} m must be "
+                                 f"at least braid.natural_length = {self.natural_length} m "
+                                 "(the outer bag spans the muscle's end fittings)")
+        # Pantograph (wpam_mj.physics.geometry): D = b sin(theta) / (n pi) with b and n fixed, so
+        # sin(theta) grows in proportion to D. The bag must fill to max_diameter before the
+        # threads reach the locking angle atan(sqrt 2) = 54.7 deg, where the effective area
+        # dV/dx = (3 L^2 - b^2) / (4 pi n^2) falls to zero (Chou & Hannaford 1996):
+        # sin(theta) max_diameter / natural_diameter < sin(54.7 deg) = sqrt(2/3).
+        limit = math.asin(min(1.0, math.sqrt(2.0 / 3.0) * self.natural_diameter
+                              / self.max_diameter))
+        if self.braid_angle >= limit:
+            raise ParameterError(
+                f"braid.braid_angle = {self.braid_angle:g} rad "
+                f"({math.degrees(self.braid_angle):.1f} deg) reaches the 54.7 deg locking "
+                f"angle before the bag fills to braid.max_diameter = {self.max_diameter} m; "
+                f"allowed: below {limit:.4f} rad ({math.degrees(limit):.1f} deg) for "
+                f"braid.natural_diameter = {self.natural_diameter} m")
+
+
+@dataclass(frozen=True)
+class Muscle(_Validated):
+    """Force terms of the tension model (`wpam_mj.muscle`)."""
+
+    output_coeff: float = _p(0.8, "1", 0.0, 1.0,
+                             "calibrated: paper Kf (Table 1) as the efficiency of the "
+                             "virtual-work force dP dV/dx; braided muscles deliver 0.5-1 of "
+                             "it (Chou & Hannaford 1996; Tondu & Lopez 2000); > 1 would "
+                             "create work", lo_open=True, plausible=(0.5, 1.0))
+    friction_coeff: float = _p(0.2, "1", 0.0, 1.0,
+                               "calibrated: paper mu (eq. 4), friction per unit of the "
+                               "pressure force dP S; polymer film on a polyester braid "
+                               "(Coulomb coefficients 0.1-0.5)", plausible=(0.0, 0.5))
+    friction_const: float = _p(5.0, "N", 0.0, 500.0,
+                               "calibrated: pressure-independent friction (sleeve and bag "
+                               "folds at rest)", plausible=(0.0, 30.0))
+    axial_area: float = _p(5e-4, "m^2", 0.0, 0.05,
+                           "calibrated: area on which Po pushes the end fittings apart; at "
+                           "most the outer bag's cross-section pi (0.06 m)^2 / 4",
+                           plausible=(0.0, 2.8e-3))
+    rubber_stiffness: float = _p(0.0, "N/m", 0.0, 1e6,
+                                 "paper eq. 7 K_R; 0 for a non-stretchable bag (RLAM)")
+    damping: float = _p(20.0, "N s/m", 0.0, 1e5,
+                        "estimate: viscous losses of the linear guide and the hanging mass "
+                        "(tens of N s/m at most); not fitted", plausible=(0.0, 50.0))
+
+
+@dataclass(frozen=True)
+class Pneumatics(_Validated):
+    """Two SMC ITV2031-like regulators feeding the chambers (`wpam_mj.physics.pneumatics`)."""
+
+    p_min: float = _p(0.005 * MPA, "Pa", 0.0, 1.0 * MPA, "ITV2031 range, paper §2.3")
+    p_max: float = _p(0.5 * MPA, "Pa", 0.0, 1.0 * MPA, "ITV2031 range, paper §2.3")
+    time_constant: float = _p(0.083, "s", 0.0, 5.0,
+                              "ITV-series first-order lag identified from echo-step data "
+                              "(porcaro_2026, scripts/itv_models.py: 83 ms)",
+                              plausible=(0.05, 0.1))
+    dead_time: float = _p(0.02, "s", 0.0, 1.0,
+                          "ITV-series dead time identified from echo-step data "
+                          "(porcaro_2026: 20-21 ms pilot models, 45 ms rounded)",
+                          plausible=(0.02, 0.045))
+    inner_conductance: float = _p(6e-9, "m^3/(s Pa)", 0.0, 1e-6,
+                                  "calibrated: ISO 6358 C of valve + tube + fitting port; at "
+                                  "most the ITV2031's 1500 L/min at 0.7 MPa abs (3.6e-8), at "
+                                  "least a 1.1 mm orifice (1e-9)", lo_open=True,
+                                  plausible=(1e-9, 3.6e-8))
+    outer_conductance: float = _p(2e-9, "m^3/(s Pa)", 0.0, 1e-6,
+                                  "calibrated: as inner_conductance, for the Po line into the "
+                                  "outer bag", lo_open=True, plausible=(1e-9, 3.6e-8))
+    critical_ratio: float = _p(0.5, "1", 0.0, 0.99, "ISO 6358 b, typical valve value")
+    tube_volume: float = _p(2.5e-5, "m^3", 0.0, 0.01, "estimate (2 m of 4 mm bore tube)")
+    atmosphere: float = _p(101325.0, "Pa", 5e4, 2e5, "standard atmosphere")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.p_min >= self.p_max:
+            raise ParameterError(f"pneumatics.p_min = {self.p_min} Pa must be below "
+                                 f"pneumatics.p_max = {self.p_max} Pa")
+
+
+@dataclass(frozen=True)
+class Controller(_Validated):
+    """PI/PID on Po and the equilibrium-model feedforward on Pi (`wpam_mj.control.controllers`).
+
+    Gains are the paper's §4 numbers: error e = x - x_r in mm, time in s, output
+    u = Kp e + Ki int(e) dt + Kd de/dt in a controller unit u that `command_scale` turns
+    into the Po command [MPa] (the paper does not state the unit; `wpam_mj.control.controllers`).
+    """
+
+    kp: float = _p(paper.KP, "u/mm", 0.0, 1e3, "paper §4.1")
+    ki: float = _p(paper.KI, "u/(mm s)", 0.0, 1e3, "paper §4.1")
+    kd: float = _p(paper.KD, "u s/mm", 0.0, 1e3, "paper §4.2 (used in PID mode only)")
+    command_scale: float = _p(0.1, "MPa/u", 0.0, 10.0,
+                              "our reading of the paper's unitless gains: u in volts on the "
+                              "ITV2031's 0-5 V input (0.5 MPa / 5 V); docs/physics.md "
+                              "compares the readings", lo_open=True)
+    derivative_filter: float = _p(0.02, "s", 0.0, 10.0, "our choice (first-order D filter)")
+    po_cap: float = _p(paper.PO_CAP_MPA * MPA, "Pa", 0.0, 1.0 * MPA, "paper §4.2 (bag durability)")
+    po_feedforward: float = _p(0.04 * MPA, "Pa", 0.0, 1.0 * MPA,
+                               "protocol reading (the paper does not state it): the Po the "
+                               "Pi feedforward assumes; the W-PAM calibration reads it as the "
+                               "regulator's minimum p_min, so that Pi sits on eq. 5's "
+                               "contracting branch at the least Po (docs/physics.md)")
+    feedforward_friction: float = _p(0.0, "1", 0.0, 1.2,
+                                     "calibrated protocol reading of §4.1: the share of the "
+                                     "friction band the Pi feedforward adds (0 frictionless, "
+                                     "1 the contracting branch of eq. 5; above 1 a little "
+                                     "beyond it, the 'excessive contraction state' that Po "
+                                     "holds back; at most the few per cent to which the "
+                                     "friction is known)", plausible=(0.0, 1.05))
+
+
+@dataclass(frozen=True)
+class Params:
+    """Everything that defines one simulated muscle and its drive."""
+
+    braid: Braid = field(default_factory=Braid)
+    muscle: Muscle = field(default_factory=Muscle)
+    pneumatics: Pneumatics = field(default_factory=Pneumatics)
+    controller: Controller = field(default_factory=Controller)
+    preset: str = "wpam"
+
+    def __post_init__(self) -> None:
+        for name, cls in _SECTIONS.items():
+            if not isinstance(getattr(self, name), cls):
+                raise ParameterError(f"params.{name} = {getattr(self, name)!r} must be a "
+                                     f"{cls.__name__}")
+        pn, c, b = self.pneumatics, self.controller, self.braid
+        # With A_ax at most the bag's cross-section, a bag wider than the inflated muscle and
+        # no shorter than it (checked by Braid), the outer chamber keeps a positive volume
+        # over the whole stroke: V_o >= (A_bag - A_max) L_stop > 0.
+        bag_section = math.pi * b.outer_bag_diameter ** 2 / 4.0
+        if self.muscle.axial_area > bag_section:
+            raise ParameterError(
+                f"muscle.axial_area = {self.muscle.axial_area:g} m^2 exceeds the outer bag's "
+                f"cross-section {bag_section:.4g} m^2 (braid.outer_bag_diameter)")
+        check_range("controller.po_cap", c.po_cap / MPA, pn.p_min / MPA, pn.p_max / MPA, "MPa")
+        check_range("controller.po_feedforward", c.po_feedforward / MPA, pn.p_min / MPA,
+                    c.po_cap / MPA, "MPa")
+
+    @property
+    def outer_chamber(self) -> bool:
+        """False for the bare RLAM: nothing around the inner bag for Po to fill."""
+        return self.preset != "rlam"
+
+    def replace(self, **sections: Mapping[str, float]) -> "Params":
+        """Copy with some fields changed: ``p.replace(muscle={"friction_coeff": 0})``."""
+        return apply_overrides(self, sections)
+
+    def value(self, name: str) -> Any:
+        """The field named "section.field": ``p.value("muscle.damping")``."""
+        section, _, key = name.partition(".")
+        return getattr(getattr(self, section), key)
+
+    def with_values(self, values: Mapping[str, Any]) -> "Params":
+        """Copy with fields named "section.field" changed: ``{"muscle.damping": 30.0}``."""
+        if not values:
+            return self
+        sections: dict[str, dict[str, Any]] = {}
+        for name, value in values.items():
+            section, _, key = name.partition(".")
+            sections.setdefault(section, {})[key] = value
+        return apply_overrides(self, sections)
+
+    def as_dict(self) -> dict[str, dict[str, float]]:
+        return {s: dataclasses.asdict(getattr(self, s)) for s in _SECTIONS}
+
+
+_SECTIONS = {"braid": Braid, "muscle": Muscle, "pneumatics": Pneumatics,
+             "controller": Controller}
+
+
+def apply_overrides(params: Params, overrides: Mapping[str, Any]) -> Params:
+    """Return `params` with ``{section: {field: value}}`` applied; unknown keys raise."""
+    new = {}
+    for section, values in overrides.items():
+        if section not in _SECTIONS:
+            raise ParameterError(f"unknown parameter section {section!r}; "
+                                 f"valid sections: {', '.join(_SECTIONS)}")
+        if not isinstance(values, Mapping):
+            raise ParameterError(f"section [{section}] must be a table of values")
+        cls = _SECTIONS[section]
+        names = {f.name for f in dataclasses.fields(cls)}
+        for key in values:
+            if key not in names:
+                raise ParameterError(f"unknown parameter {section}.{key}; "
+                                     f"valid names: {', '.join(sorted(names))}")
+        new[section] = dataclasses.replace(getattr(params, section), **values)
+    return dataclasses.replace(params, **new)
+
+
+MAX_TOML_BYTES = 1_000_000  # a parameter file is a few hundred bytes
+
+
+def file_kind(path: str | Path) -> str:
+    """"file", "folder", "missing", or what else `path` is (a named pipe, a device, a
+    socket): read only a "file" (opening a named pipe waits for a writer; a device may
+    never end)."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        return "missing"
+    except OSError as err:
+        return f"unreadable ({err.strerror or err})"
+    if stat.S_ISREG(mode):
+        return "file"
+    if stat.S_ISDIR(mode):
+        return "folder"
+    if stat.S_ISFIFO(mode):
+        return "named pipe"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "device"
+    return "socket" if stat.S_ISSOCK(mode) else "special file"
+
+
+def check_regular_file(path: str | Path, what: str) -> Path:
+    """`path` if it is a regular file, else ParameterError saying what it is."""
+    kind = file_kind(path)
+    if kind == "missing":
+        raise ParameterError(f"{what} {path}: no such file")
+    if kind != "file":
+        raise ParameterError(f"{what} {path} is a {kind}, not a regular file")
+    return Path(path)
+
+
+def check_int(name: str, value: Any, lo: int, hi: int) -> int:
+    """An integer (not a bool) in [lo, hi], else ParameterError naming it and the range."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or \
+            not lo <= value <= hi:
+        raise ParameterError(f"{name} = {shown(value)} must be an integer in [{lo}, {hi}]")
+    return int(value)
+
+
+def load_toml(path: str | Path, what: str = "parameter file") -> dict[str, Any]:
+    """Read a TOML file (UTF-8, <= 1 MB): a parameter file (sections as in `Params`, SI
+    values) unless `what` names another kind (for messages, e.g. "study file")."""
+    check_regular_file(path, what)
+    try:
+        with open(path, "rb") as fh:
+            data = fh.read(MAX_TOML_BYTES + 1)  # bounded: a huge file stops here
+    except OSError as err:
+        raise ParameterError(f"cannot read {what} {path}: "
+                             f"{err.strerror or err}") from None
+    if len(data) > MAX_TOML_BYTES:
+        raise ParameterError(f"{what} {path} is larger than the allowed "
+                             f"{MAX_TOML_BYTES / 1e6:g} MB")
+    try:
+        return tomllib.loads(data.decode("utf-8"))
+    except UnicodeDecodeError as err:
+        line = data[:err.start].count(b"\n") + 1
+        raise ParameterError(f"{what} {path} is not UTF-8 text: byte "
+                             f"0x{data[err.start]:02x} on line {line}") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ParameterError(f"malformed TOML in {path}: {err}") from None
+
+
+CALIBRATION_FILE = MODELS_DIR / "wpam" / "calibrated.toml"
+
+# Rubber McKibben muscle of the same braid: K_R is an estimate for a 1.5 mm latex tube
+# (Chou & Hannaford 1996 report tens of N of elastic loss over the stroke), friction
+# between a rubber tube and a sleeve is much lower than for a loose airbag (paper §2.2).
+_MCKIBBEN = {"muscle": {"rubber_stiffness": 3000.0, "friction_coeff": 0.01,
+                        "friction_const": 1.0}}
+# A bare RLAM has no outer bag: nothing for Po to push on.
+_RLAM = {"muscle": {"axial_area": 0.0}}
+PRESETS = ("wpam", "rlam", "mckibben")
+
+
+def preset(name: str = "wpam", *, calibration: str | Path | None = CALIBRATION_FILE) -> Params:
+    """Parameters of a named muscle type, with the calibrated values applied.
+
+    The RLAM and McKibben presets share the W-PAM's calibrated braid and regulators.
+    `calibration`: the shipped `CALIBRATION_FILE` (used when present: before the first
+    `wpam calibrate` the built-in values apply), another TOML file (which must exist),
+    or None (the built-in values).
+    """
+    if name not in PRESETS:
+        raise ParameterError(f"unknown preset {name!r}; valid presets: {', '.join(PRESETS)}")
+    params = Params(preset=name)
+    if calibration is not None and (Path(calibration) != CALIBRATION_FILE
+                                    or CALIBRATION_FILE.exists()):
+        params = apply_overrides(params, load_toml(calibration))
+    if name == "mckibben":
+        params = apply_overrides(params, _MCKIBBEN)
+    elif name == "rlam":
+        params = apply_overrides(params, _RLAM)
+    return params
+
+
+def describe(params: Params) -> list[tuple[str, float, str, str]]:
+    """Rows (name, value, unit, source) for reports and the README table."""
+    return [(name, value, unit, source)
+            for name, value, unit, _, source in describe_with_ranges(params)]
+
+
+def describe_with_ranges(params: Params) -> list[tuple[str, float, str, tuple | None, str]]:
+    """Rows (name, value, unit, plausible range or None, source)."""
+    rows = []
+    for s in _SECTIONS:
+        obj = getattr(params, s)
+        for f in dataclasses.fields(obj):
+            md = f.metadata
+            rows.append((f"{s}.{f.name}", getattr(obj, f.name), md["unit"], md["plausible"],
+                         md["source"]))
+    return rows
+
+
+def plausible_range(name: str) -> tuple[float, float]:
+    """The plausible range of the parameter "section.field" (ParameterError if none)."""
+    section, _, key = name.partition(".")
+    fields = {f.name: f for f in dataclasses.fields(_SECTIONS.get(section, Params))}
+    if key not in fields or fields[key].metadata.get("plausible") is None:
+        raise ParameterError(f"{name} has no plausible range (not a fitted parameter)")
+    return fields[key].metadata["plausible"]

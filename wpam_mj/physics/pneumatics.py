@@ -1,0 +1,188 @@
+"""Regulators and chambers: ITV2031-like pressure sources behind a flow restriction.
+
+The two state-holding pieces the muscle advances once per physics step are
+`Regulator` (command -> set pressure) and `Chamber` (set pressure -> chamber pressure).
+`wpam_mj/simulation/muscle_plugin.c` mirrors each of them one to one (same names, same order of
+operations); a change here is a change there.
+
+Each regulator (SMC ITV2031: 0.005-0.5 MPa) is modelled as
+  1. its command clamped to [0, p_max] (0 = vented; the controllers never command
+     below p_min while they drive a chamber),
+  2. a dead time and a first-order lag on the command -> the regulator's set pressure p_set,
+  3. an ideal pressure source p_set feeding the chamber through the valve + tubing,
+     a restriction with ISO 6358 sonic conductance C and critical ratio b:
+
+        m_dot = C rho_0 p_up psi(r),   r = p_down / p_up  (absolute pressures)
+        psi = 1                                  for r <= b   (choked)
+        psi = sqrt(1 - ((r - b) / (1 - b))^2)   for b < r     (subsonic)
+
+     linearised for r > R_LAMINAR, where the subsonic law has an infinite slope (the
+     usual laminar-region treatment, e.g. Beater, Pneumatic Drives, Springer 2007, §5).
+
+The chamber air is isothermal at T_0 (slow, thin-walled bags):
+        d(p V)/dt = R T_0 m_dot   =>   dp/dt = (R T_0 m_dot - p dV/dt) / V.
+with dV/dt = (dV/dx) v:
+Inner chamber: V_i = V(x) + V_tube, dV_i/dx = S(x).
+Outer chamber: V_o = V_bag - V(x) - A_ax x + V_tube, dV_o/dx = -(S(x) + A_ax).
+Moving the muscle moves air, so the restriction limits its velocity: this is the paper's
+"limit velocity" (§4.2), which makes the gain fall above about 0.5 Hz.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from wpam_mj.physics.geometry import BraidGeometry
+from wpam_mj.physics.params import Params
+
+R_AIR = 287.05  # J/(kg K), specific gas constant of dry air
+T_0 = 293.15  # K, ISO 8778 reference (ANR) temperature
+RHO_0 = 1.185  # kg/m^3, ISO 8778 reference density (ANR)
+R_LAMINAR = 0.99  # pressure ratio above which the flow law is linearised
+
+RT0 = R_AIR * T_0
+
+
+def iso6358_psi(r: float, b: float) -> float:
+    """Flow function psi(r) of ISO 6358 for 0 <= r <= 1, laminar-linearised near r = 1."""
+    if r <= b:
+        return 1.0
+    if r <= R_LAMINAR:
+        q = (r - b) / (1.0 - b)
+        return math.sqrt(1.0 - q * q)
+    q = (R_LAMINAR - b) / (1.0 - b)
+    return math.sqrt(1.0 - q * q) * (1.0 - r) / (1.0 - R_LAMINAR)
+
+
+def mass_flow(p_source: float, p_chamber: float, conductance: float, b: float) -> float:
+    """Mass flow [kg/s] from a source at `p_source` into a chamber at `p_chamber`.
+
+    Absolute pressures [Pa]; negative when the chamber vents back through the valve.
+    """
+    if p_source >= p_chamber:
+        return conductance * RHO_0 * p_source * iso6358_psi(p_chamber / p_source, b)
+    return -conductance * RHO_0 * p_chamber * iso6358_psi(p_source / p_chamber, b)
+
+
+def mass_flow_array(p_source: np.ndarray, p_chamber: np.ndarray, conductance: float,
+                    b: float) -> np.ndarray:
+    """`mass_flow` elementwise on arrays (for feedforward design, not the step loop)."""
+    up = np.maximum(p_source, p_chamber)
+    r = np.minimum(p_source, p_chamber) / up
+    q = (np.minimum(r, R_LAMINAR) - b) / (1.0 - b)
+    psi = np.where(r <= b, 1.0, np.sqrt(np.maximum(1.0 - q * q, 0.0)))
+    psi = np.where(r > R_LAMINAR, psi * (1.0 - r) / (1.0 - R_LAMINAR), psi)
+    return np.sign(p_source - p_chamber) * conductance * RHO_0 * up * psi
+
+
+def source_pressure(m_dot: np.ndarray, p_chamber: np.ndarray, conductance: float,
+                    b: float, p_limit: float) -> np.ndarray:
+    """Source pressure [Pa abs] that drives `m_dot` [kg/s] into a chamber at `p_chamber`
+    [Pa abs] through the restriction: the inverse of `mass_flow`, which is monotone in the
+    source pressure; found by bisection on [0, p_limit] (saturating at the ends)."""
+    m_dot, p_chamber = np.broadcast_arrays(np.asarray(m_dot, float), np.asarray(p_chamber, float))
+    lo, hi = np.zeros_like(m_dot), np.full_like(m_dot, p_limit)
+    for _ in range(60):  # 2^-60 of the bracket: below the float spacing of Pa values
+        mid = 0.5 * (lo + hi)
+        short = mass_flow_array(mid, p_chamber, conductance, b) < m_dot
+        lo, hi = np.where(short, mid, lo), np.where(short, hi, mid)
+    return 0.5 * (lo + hi)
+
+
+def chamber_volumes(bag_inner: float, x: float, axial_area: float, bag_volume: float,
+                    tube_volume: float) -> tuple[float, float]:
+    """(V_i, V_o) [m^3]: the inner bag's volume `bag_inner` plus its tube, and the outer
+    bag's enclosed `bag_volume` less the inner bag and A_ax x, plus its tube (module doc).
+    Floats or arrays."""
+    return bag_inner + tube_volume, bag_volume + tube_volume - bag_inner - axial_area * x
+
+
+def chamber_volumes_of(params: Params, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`chamber_volumes` [m^3] of one parameter set at contraction x [m] (float or array)."""
+    b = params.braid
+    return chamber_volumes(BraidGeometry.from_params(b).volume(x), x, params.muscle.axial_area,
+                           outer_bag_volume(b.outer_bag_length, b.outer_bag_diameter),
+                           params.pneumatics.tube_volume)
+
+
+def max_flow_slope(conductance: float, b: float) -> float:
+    """Largest |d m_dot / d p_chamber| [kg/(s Pa)] of `mass_flow` at a fixed source: the
+    slope of its laminar-linearised region, C rho_0 psi(R_LAMINAR) / (1 - R_LAMINAR)."""
+    return conductance * RHO_0 * iso6358_psi(R_LAMINAR, b) / (1.0 - R_LAMINAR)
+
+
+def stable_dt(params: Params) -> tuple[float, str]:
+    """The largest time step [s] at which `Chamber.step` (explicit Euler) is stable and
+    does not oscillate for this parameter set, and the conductance that sets it.
+
+    Near equilibrium dp/dt = R T_0 m_dot(p) / V is linear with rate
+    lambda = R T_0 max_flow_slope / V; explicit Euler decays monotonically for
+    dt lambda <= 1. V is each chamber's smallest volume over the stroke: the inner one at
+    x = 0, the outer one at the full contraction.
+    """
+    pn, b = params.pneumatics, params.braid
+    x_max = BraidGeometry.from_params(b).max_contraction
+    v_i, _ = chamber_volumes_of(params, 0.0)
+    _, v_o = chamber_volumes_of(params, x_max)
+    limits = [(float(v) / (RT0 * max_flow_slope(c, pn.critical_ratio)), name)
+              for v, c, name in ((v_i, pn.inner_conductance, "pneumatics.inner_conductance"),
+                                 (v_o, pn.outer_conductance, "pneumatics.outer_conductance"))]
+    return min(limits)
+
+
+def outer_bag_volume(length: float, diameter: float) -> float:
+    """Volume enclosed by the outer bag [m^3] (a cylinder of the paper's §2.3 size)."""
+    return math.pi * diameter * diameter * length / 4.0
+
+
+class Regulator:
+    """One ITV2031-like regulator: command [Pa gauge] -> set pressure `set_point` [Pa gauge].
+
+    Per step: the command enters a dead time of `delay_steps` steps (a ring buffer of the
+    commands in flight, all 0 at the start), is clamped to [0, p_max], and the set point
+    follows it through a first-order lag discretised exactly for a held input,
+    p_set += alpha (p_cmd - p_set) with alpha = 1 - exp(-dt / tau) (`lag_alpha`).
+    """
+
+    def __init__(self, lag_alpha: float, delay_steps: int, p_max: float) -> None:
+        self.lag_alpha, self.p_max = lag_alpha, p_max
+        self.set_point = 0.0
+        self._queue = [0.0] * delay_steps
+        self._head = 0
+
+    def rest(self, command: float) -> None:
+        """Settle at a held `command` [Pa]: every command in flight and the set point equal
+        to it (the regulator has been holding it since before the run)."""
+        self._queue = [command] * len(self._queue)
+        self.set_point = min(max(command, 0.0), self.p_max)
+
+    def update(self, command: float) -> float:
+        """Take this step's command [Pa]; return the new set point [Pa]."""
+        if self._queue:
+            h = self._head
+            command, self._queue[h] = self._queue[h], command
+            self._head = (h + 1) % len(self._queue)
+        clamped = min(max(command, 0.0), self.p_max)
+        self.set_point += self.lag_alpha * (clamped - self.set_point)
+        return self.set_point
+
+
+class Chamber:
+    """Isothermal air volume fed through one restriction; `pressure` absolute [Pa].
+
+    `step` advances dp/dt = (R T_0 m_dot - p dV/dt) / V by one explicit Euler step.
+    """
+
+    def __init__(self, conductance: float, critical_ratio: float, pressure: float) -> None:
+        self.conductance, self.critical_ratio = conductance, critical_ratio
+        self.pressure = pressure
+
+    def step(self, p_source: float, volume: float, dvdx: float, v: float, dt: float) -> float:
+        """One step of `dt` [s] fed from `p_source` [Pa abs] at volume [m^3], dV/dx
+        [m^2] and contraction velocity v [m/s]; returns the new pressure [Pa abs]."""
+        p = self.pressure
+        m = mass_flow(p_source, p, self.conductance, self.critical_ratio)
+        self.pressure = p + dt * (RT0 * m - p * dvdx * v) / volume
+        return self.pressure

@@ -1,0 +1,1 @@
+"""Reproducing the paper: its findings, calibration, the global search and the report."""

@@ -1,0 +1,150 @@
+"""`reproduce`: every experiment of the paper into one folder, with report.md.
+
+One process pool runs every study (longest runs first), then each study's CSVs and
+figures as soon as its runs are in; the summaries, checks and report follow.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Sequence
+
+from wpam_mj import paper
+from wpam_mj.experiments import figures as plots
+from wpam_mj.paper import Check
+from wpam_mj.physics.params import Params, preset
+from wpam_mj.infra.pool import Batch, TaskPool, submit_batches
+from wpam_mj.reproduction.report import report_markdown
+from wpam_mj.simulation.results import write_text_atomic
+from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
+from wpam_mj.experiments.studies import StaticTask, StepTask, figure_run_key, sweep_batch
+from wpam_mj.experiments.responses import SweepResult, Table2Result
+from wpam_mj.experiments.writers import (run_metadata, sine_csv_name, static_csv_name,
+                                         step_csv_name, write_checks, write_sweep, write_table2)
+
+
+PRESET_COMPARE_LOAD_N = 100.0  # our choice for Fig. 3 (the paper's load is not given)
+
+
+class _CsvTask:
+    """Write one run's CSV (a pool task)."""
+
+    cost = 1.0
+
+    def __init__(self, path: Path, result) -> None:
+        self.path, self.result = path, result
+
+    def run(self) -> Path:
+        return self.result.to_csv(self.path)
+
+
+class _FigureTask:
+    """Build one figure with `wpam_mj.experiments.figures.<builder>` and save it (a pool task)."""
+
+    cost = 3.0
+
+    def __init__(self, path: Path, builder: str, args: tuple, kwargs: dict,
+                 run_id: str | None) -> None:
+        self.path, self.builder, self.args, self.kwargs = path, builder, args, kwargs
+        self.run_id = run_id
+
+    def run(self) -> Path:
+        return plots.save_figure(getattr(plots, self.builder)(*self.args, **self.kwargs),
+                                 self.path, run_id=self.run_id)
+
+
+@dataclass(frozen=True)
+class Reproduction:
+    report: Path
+    table2: Table2Result
+    sweep: SweepResult
+    checks: tuple[Check, ...]
+    files: dict[Path, dict]  # every file written, with its manifest metadata
+
+
+def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: int = 1,
+              progress: bool = False, compare: Sequence[Params] | None = None,
+              run_id: str | None = None, protocol: Protocol = SHIPPED) -> Reproduction:
+    """Run every experiment and write CSV/PNG/JSON and `report.md` into `out_dir`.
+
+    Args:
+      params: the W-PAM parameters (all experiments).
+      compare: muscle types for the Fig. 3 comparison at 100 N; default: the mckibben
+        and rlam presets beside `params`.
+      dt: physics step [s]; jobs: process-pool size.
+      run_id: the run's id (`wpam_mj.infra.manifest.run_id`), recorded in every figure.
+      protocol: the static ramps' readings (`wpam_mj.experiments.protocol`) for Figs. 8-9, Table 2.
+    """
+    out = Path(out_dir)
+    data = out / "data"
+    compare = list(compare) if compare is not None else [preset("mckibben"), preset("rlam"),
+                                                          params]
+    extra = ([StepTask(params, 100.0, "open", dt)]
+             + [StaticTask(p, PRESET_COMPARE_LOAD_N, 0.0, dt) for p in compare if p != params])
+
+    files: dict[Path, dict] = {}
+
+    def csv_tasks(runs, file_name) -> list[_CsvTask]:
+        return [csv_task(data / file_name(run), run.result) for run in runs]
+
+    def csv_task(path: Path, result) -> _CsvTask:
+        files[path] = run_metadata(result)
+        return _CsvTask(path, result)
+
+    def figure_tasks(figs: dict) -> list[_FigureTask]:
+        files.update(dict.fromkeys((out / name for name in figs), {}))
+        return [_FigureTask(out / name, *spec, run_id) for name, spec in figs.items()]
+
+    # One pool for everything: the runs of all studies longest first, then each study's
+    # CSVs and figures as soon as its runs are in (they queue behind the remaining runs).
+    with TaskPool(jobs, progress=progress, desc="reproduce") as pool:
+        table2_response, extra_response, sweep_response = submit_batches(pool, [
+            table2_batch(params, protocol, dt=dt), Batch(extra, list),
+            sweep_batch(params, dt=dt)])
+        t2 = table2_response()
+        outputs = pool.submit(
+            csv_tasks((*t2.open_loops, *t2.po_loops), static_csv_name)
+            + csv_tasks(t2.feedback_runs, step_csv_name)
+            + figure_tasks({
+                "fig08_static_po0.png": ("static_figure", (t2.open_loops,), {}),
+                "fig09_static_po.png": ("static_figure", (t2.po_loops,), {}),
+                "fig14_15_step_pi.png": ("step_figure", ([r.result for r in t2.feedback_runs],),
+                                         dict(title="PI on Po at each load (cf. Figs. 14-15)")),
+                "fig16_closed_loop_static.png": ("closed_loop_static_figure",
+                                                 (t2.feedback_runs, params), {}),
+                "table2.png": ("table2_figure", (t2,), {})}))
+        files.update(dict.fromkeys(write_table2(out, t2), {}))
+
+        open_step, *preset_runs = extra_response()
+        own_loop = t2.open_loops[t2.loads.index(PRESET_COMPARE_LOAD_N)]
+        ran = iter(preset_runs)
+        preset_loops = [own_loop if p == params else next(ran) for p in compare]
+        pi_100 = t2.feedback_runs[t2.loads.index(100.0)]
+        outputs += pool.submit(
+            csv_tasks([r for r in preset_loops if r is not own_loop], static_csv_name)
+            + csv_tasks([open_step], step_csv_name)
+            + figure_tasks({
+                "fig03_presets.png": ("static_figure", (preset_loops,), dict(
+                    title="Muscle types, open loop, Po = 0 (cf. paper Fig. 3)")),
+                "fig12_13_step_100N.png": ("step_figure", ([open_step.result, pi_100.result],),
+                                           dict(title="Step response at 100 N: open loop vs "
+                                                      "PI on Po (cf. Figs. 12-13)"))}))
+
+        sw = sweep_response()
+        fig_key = figure_run_key(paper.LOADS_N, paper.SWEEP_FREQS_HZ,
+                                 paper.SWEEP_CONTROLLERS)
+        outputs += pool.submit(
+            [csv_task(data / sine_csv_name(fig_key), sw.series[fig_key])]
+            + figure_tasks({
+                "fig17_frequency_response.png": ("sweep_figure", (sw,), {}),
+                "fig18_19_sine.png": ("sine_figure", (sw.series[fig_key], fig_key[1],
+                                                      params.controller.po_cap), {})}))
+        files.update(dict.fromkeys(write_sweep(out, sw), {}))
+        checks = (*paper.table2_checks(t2), *paper.sweep_checks(sw, params.controller.po_cap))
+        files[write_checks(out, checks)] = {}
+        pool.results(outputs)
+    text = report_markdown(params, dt, t2, sw, open_step, preset_loops, checks, protocol)
+    report = write_text_atomic(out / "report.md", text)
+    files[report] = {}
+    return Reproduction(report=report, table2=t2, sweep=sw, checks=tuple(checks), files=files)

@@ -1,0 +1,79 @@
+"""What both engines of the muscle share (the compiled plugin and the Python engine, see
+`wpam_mj.simulation.simulate`): what a run records, the per-run constants of the Python pieces, and
+how a divergence is reported.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from wpam_mj.physics import pneumatics as pn
+from wpam_mj.physics.params import Params, ParameterError
+from wpam_mj.simulation.plugin import FAIL_CONTRACTION, FIELD, STATE_FIELDS
+
+# Rows of the recording array, in this order: the time, then the plugin state's recorded
+# fields; `SimResult` has a field of each name.
+REC_FIELDS = ("time", *STATE_FIELDS[:STATE_FIELDS.index("po_reg") + 1])
+REC_ROWS = len(REC_FIELDS)
+
+
+class SimulationDiverged(RuntimeError):
+    """The state left its physical range (non-finite or negative absolute pressure)."""
+
+
+def contraction_diverged(x: float) -> str:
+    """Why a run stopped: the contraction x [m] left (-1, 1) m."""
+    return f"contraction x = {x!r} m"
+
+
+def pressure_diverged(p_i: float, p_o: float) -> str:
+    """Why a run stopped: a chamber pressure [Pa, absolute] is not positive."""
+    return f"chamber pressure Pi = {p_i!r} Pa, Po = {p_o!r} Pa (absolute)"
+
+
+def state_failure(state) -> str:
+    """Why a plugin instance stopped, from its state (starting at its first field) whose
+    "status" is set."""
+    if state[FIELD["status"]] == FAIL_CONTRACTION:
+        return contraction_diverged(float(state[FIELD["x"]]))
+    return pressure_diverged(float(state[FIELD["p_i"]]), float(state[FIELD["p_o"]]))
+
+
+@dataclass(frozen=True)
+class RunConstants:
+    """Per-run constants of the step, of the Python engine's pieces
+    (the plugin derives the same values from its attributes)."""
+
+    dt: float
+    record_every: int
+    lag_alpha: float  # 1 - exp(-dt / tau) of the regulator lag
+    delay_steps: int  # regulator dead time in steps
+    atmosphere: float
+    p_max: float
+    conductance_i: float
+    conductance_o: float
+    critical_ratio: float
+    tube_volume: float
+    bag_volume: float
+    start_at_rest: int = 0  # 1: regulators and chambers start settled at the first commands
+
+    @classmethod
+    def make(cls, params: Params, dt: float, record_dt: float, *,
+             start_at_rest: bool = False) -> "RunConstants":
+        record_every = round(record_dt / dt)
+        if record_every < 1 or abs(record_every * dt - record_dt) > 1e-9 * record_dt:
+            raise ParameterError(f"record_dt = {record_dt} s must be a whole multiple of "
+                                 f"dt = {dt} s")
+        p = params.pneumatics
+        tau = p.time_constant
+        return cls(
+            dt=dt, record_every=record_every,
+            lag_alpha=1.0 if tau == 0.0 else -math.expm1(-dt / tau),
+            delay_steps=round(p.dead_time / dt), atmosphere=p.atmosphere, p_max=p.p_max,
+            conductance_i=p.inner_conductance, conductance_o=p.outer_conductance,
+            critical_ratio=p.critical_ratio,
+            tube_volume=p.tube_volume,
+            bag_volume=pn.outer_bag_volume(params.braid.outer_bag_length,
+                                           params.braid.outer_bag_diameter),
+            start_at_rest=int(start_at_rest))

@@ -1,0 +1,128 @@
+"""Load the shipped rig MJCF and apply a parameter set and run to it by small, named edits.
+
+`rig_spec` is the rig as an MjSpec: its ``wpam_mj.muscle`` instance configured with every
+parameter (exactly: floats as their shortest round-trip text), the control mode and its
+input channels, the load mass, stroke and slide damping. `build_model` compiles it for the
+compiled plugin, or for the Python engine (`wpam_mj.simulation.engine.python_model`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+
+from wpam_mj.simulation import engine
+from wpam_mj.simulation import plugin
+from wpam_mj.physics import pneumatics
+from wpam_mj.physics.geometry import BraidGeometry
+from wpam_mj.physics.params import STANDARD_GRAVITY, ParameterError, Params, check_range
+from wpam_mj.paths import MODEL_XML
+
+LOAD_RANGE_N = (1.0, 2000.0)  # N: what a hanging mass on this rig can sensibly be
+DT_RANGE_S = (1e-5, 0.005)  # s: the pneumatics need a step well below their time constants
+
+
+def check_load(load: float) -> float:
+    """Validate a hanging load [N]."""
+    return check_range("load", load, *LOAD_RANGE_N, "N")
+
+
+def check_dt(dt: float, *, divides: float | None = None, name: str = "dt") -> float:
+    """Validate a physics time step [s]; with `divides` [s] (a recording period) it must
+    also be a whole fraction of it, so that the stated range is the range applied."""
+    dt = check_range(name, dt, *DT_RANGE_S, "s")
+    if divides is not None:
+        steps = round(divides / dt)
+        if steps < 1 or abs(steps * dt - divides) > 1e-9 * divides:
+            lo, hi = DT_RANGE_S
+            fits = [divides / k for k in (1, 2, 4, 5, 10, 20) if lo <= divides / k <= hi]
+            raise ParameterError(
+                f"{name} = {dt:g} s must divide the {divides:g} s recording period into whole "
+                f"steps, within [{lo:g}, {hi:g}] s (e.g. {', '.join(f'{f:g}' for f in fits)})")
+    return dt
+
+
+@dataclass(frozen=True)
+class MuscleIndex:
+    """Where the muscle lives in a model made for the Python engine (by name)."""
+
+    qpos: int  # the contraction joint's qpos address
+    dof: int  # its dof address (qvel, damping)
+    actuator: int  # the force motor carrying -tension
+    tendon: int  # the tendon carrying the friction level
+
+    @classmethod
+    def of(cls, model: mujoco.MjModel) -> "MuscleIndex":
+        joint = model.joint("contraction")
+        return cls(int(joint.qposadr[0]), int(joint.dofadr[0]),
+                   model.actuator(f"{INSTANCE}_force").id, model.tendon("muscle").id)
+
+
+INSTANCE = "muscle"  # the rig's plugin instance
+
+
+def check_chamber_step(params: Params, dt: float) -> None:
+    """Refuse a dt [s] at which the explicit chamber update would be unstable
+    (`wpam_mj.physics.pneumatics.stable_dt`), naming the conductance and the dt it needs; every
+    path that steps the muscle calls it (the plugin refuses the same at compile time)."""
+    limit, name = pneumatics.stable_dt(params)
+    if dt > limit:
+        raise ParameterError(f"{name} = {params.value(name):g} m^3/(s Pa) fills its chamber "
+                             f"too fast for dt = {dt:g} s (the explicit chamber update "
+                             f"would oscillate or diverge); use dt <= {limit:.3g} s")
+
+
+def rig_spec(params: Params, load: float, dt: float = 1e-3, *, control: str = "open",
+             start_at_rest: bool = False, feedforward_load: float = 0.0,
+             xml: str | Path = MODEL_XML) -> mujoco.MjSpec:
+    """The hung-muscle MJCF with a parameter set and a run's settings applied.
+
+    Args:
+      params: muscle parameters (SI), written into the instance's configuration.
+      load: hanging load [N]; the load mass is load / g.
+      dt: physics time step [s].
+      control: the plugin's control mode; the instance gets every input channel of it
+        (`wpam_mj.simulation.plugin.CONTROLS`), one actuator each, named after the channel.
+      start_at_rest: the regulators and chambers start settled at the first commands.
+      feedforward_load: the load [N] the in-plugin Pi feedforward holds (used only when no
+        Pi command channel is given; the rig always gives one).
+      xml: MJCF file (the scene file for rendering).
+    """
+    load = check_load(load)
+    dt = check_dt(dt)
+    engine.register_stand_in()
+    spec = mujoco.MjSpec.from_file(str(xml))
+    spec.option.timestep = dt
+    spec.option.gravity = (0.0, 0.0, -STANDARD_GRAVITY)
+    spec.geom("load_mass").mass = load / STANDARD_GRAVITY
+    joint = spec.joint("contraction")
+    joint.range = (0.0, BraidGeometry.from_params(params.braid).max_contraction)
+    joint.damping[0] = params.muscle.damping
+    mode = plugin.control_mode(control)
+    instance = next(p for p in spec.plugins if p.name == INSTANCE)
+    instance.config = {"preset": params.preset, "control": control,
+                       "start": "rest" if start_at_rest else "vented",
+                       "feedforward_load": repr(float(feedforward_load)),
+                       **{key: repr(float(params.value(key)))
+                          for key, _ in plugin.parameter_fields()}}
+    shipped = [a for a in spec.actuators if a.plugin.name == INSTANCE]
+    for act in shipped:
+        act.name = ""  # free the names for the run's channels
+    for channel in mode.channels:
+        act = spec.add_actuator(name=f"{INSTANCE}_{channel}", target="muscle",
+                                trntype=mujoco.mjtTrn.mjTRN_TENDON)
+        act.plugin = shipped[0].plugin  # the reference to the instance, as parsed
+    for act in shipped:
+        spec.delete(act)
+    return spec
+
+
+def build_model(params: Params, load: float, dt: float = 1e-3, *,
+                xml: str | Path = MODEL_XML) -> mujoco.MjModel:
+    """The rig compiled as the Python engine sees it (plain motors; `MuscleIndex` finds
+    the muscle): for readers of its mechanics (the linear model, drawing) and the
+    bare-step benchmark."""
+    model, _ = engine.python_model(rig_spec(params, load, dt, xml=xml))
+    return model

@@ -1,0 +1,268 @@
+"""One run of the rig: a `Drive` of commands through the muscle, recorded.
+
+The muscle is the ``wpam_mj.muscle`` actuator of the rig's MJCF
+(`wpam_mj.simulation.model.rig_spec`):
+each physics step it reads the contraction x and velocity from the tendon, runs its Po
+controller, computes the tension and friction level from the chamber pressures, and
+after MuJoCo's step advances the regulators and chambers (docs/plugin.md). Two engines
+compute it, with bit-identical results (tests/test_plugin.py):
+  "plugin": the compiled plugin (`wpam_mj.simulation.plugin`), stepped by `mujoco.batch` in chunks
+    of `CHUNK_STEPS`, so that Ctrl-C and SIGTERM act within a fraction of a second;
+  "python": the readable definition (`wpam_mj.simulation.engine`), a MuJoCo control callback.
+"auto" takes the plugin when it is available, else Python with a one-line notice.
+The recorded series are the first fields of the plugin's state (`wpam_mj.simulation.plugin.
+STATE_FIELDS`), sampled every `record_dt`.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+from mujoco import batch as mjbatch
+
+from wpam_mj.simulation import engine as pyengine
+from wpam_mj.simulation import plugin
+from wpam_mj.infra import termination
+from wpam_mj.control.controllers import make_controller
+from wpam_mj.simulation.loop_contract import (REC_FIELDS, REC_ROWS, RunConstants,
+                                              SimulationDiverged, state_failure)
+from wpam_mj.simulation.model import INSTANCE, check_chamber_step, check_dt, check_load, rig_spec
+from wpam_mj.physics.params import MPA, Params, ParameterError
+from wpam_mj.simulation.results import SimResult
+
+CHUNK_STEPS = 2000  # plugin steps per batch call: ~3 ms of wall time between signal checks
+ENGINES = ("auto", "plugin", "python")
+
+
+@dataclass(frozen=True)
+class Drive:
+    """Commands for one run, one sample per physics step (SI units).
+
+    pi_cmd: Pi command [Pa], shape (n,).
+    po_cmd: Po command [Pa], shape (n,), used in open loop; ignored under feedback.
+    x_ref: target contraction [m], shape (n,); NaN where there is none (open loop).
+    start_at_rest: True when the rig has been holding the first commands before the run
+      (regulators settled, chambers at their pressures); False: chambers vented at t = 0.
+    """
+
+    pi_cmd: np.ndarray
+    po_cmd: np.ndarray
+    x_ref: np.ndarray
+    extra: dict = field(default_factory=dict)
+    start_at_rest: bool = False
+
+    def __post_init__(self) -> None:
+        n = len(self.pi_cmd)
+        if n < 2:  # a run needs a start and at least one step
+            raise ParameterError(f"drive has {n} sample(s); a run needs at least 2 "
+                                 "(a positive duration)")
+        for name in ("pi_cmd", "po_cmd", "x_ref"):
+            arr = np.ascontiguousarray(getattr(self, name), dtype=float)
+            if arr.shape != (n,):
+                raise ParameterError(f"drive.{name} has shape {arr.shape}, expected ({n},)")
+            object.__setattr__(self, name, arr)
+        for name in ("pi_cmd", "po_cmd"):
+            arr = getattr(self, name)
+            if not np.all(np.isfinite(arr)):
+                raise ParameterError(f"drive.{name} contains NaN or infinite values")
+
+
+@dataclass(frozen=True)
+class Run:
+    """One validated run: the rig's spec, one row of input channels per step, and what
+    turns its record into a `SimResult`."""
+
+    spec: mujoco.MjSpec
+    inputs: np.ndarray  # (n steps, channels)
+    record_every: int
+    load: float
+    dt: float
+    control: str
+    preset: str
+
+    @classmethod
+    def make(cls, params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
+             control: str = "open", record_dt: float = 0.01) -> "Run":
+        """Validate a run (see `simulate` for the arguments) and build its model spec."""
+        load, dt = check_load(load), check_dt(dt)
+        check_chamber_step(params, dt)
+        k = RunConstants.make(params, dt, record_dt, start_at_rest=drive.start_at_rest)
+        controller = make_controller(control, params, dt)
+        _check_commands(drive, params, dt, feedback=controller.feedback)
+        if controller.feedback and not np.all(np.isfinite(drive.x_ref)):
+            raise ParameterError("feedback control needs a finite target x_ref at every step")
+        if not params.outer_chamber and (controller.feedback or np.any(drive.po_cmd > 0.0)):
+            raise ParameterError(f"the {params.preset} preset has no outer chamber: Po must "
+                                 "stay 0 (open loop with --po-down 0)")
+        spec = rig_spec(params, load, dt, control=control, start_at_rest=drive.start_at_rest)
+        inputs = np.column_stack([getattr(drive, name)
+                                  for name in plugin.control_mode(control).channels])
+        return cls(spec, inputs, k.record_every, load, dt, control, params.preset)
+
+    def result(self, rec: np.ndarray, failure: tuple[int, str] | None) -> SimResult:
+        """The run's `SimResult`; raises SimulationDiverged for a failure (step, reason)."""
+        if failure is not None:
+            step, what = failure
+            raise SimulationDiverged(f"simulation diverged at t = {step * self.dt:.4f} s: "
+                                     f"{what}; reduce dt or check the gains and pneumatic "
+                                     "parameters")
+        return SimResult(**dict(zip(REC_FIELDS, rec)), load=self.load, dt=self.dt,
+                         control=self.control, preset=self.preset)
+
+
+def simulate(params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
+             control: str = "open", record_dt: float = 0.01,
+             engine: str = "auto") -> SimResult:
+    """Run one experiment and return the recorded time series.
+
+    Args:
+      params: muscle and drive parameters.
+      load: hanging load [N].
+      drive: commands sampled at `dt` (see `Drive`).
+      dt: physics time step [s].
+      control: a name of `wpam_mj.control.controllers.CONTROLLERS`: "open" (Po from drive.po_cmd),
+        "pi" or "pid" (Po from feedback on x_ref), "pi_ff" (PI plus drive.po_cmd).
+      record_dt: sample period of the returned series [s], a multiple of dt.
+      engine: "plugin", "python" or "auto" (see the module docstring; "c" is taken as
+        "plugin").
+    """
+    run_engine = _select_engine(engine, control)
+    run = Run.make(params, load, drive, dt=dt, control=control, record_dt=record_dt)
+    return run.result(*run_engine(run.spec, run.inputs, run.record_every))
+
+
+def _check_commands(drive: Drive, params: Params, dt: float, *, feedback: bool) -> None:
+    """Every pressure command lies in [0, p_max]: a command time series may pass below the
+    regulator's p_min on its way to 0 (vented); settings such as --po-down are checked
+    against [p_min, p_max] where they are given (`wpam_mj.experiments.drives.check_po`)."""
+    hi = params.pneumatics.p_max
+    for name in ("pi_cmd",) if feedback else ("pi_cmd", "po_cmd"):
+        cmd = getattr(drive, name)
+        bad = np.flatnonzero((cmd < 0.0) | (cmd > hi))
+        if bad.size:
+            i = bad[0]
+            raise ParameterError(f"drive.{name} = {cmd[i] / MPA:g} MPa at t = {i * dt:g} s is "
+                                 f"outside the regulator range [0, {hi / MPA:g}] MPa")
+
+
+_noticed: set[str] = set()  # Python fallbacks already announced (once per process)
+
+
+def _select_engine(engine: str, control: str = "open"):
+    """The runner for `engine` and the controller named `control` (see `simulate`)."""
+    if engine == "python":
+        return run_python
+    if control not in plugin.CONTROL_BY_NAME:  # a controller only Python defines
+        if engine != "auto":
+            raise ParameterError(f"controller {control!r} runs on the Python engine only")
+        if control not in _noticed:
+            _noticed.add(control)
+            print(f"wpam_mj: controller {control!r} has no compiled form; running the Python"
+                  " engine (about 6x slower)", file=sys.stderr)
+        return run_python
+    if engine in ("plugin", "c"):
+        if not plugin.available():
+            raise RuntimeError(f"the compiled plugin is unavailable "
+                               f"({plugin.unavailable_reason()}); use engine='python'")
+        return run_plugin
+    if engine != "auto":
+        raise ParameterError(f"unknown engine {engine!r}; valid: {', '.join(ENGINES)}")
+    if plugin.available():
+        return run_plugin
+    if not plugin.disabled() and "" not in _noticed:  # WPAM_MJ_NO_COMPILE=1: quietly
+        _noticed.add("")
+        print(f"wpam_mj: the compiled plugin is unavailable ({plugin.unavailable_reason()});"
+              " running the Python engine (about 6x slower, same physics)", file=sys.stderr)
+    return run_python
+
+
+def _record_shape(n: int, record_every: int) -> tuple[int, int]:
+    return REC_ROWS, (n - 1) // record_every + 1
+
+
+def run_plugin(spec: mujoco.MjSpec, inputs: np.ndarray, record_every: int):
+    """Run the rig `spec` on the compiled plugin with one row of `inputs` (the instance's
+    channels) per step. Returns (record, None) or (record so far, (step, reason))."""
+    return run_batch([spec.compile()], [inputs], record_every, nthread=1)[0]
+
+
+def run_batch(models: list[mujoco.MjModel], inputs: list[np.ndarray], record_every: int, *,
+              nthread: int = 1) -> list[tuple[np.ndarray, tuple[int, str] | None]]:
+    """Runs of rig models of one layout (same sizes) and one length on `mujoco.batch`,
+    `nthread` threads, in chunks of `CHUNK_STEPS` (results do not depend on nthread).
+    Returns (record, failure) per run, as `run_plugin`."""
+    n = len(inputs[0])
+    model = models[0]
+    adr = plugin.state_address(model, INSTANCE)
+    recorded = slice(adr, adr + REC_ROWS - 1)
+    status = adr + plugin.FIELD["status"]
+    recs = [np.zeros(_record_shape(n, record_every)) for _ in models]
+    failures: list[tuple[int, str] | None] = [None] * len(models)
+    sim = mjbatch.Batch(model, len(models), nthread=nthread)
+    sim.set_models(models)
+    sim.reset(stage=mujoco.mjtStage.mjSTAGE_NONE)
+    controls = np.stack(inputs)
+    dt = model.opt.timestep
+    for start in range(0, n, CHUNK_STEPS):
+        termination.check()  # a signal held back while this ran in C acts here
+        stop = min(n, start + CHUNK_STEPS)
+        out = sim.rollout(stop - start, control=controls[:, start:stop],
+                          record=("plugin_state",))["plugin_state"]
+        first = -start % record_every
+        steps = np.arange(start + first, stop, record_every)
+        for i, rec in enumerate(recs):
+            if failures[i] is not None:
+                continue
+            rec[0, steps // record_every] = steps * dt
+            rec[1:, steps // record_every] = out[i, first::record_every, recorded].T
+            bad = np.flatnonzero(out[i, :, status])
+            if bad.size:
+                failures[i] = (start + int(bad[0]), state_failure(out[i, bad[0], adr:]))
+    return list(zip(recs, failures))
+
+
+def simulate_many(runs: list[Run], *, nthread: int = 1) -> list[SimResult]:
+    """Many validated runs on the plugin through `mujoco.batch` on `nthread` threads:
+    runs of one model layout and length share a batch. Bit-identical to `simulate` on
+    each run, at any thread count. Raises SimulationDiverged for the first failed run."""
+    if not plugin.available():
+        raise RuntimeError(f"the compiled plugin is unavailable ({plugin.unavailable_reason()})")
+    models = [run.spec.compile() for run in runs]
+    groups: dict[tuple, list[int]] = {}
+    for i, (run, model) in enumerate(zip(runs, models)):
+        key = (len(run.inputs), run.record_every, model.nu, model.npluginstate, model.nq)
+        groups.setdefault(key, []).append(i)
+    done: dict[int, tuple] = {}
+    for (_, record_every, *_), ids in groups.items():
+        outs = run_batch([models[i] for i in ids], [runs[i].inputs for i in ids],
+                         record_every, nthread=min(nthread, len(ids)))
+        done.update(zip(ids, outs))
+    return [run.result(*done[i]) for i, run in enumerate(runs)]
+
+
+def run_python(spec: mujoco.MjSpec, inputs: np.ndarray, record_every: int):
+    """`run_plugin` on the Python engine (`wpam_mj.simulation.engine`): the reference."""
+    model, (muscle,) = pyengine.python_model(spec)
+    data = mujoco.MjData(model)
+    n = len(inputs)
+    rec = np.zeros(_record_shape(n, record_every))
+    channels = muscle.channels
+    ctrl, dt, record = data.ctrl, model.opt.timestep, muscle.record
+    names = REC_FIELDS[1:]
+    j = 0
+    with pyengine.stepping(model, [muscle]):
+        for step in range(n):
+            for channel, value in zip(channels, inputs[step]):
+                ctrl[channel] = value
+            mujoco.mj_step(model, data)
+            muscle.advance()
+            if muscle.status:
+                return rec, (step, muscle.status)
+            if step % record_every == 0:
+                rec[0, j] = step * dt
+                rec[1:, j] = [record[name] for name in names]
+                j += 1
+    return rec, None

@@ -1,0 +1,1 @@
+"""Pictures of runs: offscreen video, the interactive viewers, the GL backend choice."""
