@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from wpam_mj import paper, preset
+from wpam_mj.reproduction import findings
 from wpam_mj.infra import pool
 from wpam_mj.experiments.drives import SineSpec, sine_run
 from wpam_mj.physics.params import MM, MPA, Params
@@ -63,8 +64,8 @@ def measure(params: Params, *, dt: float, jobs: int) -> dict:
             "pi_plateau_mean_mpa": float(np.mean(s.pi_mean) / MPA)} for s in steps},
         "sweep": [p.as_json() for p in sw.points],
         "checks": [{"finding": c.finding, "verdict": c.verdict, "detail": c.detail}
-                   for c in paper.sweep_checks(sw, params.controller.po_cap)
-                   + paper.table2_checks(t2)],
+                   for c in findings.sweep_checks(sw, params.controller.po_cap)
+                   + findings.table2_checks(t2)],
     }
 
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from wpam_mj import paper
+from wpam_mj.reproduction import findings
 from wpam_mj.fitting import estimation as fitting
 from wpam_mj.reproduction.calibrate import (FREE, KEPT, READINGS, WEIGHTS, CalibrationResult,
                                             PaperTargets, calibrate, random_starts)
@@ -48,7 +49,7 @@ def test_the_shipped_point_holds_its_findings_and_explains_the_rest(shipped_runs
     every finding it fails is one the report explains (`report.GIVEN_UP`)."""
     params, model, results = shipped_runs
     scores, table2 = model.scores_and_table2(params, results)
-    checks = [*paper.table2_checks(table2), *scores.sweep_checks]
+    checks = [*findings.table2_checks(table2), *scores.sweep_checks]
     passed = {c.finding for c in checks if c.passed}
     assert passed == {c.finding for c in checks if c.finding.startswith(HELD)}
     for c in checks:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from wpam_mj import paper
+from wpam_mj.reproduction import findings
 from wpam_mj.cli import main
 from wpam_mj.physics.params import CALIBRATION_FILE, preset
 
@@ -251,8 +251,7 @@ def test_reproduce_writes_every_output(files, capsys):
     assert len(data) == 13
     assert not list(rep.rglob(".*")), "temporary files left behind"
     checks = json.loads((rep / "checks.json").read_text())
-    findings = (*paper.TABLE2_FINDINGS, *paper.SWEEP_FINDINGS)
-    assert len(checks) == len(findings)
+    assert len(checks) == len(findings.TABLE2_FINDINGS) + len(findings.SWEEP_FINDINGS)
     assert all(set(c) == {"finding", "passed", "detail"} for c in checks)
     assert "Table 2" in (rep / "report.md").read_text() and "Table 2" in out
     assert len(_read_csv(rep / "data" / "step_wpam_100N_pi.csv")["x_mm"]) > 1000

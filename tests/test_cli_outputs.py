@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from wpam_mj import paper
+from wpam_mj.reproduction import findings
 from wpam_mj.infra import manifest
 from wpam_mj.infra import pool
 from wpam_mj.experiments import studies
@@ -215,9 +216,9 @@ def test_checks_print_one_decimal_and_no_bare_dash():
     t2 = types.SimpleNamespace(loads=(50.0,), open_po={50.0: 0.7042 * 0.845},
                                feedback={50.0: 0.001},
                                paper=lambda: {"open_po": {50.0: 0.7042}})
-    (row, _) = paper.table2_checks(t2)
+    (row, _) = findings.table2_checks(t2)
     assert "-15.5%" in row.detail
-    spread = next(c for c in paper.sweep_checks(_sweep([np.nan] * 4), 0.08 * MPA)
+    spread = next(c for c in findings.sweep_checks(_sweep([np.nan] * 4), 0.08 * MPA)
                   if "within" in c.finding)
     assert "(-)" not in spread.detail and "no finite gain" in spread.detail
 

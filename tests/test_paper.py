@@ -5,9 +5,10 @@ come from the same margins."""
 import pytest
 
 from wpam_mj import paper
+from wpam_mj.reproduction import findings
 from wpam_mj.physics.params import MPA, preset
 from wpam_mj.experiments.responses import SweepPoint, SweepResult
-from wpam_mj.experiments.tables import checks_text
+from wpam_mj.reproduction.findings import checks_text
 
 CAP = paper.PO_CAP_MPA * MPA
 
@@ -33,7 +34,7 @@ def _papers_picture():
 
 
 def test_sweep_checks_pass_on_the_papers_picture():
-    checks = paper.sweep_checks(_papers_picture(), CAP)
+    checks = findings.sweep_checks(_papers_picture(), CAP)
     assert all(c.passed is True for c in checks), checks_text(checks)
     assert all(m.margin >= 0.0 for c in checks for m in c.margins)
 
@@ -42,13 +43,13 @@ def test_sweep_checks_fail_where_the_paper_does_not_hold():
     sw = _sweep(gain=lambda load, f, c: (1.0 + f) * (1.0 + load / 1000),  # rises, load-dependent
                 lag=lambda load, f, c: 40 * f - load / 100 + (2.0 if c == "pid" else 0.0),
                 po_max=lambda load, f, c: CAP if load < 150.0 else 0.05 * MPA)
-    checks = paper.sweep_checks(sw, CAP)
+    checks = findings.sweep_checks(sw, CAP)
     assert all(c.passed is False for c in checks), checks_text(checks)
 
 
 def test_sweep_checks_need_their_data():
     sw = SweepResult(points=(SweepPoint(100.0, 0.5, "pi", 0.9, 30.0, 0.07 * MPA),))
-    assert all(c.passed is None for c in paper.sweep_checks(sw, CAP))
+    assert all(c.passed is None for c in findings.sweep_checks(sw, CAP))
 
 
 def test_a_failing_margin_names_its_load_and_frequency():
@@ -59,7 +60,7 @@ def test_a_failing_margin_names_its_load_and_frequency():
         return base + (5.0 if (load, f, c) == (100.0, 0.2, "pid") else 0.0)
 
     sw = _sweep(gain=lambda load, f, c: 1.0 / (1.0 + f), lag=lag)
-    (lag_load,) = [c for c in paper.sweep_checks(sw, CAP) if "lower load" in c.finding]
+    (lag_load,) = [c for c in findings.sweep_checks(sw, CAP) if "lower load" in c.finding]
     bad = [(m.load, m.freq, m.controller) for m in lag_load.margins if m.margin < 0.0]
     assert bad == [(150.0, 0.2, "pid")]  # 150 N is now below the 100 N lag
     assert lag_load.passed is False and "PID 0.2 Hz" in lag_load.detail
@@ -68,13 +69,13 @@ def test_a_failing_margin_names_its_load_and_frequency():
 def test_calibration_residuals_are_the_margins():
     """Zero where every finding holds with headroom; the Po-cap residual grows as the
     regulator's Po falls short of the cap, in units of a tenth of the cap."""
-    assert not paper.residuals(paper.sweep_checks(_papers_picture(), CAP)).any()
+    assert not findings.residuals(findings.sweep_checks(_papers_picture(), CAP)).any()
     short = _sweep(gain=lambda load, f, c: 1.0 / (1.0 + f),
                    lag=lambda load, f, c: 40 * f + (load / 20 if f < 0.5 else 0)
                    - (2.0 if c == "pid" else 0.0), po_max=0.5 * CAP)
-    (cap,) = [c for c in paper.sweep_checks(short, CAP) if "reaches" in c.finding]
+    (cap,) = [c for c in findings.sweep_checks(short, CAP) if "reaches" in c.finding]
     limit = (1.0 - paper.PO_CAP_RTOL) * CAP
-    assert paper.residuals([cap]) == pytest.approx(
+    assert findings.residuals([cap]) == pytest.approx(
         [paper.CALIBRATION_HEADROOM + (limit - 0.5 * CAP) / (0.1 * CAP)])
 
 
@@ -89,7 +90,7 @@ def test_feedback_row_needs_the_heavy_load_well_above_the_middle_one():
     100 N (the paper: 9x); the ratio margin is the one that fails at 2x."""
     from types import SimpleNamespace  # noqa: PLC0415
 
-    (finding,) = [f for f in paper.TABLE2_FINDINGS if "feedback" in f.text]
+    (finding,) = [f for f in findings.TABLE2_FINDINGS if "feedback" in f.text]
     for f150, holds in ((0.0095, True), (0.006, False)):
         t2 = SimpleNamespace(loads=paper.LOADS_N, feedback={50.0: 0.001, 100.0: 0.003,
                                                             150.0: f150})

@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Sequence
 
 from wpam_mj import __version__, paper
+from wpam_mj.reproduction import findings
 from wpam_mj.infra import outputs
 from wpam_mj.infra import pool
 from wpam_mj.experiments import studies
@@ -620,7 +621,7 @@ def _cmd_table2(args: argparse.Namespace) -> int:
         _print_json(t2.as_json())
     else:
         print(summaries.table2_text(t2))
-        print(summaries.checks_text(paper.table2_checks(t2)))
+        print(findings.checks_text(findings.table2_checks(t2)))
     _flag_still(still, args.json)
     if not args.json:
         _wrote([*written, manifest])
@@ -657,7 +658,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         _print_json(sw.as_json())
     else:
         print(summaries.sweep_text(sw))
-        print(summaries.checks_text(paper.sweep_checks(sw, po_cap)))
+        print(findings.checks_text(findings.sweep_checks(sw, po_cap)))
     _flag_still([(f"sweep {point}", False) for point in writers.still_points(sw)], args.json)
     if not args.json:
         _wrote([*written, manifest])
@@ -706,7 +707,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
                     compare=compare, run_id=rid, protocol=protocol)
     manifest = _manifest(args, out, rid, params, settings, rep.files)
     print(summaries.table2_text(rep.table2))
-    print(summaries.checks_text(rep.checks))
+    print(findings.checks_text(rep.checks))
     print(f"wrote {rep.report} and {manifest} ({time.perf_counter() - start:.1f} s)")
     return 0
 

@@ -3,10 +3,8 @@
 from __future__ import annotations
 
 import math
-from typing import Sequence
 
 from wpam_mj.display import fmt
-from wpam_mj.paper import Check
 from wpam_mj.physics.params import MM, MPA, Params, describe
 from wpam_mj.experiments.responses import StepRun, SweepResult, Table2Result
 
@@ -66,13 +64,3 @@ def params_markdown(params: Params) -> str:
         lines.append(f"| `{name}` | {value:.6g} | {unit} | {source} |")
     return "\n".join(lines)
 
-
-def checks_markdown(checks: Sequence[Check]) -> str:
-    lines = ["| finding (paper) | result | our numbers |", "|---|---|---|"]
-    for c in checks:
-        lines.append(f"| {c.finding} | **{c.verdict}** | {c.detail} |")
-    return "\n".join(lines)
-
-
-def checks_text(checks: Sequence[Check]) -> str:
-    return "\n".join(f"[{c.verdict}] {c.finding}: {c.detail}" for c in checks)

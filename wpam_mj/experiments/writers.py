@@ -12,7 +12,6 @@ from typing import Sequence
 
 from wpam_mj.experiments import figures as plots
 from wpam_mj.experiments.feasibility import MOVE_MIN_MM, load_moved
-from wpam_mj.paper import Check
 from wpam_mj.simulation.results import SimResult, write_text_atomic
 from wpam_mj.experiments.responses import StaticLoop, StepRun, SweepKey, SweepResult, Table2Result
 from wpam_mj.experiments.tables import mpa_label
@@ -70,13 +69,6 @@ def write_sweep(out: Path, sw: SweepResult) -> list[Path]:
     """sweep.json and sweep.csv in `out`."""
     return [write_text_atomic(out / "sweep.json", json.dumps(sw.as_json(), indent=2) + "\n"),
             write_text_atomic(out / "sweep.csv", sweep_csv_text(sw))]
-
-
-def write_checks(out: Path, checks: Sequence[Check]) -> Path:
-    """checks.json in `out`: finding, passed (true/false/null) and detail of each check."""
-    return write_text_atomic(out / "checks.json", json.dumps(
-        [{"finding": c.finding, "passed": c.passed, "detail": c.detail} for c in checks],
-        indent=2) + "\n")
 
 
 # ---- what the single-study commands write (figures through wpam_mj.experiments.figures), as

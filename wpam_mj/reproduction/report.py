@@ -8,11 +8,11 @@ from typing import Sequence
 import numpy as np
 
 from wpam_mj import paper
-from wpam_mj.paper import Check
 from wpam_mj.physics.params import CALIBRATION_FILE, MM, MPA, Params
 from wpam_mj.experiments.protocol import SHIPPED, Protocol
 from wpam_mj.experiments.responses import StaticLoop, StepRun, SweepResult, Table2Result
-from wpam_mj.experiments.tables import checks_markdown, fmt_value, mpa_label, params_markdown
+from wpam_mj.experiments.tables import fmt_value, mpa_label, params_markdown
+from wpam_mj.reproduction.findings import Check, checks_markdown
 
 
 def report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResult,

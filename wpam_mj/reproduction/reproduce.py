@@ -6,13 +6,15 @@ figures as soon as its runs are in; the summaries, checks and report follow.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
 from wpam_mj import paper
 from wpam_mj.experiments import figures as plots
-from wpam_mj.paper import Check
+from wpam_mj.reproduction import findings
+from wpam_mj.reproduction.findings import Check
 from wpam_mj.physics.params import Params, preset
 from wpam_mj.infra.pool import Batch, TaskPool, submit_batches
 from wpam_mj.reproduction.report import report_markdown
@@ -21,7 +23,7 @@ from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
 from wpam_mj.experiments.studies import StaticTask, StepTask, figure_run_key, sweep_batch
 from wpam_mj.experiments.responses import SweepResult, Table2Result
 from wpam_mj.experiments.writers import (run_metadata, sine_csv_name, static_csv_name,
-                                         step_csv_name, write_checks, write_sweep, write_table2)
+                                         step_csv_name, write_sweep, write_table2)
 
 
 PRESET_COMPARE_LOAD_N = 100.0  # our choice for Fig. 3 (the paper's load is not given)
@@ -141,10 +143,17 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
                 "fig18_19_sine.png": ("sine_figure", (sw.series[fig_key], fig_key[1],
                                                       params.controller.po_cap), {})}))
         files.update(dict.fromkeys(write_sweep(out, sw), {}))
-        checks = (*paper.table2_checks(t2), *paper.sweep_checks(sw, params.controller.po_cap))
+        checks = (*findings.table2_checks(t2), *findings.sweep_checks(sw, params.controller.po_cap))
         files[write_checks(out, checks)] = {}
         pool.results(outputs)
     text = report_markdown(params, dt, t2, sw, open_step, preset_loops, checks, protocol)
     report = write_text_atomic(out / "report.md", text)
     files[report] = {}
     return Reproduction(report=report, table2=t2, sweep=sw, checks=tuple(checks), files=files)
+
+
+def write_checks(out: Path, checks: Sequence[Check]) -> Path:
+    """checks.json in `out`: finding, passed (true/false/null) and detail of each check."""
+    return write_text_atomic(out / "checks.json", json.dumps(
+        [{"finding": c.finding, "passed": c.passed, "detail": c.detail} for c in checks],
+        indent=2) + "\n")

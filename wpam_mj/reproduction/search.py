@@ -43,6 +43,7 @@ import numpy as np
 from scipy.optimize import differential_evolution
 
 from wpam_mj import paper
+from wpam_mj.reproduction import findings
 from wpam_mj.fitting import estimation as fitting
 from wpam_mj.reproduction.calibrate import FREE, READINGS, PaperTargets
 from wpam_mj.simulation.loop_contract import SimulationDiverged
@@ -154,18 +155,12 @@ def coordinates_of(point: Point) -> np.ndarray:
 
 # ---- scoring: the cost and every finding's signed margin
 
-# The findings of `wpam reproduce` (paper.TABLE2_FINDINGS, paper.SWEEP_FINDINGS), then
-# two the paper shows without a number: settled steps (Figs. 12-15) and Po rising with
-# load (Fig. 15, §4.2).
-FINDINGS = ("table2_po_row", "table2_feedback_row", "gain_falls_lag_grows", "gain_spread",
-            "lag_order_low_freq", "pid_leads_pi", "po_reaches_cap", "po_cap_light_slow",
-            "steps_settle", "po_rises_with_load")
-FINDING_TEXT = dict(zip(FINDINGS, (
-    "Table 2 'Po = 0.04' row within 15 %", "Table 2 feedback row < 0.02, ordered, 150 N >= 3x",
-    "gain falls, lag grows with frequency", "gains of the loads within 5 %",
-    "lag smaller at lower load below 0.5 Hz", "PID lag < PI lag at 150 N",
-    "Po reaches its cap at 150 N, 0.5 Hz", "Po < 0.07 MPa at 0.1 Hz, 50/100 N",
-    "steps settle: error <= 0.5 mm, p-p <= 0.2 mm", "plateau-mean Po rises with load")))
+# The findings of `wpam reproduce` (`findings.FINDINGS`), then two the paper shows without a
+# number: settled steps (Figs. 12-15) and Po rising with load (Fig. 15, §4.2).
+FINDING_TEXT = {**{name: f.short for name, f in findings.FINDINGS.items()},
+                "steps_settle": "steps settle: error <= 0.5 mm, p-p <= 0.2 mm",
+                "po_rises_with_load": "plateau-mean Po rises with load"}
+FINDINGS = tuple(FINDING_TEXT)
 
 
 def _worst(margins) -> float:
@@ -174,8 +169,8 @@ def _worst(margins) -> float:
 
 def finding_margins(scores, table2) -> dict[str, float]:
     """Each finding's worst margin in units of its scale (>= 0: holds)."""
-    checks = [*paper.table2_checks(table2), *scores.sweep_checks]
-    out = {k: _worst(c.margins) for k, c in zip(FINDINGS, checks)}
+    checks = [*findings.table2_checks(table2), *scores.sweep_checks]
+    out = {c.name: _worst(c.margins) for c in checks}
     steps = [min((STEP_ERROR_MM - e) / STEP_ERROR_MM, (STEP_PP_MM - p) / STEP_PP_MM)
              for c in scores.step_error_mm
              for e, p in zip(scores.step_error_mm[c], scores.step_pp_mm[c])]
