@@ -68,7 +68,8 @@ from wpam_mj.physics.geometry import BraidGeometry
 from wpam_mj.simulation.live import LiveRig
 from wpam_mj.simulation.model import check_dt, check_load
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import MM, STANDARD_GRAVITY, ParameterError, Params, check_range, preset
+from wpam_mj.physics.params import (MM, STANDARD_GRAVITY, ParameterError, Params, check_range,
+                                    check_whole_steps, preset)
 from wpam_mj.simulation.loop_contract import SimulationDiverged
 from wpam_mj.fitting.randomize import ParameterRanges, ranges_of
 
@@ -391,10 +392,7 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
     control_timestep = check_range("control_timestep", control_timestep,
                                    *CONTROL_TIMESTEP_RANGE, "s")
     dt = check_dt(dt)
-    n_sub = round(control_timestep / dt)
-    if n_sub < 1 or abs(n_sub * dt - control_timestep) > 1e-9 * control_timestep:
-        raise ParameterError(f"control_timestep = {control_timestep} s must be a whole "
-                             f"multiple of dt = {dt} s")
+    n_sub = check_whole_steps("control_timestep", control_timestep, dt)
     physics = MusclePhysics.create(params, dt)
     task = TrackingTask(params, action=action, target=target, load=load,
                         target_range=target_range, load_range=load_range, random=seed,

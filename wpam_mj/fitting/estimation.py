@@ -47,7 +47,7 @@ from scipy.optimize import least_squares
 
 from wpam_mj.simulation.loop_contract import SimulationDiverged
 from wpam_mj.physics.params import Params, ParameterError, describe_with_ranges, plausible_range
-from wpam_mj.infra.pool import WorkerPool
+from wpam_mj.infra.executors import executor_for
 from wpam_mj.simulation.results import write_text_atomic
 
 DIFF_STEP = 1e-3  # forward-difference step in scaled coordinates (see the module doc)
@@ -375,18 +375,12 @@ def fit(model: ResidualModel, start: Params, free: Sequence[FreeParameter], *,
     names = [p.name for p in free]
     if len(set(names)) != len(names):
         raise ParameterError(f"a parameter is freed twice: {', '.join(names)}")
-    own = None
-    if executor is None and jobs > 1:
-        executor = own = WorkerPool(jobs)
-    try:
-        obj = _Objective(model, start, free, executor, diff_step, progress, journal, max_nfev)
+    with executor_for(jobs, executor) as ex:
+        obj = _Objective(model, start, free, ex, diff_step, progress, journal, max_nfev)
         z0 = np.array([p.to_z(p.value(start)) for p in free])
         res = least_squares(obj.fun, z0, jac=obj.jac, bounds=(0.0, 1.0), method=method,
                             x_scale=1.0, max_nfev=max_nfev, xtol=xtol, ftol=ftol,
                             gtol=1e-10)
-    finally:
-        if own is not None:
-            own.shutdown()
     return _result(obj, free, res)
 
 

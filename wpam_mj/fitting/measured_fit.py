@@ -41,7 +41,7 @@ from wpam_mj.infra.budget import check_run
 from wpam_mj.fitting.measurements import Experiment
 from wpam_mj.simulation.model import DT_RANGE_S, check_dt
 from wpam_mj.physics.params import MM, Params, ParameterError
-from wpam_mj.infra.pool import WorkerPool
+from wpam_mj.infra.executors import executor_for
 from wpam_mj.simulation.simulate import Drive, simulate
 
 # The rough first pass of `fit_data` replays at this multiple of dt (a 2 ms replay of
@@ -201,9 +201,7 @@ def fit_data(start: Params, experiments: Sequence[Experiment],
     coarse = DataModel(tuple(open_loop), min(COARSE_DT_FACTOR * dt, DT_RANGE_S[1]))
     model = DataModel(tuple(experiments), dt)
     everything = DataModel((*experiments, *holdout), dt)
-    own = WorkerPool(jobs) if executor is None and jobs > 1 else None
-    ex = executor or own
-    try:
+    with executor_for(jobs, executor) as ex:
         rough = fitting.fit(coarse, start, free, executor=ex, max_nfev=max_nfev,
                             ftol=RELATIVE_COST_TOL, xtol=1e-3, progress=progress)
         result = fitting.fit(model, rough.params, free, executor=ex, max_nfev=max_nfev,
@@ -211,9 +209,6 @@ def fit_data(start: Params, experiments: Sequence[Experiment],
         tasks = everything.tasks(result.params)
         x = [t.run() for t in tasks] if ex is None else \
             [f.result() for f in [ex.submit(fitting.run_task, t) for t in tasks]]
-    finally:
-        if own is not None:
-            own.shutdown()
     files = tuple(FileFit(e, xs, i >= len(experiments))
                   for i, (e, xs) in enumerate(zip(everything.experiments, x)))
     return DataFit(result, files)

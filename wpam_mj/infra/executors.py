@@ -57,6 +57,17 @@ def open_workers(jobs: int = 1, scheduler: str | None = None) -> Iterator[Worker
 
 
 @contextmanager
+def executor_for(jobs: int = 1, executor: Executor | None = None) -> Iterator[Executor | None]:
+    """`executor` if given (the caller's: not shut down here), else the executor of
+    `open_workers(jobs)` (None: run in this process)."""
+    if executor is not None:
+        yield executor
+        return
+    with open_workers(jobs) as workers:
+        yield workers.executor
+
+
+@contextmanager
 def _dask_executor(address: str) -> Iterator[Workers]:
     try:
         from distributed import Client  # noqa: PLC0415 (optional dependency)

@@ -345,6 +345,21 @@ def check_regular_file(path: str | Path, what: str) -> Path:
     return Path(path)
 
 
+def whole_steps(period: float, step: float) -> int:
+    """How many `step`s make `period` (both [s]); 0 when that is not a whole number of
+    them (to 1e-9 of the period): the one test of "a whole multiple of dt"."""
+    n = round(period / step)
+    return n if n >= 1 and abs(n * step - period) <= 1e-9 * period else 0
+
+
+def check_whole_steps(name: str, period: float, dt: float) -> int:
+    """The steps of `dt` [s] in the period `name` [s]; ParameterError unless whole."""
+    n = whole_steps(period, dt)
+    if not n:
+        raise ParameterError(f"{name} = {period} s must be a whole multiple of dt = {dt} s")
+    return n
+
+
 def check_int(name: str, value: Any, lo: int, hi: int) -> int:
     """An integer (not a bool) in [lo, hi], else ParameterError naming it and the range."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral) or \

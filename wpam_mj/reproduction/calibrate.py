@@ -36,7 +36,6 @@ import math
 import sys
 import time
 from concurrent.futures import Executor
-from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -48,7 +47,7 @@ from wpam_mj.fitting import estimation as fitting
 from wpam_mj.experiments.drives import STATIC_TOP_MM
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import MM, MPA, Params, ParameterError, check_int, check_range, preset
-from wpam_mj.infra.pool import WorkerPool
+from wpam_mj.infra.executors import executor_for
 from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
 from wpam_mj.simulation.results import write_text_atomic
 from wpam_mj.experiments.studies import PLATEAU_SETTLE_S, StepTask, sweep_batch
@@ -313,7 +312,7 @@ def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
     journal = fitting.Journal(journal_file, keep=resume)
     model = PaperTargets(dt, protocol)
     started = time.perf_counter()
-    with WorkerPool(jobs) if jobs > 1 else nullcontext() as ex:
+    with executor_for(jobs) as ex:
         if samples:
             params = _best_start(model, random_starts(params, samples, seed), ex, journal,
                                  progress)

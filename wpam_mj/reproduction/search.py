@@ -33,8 +33,7 @@ import os
 import resource
 import sys
 import time
-from concurrent.futures import Executor, ProcessPoolExecutor
-from contextlib import nullcontext
+from concurrent.futures import Executor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -45,6 +44,7 @@ from scipy.optimize import differential_evolution
 from wpam_mj import paper
 from wpam_mj.reproduction import findings
 from wpam_mj.fitting import estimation as fitting
+from wpam_mj.infra.executors import executor_for
 from wpam_mj.reproduction.calibrate import FREE, READINGS, PaperTargets
 from wpam_mj.simulation.loop_contract import SimulationDiverged
 from wpam_mj.physics.params import MPA, Params, ParameterError, check_range, preset
@@ -408,7 +408,7 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
         raise ParameterError(f"--resume: no journal {path} of an interrupted search")
     journal = Journal(path, keep=resume)
     started = time.perf_counter()
-    with ProcessPoolExecutor(jobs) if jobs > 1 else nullcontext() as ex:
+    with executor_for(jobs) as ex:
         ev = Evaluator(base, journal, ex, targets, progress,
                        planned_evaluations(popsize, maxiter))
         res = differential_evolution(

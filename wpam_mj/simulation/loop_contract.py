@@ -9,7 +9,7 @@ import math
 from dataclasses import dataclass
 
 from wpam_mj.physics import pneumatics as pn
-from wpam_mj.physics.params import Params, ParameterError
+from wpam_mj.physics.params import Params, check_whole_steps
 from wpam_mj.simulation.plugin import FAIL_CONTRACTION, FIELD, STATE_FIELDS
 
 # Rows of the recording array, in this order: the time, then the plugin state's recorded
@@ -61,10 +61,7 @@ class RunConstants:
     @classmethod
     def make(cls, params: Params, dt: float, record_dt: float, *,
              start_at_rest: bool = False) -> "RunConstants":
-        record_every = round(record_dt / dt)
-        if record_every < 1 or abs(record_every * dt - record_dt) > 1e-9 * record_dt:
-            raise ParameterError(f"record_dt = {record_dt} s must be a whole multiple of "
-                                 f"dt = {dt} s")
+        record_every = check_whole_steps("record_dt", record_dt, dt)
         p = params.pneumatics
         tau = p.time_constant
         return cls(

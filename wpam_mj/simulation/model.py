@@ -17,7 +17,8 @@ from wpam_mj.simulation import engine
 from wpam_mj.simulation import plugin
 from wpam_mj.physics import pneumatics
 from wpam_mj.physics.geometry import BraidGeometry
-from wpam_mj.physics.params import STANDARD_GRAVITY, ParameterError, Params, check_range
+from wpam_mj.physics.params import (STANDARD_GRAVITY, ParameterError, Params, check_range,
+                                    whole_steps)
 from wpam_mj.paths import MODEL_XML
 
 LOAD_RANGE_N = (1.0, 2000.0)  # N: what a hanging mass on this rig can sensibly be
@@ -34,8 +35,7 @@ def check_dt(dt: float, *, divides: float | None = None, name: str = "dt") -> fl
     also be a whole fraction of it, so that the stated range is the range applied."""
     dt = check_range(name, dt, *DT_RANGE_S, "s")
     if divides is not None:
-        steps = round(divides / dt)
-        if steps < 1 or abs(steps * dt - divides) > 1e-9 * divides:
+        if not whole_steps(divides, dt):
             lo, hi = DT_RANGE_S
             fits = [divides / k for k in (1, 2, 4, 5, 10, 20) if lo <= divides / k <= hi]
             raise ParameterError(
