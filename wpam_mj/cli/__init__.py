@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Sequence
 
 from wpam_mj import __version__, paper
+from wpam_mj.physics.muscle_types import COMPARED_TYPES
 from wpam_mj.reproduction import findings
 from wpam_mj.infra import outputs
 from wpam_mj.infra import pool
@@ -696,11 +697,10 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     from wpam_mj.reproduction.reproduce import reproduce  # noqa: PLC0415 (matplotlib: slow import)
     run = _run_options(args)
     params, protocol = _protocol(args, run.params)
-    names = ("mckibben", "rlam", "wpam")
-    compare = [params if n == args.preset else _params(args, n) for n in names]
+    compare = [params if n == args.preset else _params(args, n) for n in COMPARED_TYPES]
     _loads(paper.LOADS_N, [params], "reproduce load")
     out = _out_dir(args)
-    settings = {"compare_presets": names, "dt_s": run.dt, **_protocol_settings(protocol)}
+    settings = {"compare_presets": COMPARED_TYPES, "dt_s": run.dt, **_protocol_settings(protocol)}
     rid = _run_id(args, params, settings)
     start = time.perf_counter()
     rep = reproduce(out, params, dt=run.dt, jobs=run.jobs, progress=run.progress,

@@ -16,6 +16,7 @@ from matplotlib.figure import Figure
 from wpam_mj.control.controllers import pi_feedforward
 from wpam_mj.experiments.drives import step_targets
 from wpam_mj.infra.manifest import png_metadata
+from wpam_mj.physics.muscle_types import MUSCLE_TYPES
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import MM, MPA, Params
 from wpam_mj.simulation.results import SimResult, write_atomic
@@ -26,7 +27,6 @@ DPI = 100
 _LOAD_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple",
                  "tab:brown")
 _CONTROL_STYLE = {"open": ":", "pi": "-", "pid": "--"}
-_PRESET_COLOURS = {"wpam": "tab:blue", "rlam": "tab:red", "mckibben": "tab:green"}
 
 
 def save_figure(fig: Figure, path: str | Path, run_id: str | None = None) -> Path:
@@ -103,7 +103,7 @@ def static_figure(loops: Sequence[StaticLoop], *, title: str | None = None) -> F
                 continue
             r = lp.result
             p, x = r.pi / MPA, r.x / MM
-            colour = (_PRESET_COLOURS.get(lp.preset, "k") if by_preset else colours[lp.load])
+            colour = (MUSCLE_TYPES[lp.preset].colour if by_preset else colours[lp.load])
             label = (f"{lp.preset}" if by_preset else f"{lp.load:g} N") + \
                 f" (area {lp.area_mpa_mm:.3g} MPa mm)"
             dashed = by_preset and lp.preset == "wpam"  # visible over an identical rlam

@@ -4,13 +4,8 @@ Every field carries its unit, its allowed range and its source in the field meta
 `validate` checks them all in one place. Users read mm and MPa: conversion happens at
 the edges (CLI, plots, CSV headers), never here.
 
-Presets:
-  * ``wpam``     the paper's double-air-chamber muscle (RLAM inside an outer bag);
-                 calibrated values come from ``models/wpam/calibrated.toml``.
-  * ``rlam``     the same inner muscle with no usable outer chamber (Po is forced to the
-                 regulator minimum by the experiments).
-  * ``mckibben`` a rubber-tube McKibben muscle of the same braid: elastic Fco term
-                 (paper eq. 7), low bag/sleeve friction.
+Presets: one per muscle type of `wpam_mj.physics.muscle_types` (wpam, rlam, mckibben),
+each the calibrated W-PAM (``models/wpam/calibrated.toml``) with its type's overrides.
 """
 
 from __future__ import annotations
@@ -28,6 +23,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from wpam_mj import paper
+from wpam_mj.physics.muscle_types import MUSCLE_TYPES, MuscleType
 from wpam_mj.paths import MODELS_DIR
 from wpam_mj.units import MM, MPA  # noqa: F401 (MM re-exported: modules take units from here)
 
@@ -247,6 +243,9 @@ class Params:
             if not isinstance(getattr(self, name), cls):
                 raise ParameterError(f"params.{name} = {getattr(self, name)!r} must be a "
                                      f"{cls.__name__}")
+        if self.preset not in MUSCLE_TYPES:
+            raise ParameterError(f"unknown preset {self.preset!r}; valid presets: "
+                                 f"{', '.join(MUSCLE_TYPES)}")
         pn, c, b = self.pneumatics, self.controller, self.braid
         # With A_ax at most the bag's cross-section, a bag wider than the inflated muscle and
         # no shorter than it (checked by Braid), the outer chamber keeps a positive volume
@@ -261,9 +260,13 @@ class Params:
                     c.po_cap / MPA, "MPa")
 
     @property
+    def muscle_type(self) -> MuscleType:
+        return MUSCLE_TYPES[self.preset]
+
+    @property
     def outer_chamber(self) -> bool:
-        """False for the bare RLAM: nothing around the inner bag for Po to fill."""
-        return self.preset != "rlam"
+        """Whether an outer bag surrounds the inner one for Po to fill (its muscle type)."""
+        return self.muscle_type.outer_chamber
 
     def replace(self, **sections: Mapping[str, float]) -> "Params":
         """Copy with some fields changed: ``p.replace(muscle={"friction_coeff": 0})``."""
@@ -393,14 +396,7 @@ def load_toml(path: str | Path, what: str = "parameter file") -> dict[str, Any]:
 
 CALIBRATION_FILE = MODELS_DIR / "wpam" / "calibrated.toml"
 
-# Rubber McKibben muscle of the same braid: K_R is an estimate for a 1.5 mm latex tube
-# (Chou & Hannaford 1996 report tens of N of elastic loss over the stroke), friction
-# between a rubber tube and a sleeve is much lower than for a loose airbag (paper §2.2).
-_MCKIBBEN = {"muscle": {"rubber_stiffness": 3000.0, "friction_coeff": 0.01,
-                        "friction_const": 1.0}}
-# A bare RLAM has no outer bag: nothing for Po to push on.
-_RLAM = {"muscle": {"axial_area": 0.0}}
-PRESETS = ("wpam", "rlam", "mckibben")
+PRESETS = tuple(MUSCLE_TYPES)
 
 
 def preset(name: str = "wpam", *, calibration: str | Path | None = CALIBRATION_FILE) -> Params:
@@ -411,17 +407,11 @@ def preset(name: str = "wpam", *, calibration: str | Path | None = CALIBRATION_F
     `wpam calibrate` the built-in values apply), another TOML file (which must exist),
     or None (the built-in values).
     """
-    if name not in PRESETS:
-        raise ParameterError(f"unknown preset {name!r}; valid presets: {', '.join(PRESETS)}")
-    params = Params(preset=name)
+    params = Params(preset=name)  # refuses an unknown name
     if calibration is not None and (Path(calibration) != CALIBRATION_FILE
                                     or CALIBRATION_FILE.exists()):
         params = apply_overrides(params, load_toml(calibration))
-    if name == "mckibben":
-        params = apply_overrides(params, _MCKIBBEN)
-    elif name == "rlam":
-        params = apply_overrides(params, _RLAM)
-    return params
+    return apply_overrides(params, MUSCLE_TYPES[name].overrides)
 
 
 def describe(params: Params) -> list[tuple[str, float, str, str]]:

@@ -15,6 +15,7 @@ from wpam_mj import paper
 from wpam_mj.experiments import figures as plots
 from wpam_mj.reproduction import findings
 from wpam_mj.reproduction.findings import Check
+from wpam_mj.physics.muscle_types import COMPARED_TYPES
 from wpam_mj.physics.params import Params, preset
 from wpam_mj.infra.pool import Batch, TaskPool, submit_batches
 from wpam_mj.reproduction.report import report_markdown
@@ -72,16 +73,16 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
 
     Args:
       params: the W-PAM parameters (all experiments).
-      compare: muscle types for the Fig. 3 comparison at 100 N; default: the mckibben
-        and rlam presets beside `params`.
+      compare: muscle types for the Fig. 3 comparison at 100 N; default: every type of
+        `COMPARED_TYPES`, `params` for its own.
       dt: physics step [s]; jobs: process-pool size.
       run_id: the run's id (`wpam_mj.infra.manifest.run_id`), recorded in every figure.
       protocol: the static ramps' readings (`wpam_mj.experiments.protocol`) for Figs. 8-9, Table 2.
     """
     out = Path(out_dir)
     data = out / "data"
-    compare = list(compare) if compare is not None else [preset("mckibben"), preset("rlam"),
-                                                          params]
+    compare = list(compare) if compare is not None else [
+        params if name == params.preset else preset(name) for name in COMPARED_TYPES]
     extra = ([StepTask(params, 100.0, "open", dt)]
              + [StaticTask(p, PRESET_COMPARE_LOAD_N, 0.0, dt) for p in compare if p != params])
 
