@@ -74,6 +74,10 @@ class PoController:
 
     name: ClassVar[str]
     feedback: ClassVar[bool]
+    adds_drive_po: ClassVar[bool] = False  # add the drive's Po command to the feedback's
+    # Its feedforward leads the regulators' dead time, so it needs the target ahead of
+    # time: users that learn the target only as it comes (the live viewer) cannot run it.
+    needs_target_ahead: ClassVar[bool] = False
 
     @classmethod
     def for_run(cls, params: Params, dt: float) -> "PoController":
@@ -126,7 +130,6 @@ class PoFeedback(PoController):
 
     feedback = True
     derivative_term: ClassVar[bool]
-    adds_drive_po: ClassVar[bool] = False  # add the drive's Po command to the output
 
     def __init__(self, params: Params, dt: float, *, initial_output: float = 0.0) -> None:
         """initial_output: Po [Pa] at zero error before the first update, held by the
@@ -216,6 +219,7 @@ class PIFlowFeedforward(PIControl):
 
     name = "pi_ff"
     adds_drive_po = True
+    needs_target_ahead = True
 
     @classmethod
     def feedforward(cls, params: Params, load: float, x_ref: np.ndarray,
@@ -259,6 +263,19 @@ def check_control(control: str) -> str:
     if control not in CONTROLLERS:
         raise ParameterError(f"unknown control {control!r}; valid: {', '.join(CONTROLS)}")
     return control
+
+
+def check_live(control: str) -> str:
+    """A control mode for a user that learns the target only as it comes (the live
+    viewer): refuses, saying why, a controller that needs the target ahead of time."""
+    if CONTROLLERS[check_control(control)].needs_target_ahead:
+        raise ParameterError(f"control {control!r} needs the target ahead of time, which "
+                             f"the live viewer does not have; valid: {', '.join(LIVE_CONTROLS)}")
+    return control
+
+
+# The controllers that decide from x and x_r as they come.
+LIVE_CONTROLS = tuple(name for name, c in CONTROLLERS.items() if not c.needs_target_ahead)
 
 
 def make_controller(control: str, params: Params, dt: float) -> PoController:

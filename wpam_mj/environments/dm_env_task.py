@@ -22,9 +22,13 @@ Observations (each a float64 array of shape (1,), SI units, named with their uni
     target_m      target contraction x_r [m] at the current time
     load_n        hanging load F [N] (constant over an episode)
 Actions (`BoundedArray`, float64, [Pa]; out-of-range values are clipped):
-    action="po"   shape (1,): Po command in [p_min, po_cap]; Pi is the equilibrium-model
-                  feedforward for (target, load) at the nominal Po (`control.pi_feedforward`,
-                  as in the paper's §4 controller).
+    action="po"   shape (1,): Po command in [p_min, po_cap]; Pi is the feedforward of the
+                  `controller` (default "pi": the equilibrium model for (target,
+                  load) at the nominal Po, as in the paper's §4 controller; "open": at
+                  Po = 0). The agent takes the place of the controller's Po feedback; a
+                  controller that adds a Po feedforward to its feedback ("pi_ff") adds it
+                  to the agent's Po, and one that needs the target ahead of time ("pi_ff")
+                  is fed the episode's whole target path at its start.
     action="both" shape (2,): (Pi command in [p_min, p_max], Po command in [p_min, po_cap]);
                   Po keeps the bag's 0.08 MPa durability cap (paper §4.2).
 Targets (`reference`):
@@ -61,7 +65,7 @@ import numpy as np
 from dm_env import specs
 
 from wpam_mj.visualisation import gl
-from wpam_mj.control.controllers import pi_feedforward
+from wpam_mj.control.controllers import CONTROLLERS, check_control
 from wpam_mj.experiments.drives import SineSpec
 from wpam_mj.experiments.feasibility import check_liftable
 from wpam_mj.physics.geometry import BraidGeometry
@@ -200,7 +204,7 @@ class TrackingTask(control.Task):
                  sine_freq: float | None = None,
                  sine_freq_range: tuple[float, float] = SINE_FREQ_RANGE,
                  randomize: ParameterRanges | None = None, reward: str = "tolerance",
-                 time_limit: float = 10.0) -> None:
+                 time_limit: float = 10.0, controller: str = "pi", dt: float = 1e-3) -> None:
         if action not in ACTIONS:
             raise ParameterError(f"action = {action!r}; valid actions: {', '.join(ACTIONS)}")
         if reference not in REFERENCES:
@@ -208,7 +212,14 @@ class TrackingTask(control.Task):
                                  f"{', '.join(REFERENCES)}")
         if reward not in REWARDS:
             raise ParameterError(f"reward = {reward!r}; valid rewards: {', '.join(REWARDS)}")
+        self._controller = CONTROLLERS[check_control(controller)]
+        if action == "both" and controller != "pi":
+            raise ParameterError(f"controller = {controller!r} shapes the commands around the "
+                                 "agent's Po: use it with action=\"po\" (action=\"both\" "
+                                 "commands Pi and Po itself)")
         self._reference, self._reward = reference, reward
+        self._dt, self._time_limit = dt, time_limit
+        self._drive: tuple[np.ndarray, np.ndarray] | None = None  # the episode's, if ahead
         self._levels = np.zeros(1)  # staircase targets [m], one per STAIR_HOLD
         self._n_levels = math.ceil(time_limit / STAIR_HOLD) + 1
         self._freq_range = _check_interval("sine_freq_range", sine_freq_range, 1e-3, 20.0, "Hz")
@@ -291,12 +302,18 @@ class TrackingTask(control.Task):
             self._sine = SineSpec(freq if self._fixed_freq is None else self._fixed_freq)
         if self._reference == "staircase":
             self._levels = self._random.uniform(*self._target_range, size=self._n_levels)
-        self._pi_ff = self._feedforward(self.target_at(0.0), physics.load())
+        if self._controller.needs_target_ahead:
+            t = np.arange(round(self._time_limit / self._dt) + 1) * self._dt
+            x_ref = np.array([self.target_at(s) for s in t])
+            self._drive = self._controller.feedforward(self._params, physics.load(), x_ref,
+                                                       self._dt)
+        else:
+            self._pi_ff = self._feedforward(self.target_at(0.0), physics.load())
 
     def _feedforward(self, target: float, load: float) -> float:
-        """Pi [Pa] holding `target` [m] under `load` [N] at the nominal Po."""
-        return float(pi_feedforward(self._muscle, self._params, [target], load,
-                                    self._params.controller.po_feedforward)[0])
+        """The controller's Pi [Pa] holding `target` [m] under `load` [N]."""
+        return float(self._controller.feedforward(self._params, load, np.array([target]),
+                                                  self._dt)[0][0])
 
     def target_at(self, t: float) -> float:
         """Target contraction x_r [m] at episode time `t` [s]."""
@@ -315,6 +332,11 @@ class TrackingTask(control.Task):
             raise ParameterError(f"action = {action!r} must be {self._lo.size} finite "
                                  f"number(s) [Pa] ({self._name})")
         a = np.clip(a, self._lo, self._hi)
+        if self._drive is not None:  # the episode's drive, at this physics step
+            k = min(round(physics.time() / self._dt), len(self._drive[0]) - 1)
+            po = a[0] + self._drive[1][k] if self._controller.adds_drive_po else a[0]
+            physics.set_commands(self._drive[0][k], min(max(po, self._lo[0]), self._hi[0]))
+            return
         if self._action == "po" and self._reference != "step":
             self._pi_ff = self._feedforward(self.target_at(physics.time()), physics.load())
         if self._action == "po":
@@ -359,7 +381,7 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
              sine_freq: float | None = None,
              sine_freq_range: tuple[float, float] = SINE_FREQ_RANGE,
              randomize: str | Path | float | ParameterRanges | None = None,
-             reward: str = "tolerance") -> control.Environment:
+             reward: str = "tolerance", controller: str = "pi") -> control.Environment:
     """The hung W-PAM as a `dm_control.rl.control.Environment`.
 
     Args:
@@ -385,6 +407,8 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
         parameters from their ranges (with the task's RandomState, after target and load).
       reward: "tolerance" (1 within +-0.5 mm, Gaussian tail) or "tracking" (1 - |x - x_r|
         / 5 mm, floored at 0); see the module docstring.
+      controller: a control mode (`wpam_mj.control.controllers.CONTROLS`) whose feedforward
+        shapes the commands around the agent's Po (action="po"; see the module docstring).
     """
     params = preset() if params is None else params
     randomize = ranges_of(randomize, params)
@@ -398,7 +422,8 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
                         target_range=target_range, load_range=load_range, random=seed,
                         flat_observation=flat_observation, reference=reference,
                         sine_freq=sine_freq, sine_freq_range=sine_freq_range,
-                        randomize=randomize, reward=reward, time_limit=time_limit)
+                        randomize=randomize, reward=reward, time_limit=time_limit,
+                        controller=controller, dt=dt)
     return control.Environment(physics, task, time_limit=time_limit, n_sub_steps=n_sub,
                                flat_observation=flat_observation)
 

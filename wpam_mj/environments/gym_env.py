@@ -156,13 +156,12 @@ class WPAMEnv(Env):
       params: muscle parameters, or a preset name (default: the calibrated ``wpam``).
       action: "po" (Po command) or "both" (Pi and Po commands).
       reference: "step" (constant target), "sine" (25 mm about 25 mm at f) or
-        "staircase" (a new random level every `wpam_mj.environments.dm_env_task.STAIR_HOLD` s, up
-        or down).
+        "staircase" (a new random level every `dm_env_task.STAIR_HOLD` s, up or down).
       reward: "tolerance" or "tracking" (module docstring).
       normalize: float32 spaces in [-1, 1] (module docstring) instead of SI.
-      randomize: domain randomisation, as `wpam_mj.environments.dm_env_task.make_env` (a ranges
-      file from
-        `wpam fit --randomize-out`, `ParameterRanges`, or a relative spread such as 0.1).
+      randomize: domain randomisation, as `wpam_mj.environments.dm_env_task.make_env` (a
+        ranges file from `wpam fit --randomize-out`, `ParameterRanges`, or a relative
+        spread such as 0.1).
       frame_skip: physics steps per env step (the control step is frame_skip * dt).
       dt: physics step [s].
       time_limit: episode length [s].
@@ -170,6 +169,8 @@ class WPAMEnv(Env):
       target_range, load_range, sine_freq_range: (low, high) for random draws.
       render_mode: None or "rgb_array".
       render_size: (width, height) [px] of rendered frames.
+      controller: the control mode whose feedforward shapes the commands around the
+        agent's Po, as `wpam_mj.environments.dm_env_task.make_env`.
     """
 
     metadata = {"render_modes": ["rgb_array"], "render_fps": 30}
@@ -184,7 +185,7 @@ class WPAMEnv(Env):
                  load_range: tuple[float, float] = LOAD_RANGE,
                  sine_freq_range: tuple[float, float] = SINE_FREQ_RANGE,
                  render_mode: str | None = None,
-                 render_size: tuple[int, int] = (640, 480)) -> None:
+                 render_size: tuple[int, int] = (640, 480), controller: str = "pi") -> None:
         params = resolve_params(params)
         dt = check_dt(dt)
         if isinstance(frame_skip, bool) or not isinstance(frame_skip, (int, np.integer)) \
@@ -202,7 +203,7 @@ class WPAMEnv(Env):
                              load=load, target_range=target_range, load_range=load_range,
                              flat_observation=True, reference=reference,
                              sine_freq=sine_freq, sine_freq_range=sine_freq_range,
-                             randomize=randomize, reward=reward)
+                             randomize=randomize, reward=reward, controller=controller)
         self._params = params
         self.episode_steps = math.ceil(time_limit / self._env.control_timestep() - 1e-9)
         self.render_mode = render_mode

@@ -27,6 +27,7 @@ The static equilibria follow eqs. 5-6: at rest on the branch of motion direction
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -49,7 +50,10 @@ class MuscleModel:
     natural_diameter: float  # D0 [m]
 
     @classmethod
+    @functools.lru_cache(maxsize=256)
     def from_params(cls, params: Params) -> "MuscleModel":
+        """The model of `params`, built once per parameter set (both are immutable), so
+        every user asks for it where it needs it instead of passing one along."""
         m: Muscle = params.muscle
         return cls(BraidGeometry.from_params(params.braid), m.output_coeff, m.friction_coeff,
                    m.friction_const, m.axial_area, m.rubber_stiffness,

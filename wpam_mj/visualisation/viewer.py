@@ -43,7 +43,8 @@ from collections.abc import Callable
 import mujoco
 import numpy as np
 
-from wpam_mj.control.controllers import CONTROLLERS, check_control, pi_feedforward
+from wpam_mj.control.controllers import (CONTROLLERS, LIVE_CONTROLS, check_control, check_live,
+                                         pi_feedforward)
 from wpam_mj.experiments.drives import STEP_LEVELS_MM, SineSpec
 from wpam_mj.physics.geometry import BraidGeometry
 from wpam_mj.simulation.live import LiveRig as _Stepper
@@ -64,11 +65,8 @@ TEXT_PERIOD_S = 0.1  # s (wall clock) between overlay updates: `set_texts` waits
 # GLFW key codes (glfw3.h)
 KEY_UP, KEY_DOWN, KEY_HOME, KEY_END = 265, 264, 268, 269
 
-# The controllers the live rig can run: those that decide Po from x and x_r alone. A
-# controller with a drive feedforward (`adds_drive_po`, e.g. pi_ff) needs the target's
-# future (it leads the regulators' dead time), which keys pressed live do not give.
-VIEW_CONTROLS = tuple(name for name, cls in CONTROLLERS.items()
-                      if not getattr(cls, "adds_drive_po", False))
+# The controllers the live rig can run: keys pressed live give no target ahead of time.
+VIEW_CONTROLS = LIVE_CONTROLS
 
 
 class ViewerUnavailable(RuntimeError):
@@ -153,11 +151,7 @@ class LiveRig:
     def set_control(self, control: str, *, bumpless: bool = True) -> None:
         """Switch controller; PI/PID start from the current Po command (bumpless) or, at
         the start, from the Po the feedforward assumes (the loop at rest)."""
-        self.control = check_control(control)
-        if control not in VIEW_CONTROLS:
-            raise ParameterError(f"control {control!r} needs the target ahead of time, which "
-                                 f"the live viewer does not have; valid: "
-                                 f"{', '.join(VIEW_CONTROLS)}")
+        self.control = check_live(control)
         if control == "open":
             self._feedback = None
             return
