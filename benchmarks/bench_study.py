@@ -40,7 +40,7 @@ from wpam_mj.experiments.drives import STEP_LEVELS_MM, step_run
 from wpam_mj.physics.params import preset
 
 REPO = Path(__file__).resolve().parent.parent
-JOBS2_TARGET = 0.8  # fraction of the floor's runs/s (issue target)
+JOBS2_TARGET = 0.8  # fraction of the floor's runs/s (the target)
 DASK2_TARGET = 0.7
 
 

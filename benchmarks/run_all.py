@@ -1,4 +1,4 @@
-"""Every speed target of the project in one table (issue 5): run from the repository root,
+"""Every speed target of the project in one table: run from the repository root,
 
     python benchmarks/run_all.py
 

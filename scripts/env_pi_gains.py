@@ -1,5 +1,5 @@
 """The PI policy of the environment at its 10 ms control step: how close each gain set
-brings the shipped muscle to a step target in a 10 s episode (issue 15's 0.5 mm).
+brings the shipped muscle to a step target in a 10 s episode (the target: within 0.5 mm).
 
 Per gain set (Kp, Ki in controller units per mm, as `Controller` reads them) and per
 (target, load): |x - x_r| at the end of the episode and the peak-to-peak motion over its

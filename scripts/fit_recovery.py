@@ -1,4 +1,4 @@
-"""Recovery check of `wpam fit` (issue 13's target): synthesise measurements from
+"""Recovery check of `wpam fit`: synthesise measurements from
 plant parameters 20-40 % away from the shipped ones (halfway to the farther bound where
 the plausible range is narrower), fit them back from the shipped values, and compare.
 

@@ -1,4 +1,4 @@
-"""Issue 20's global search, as `wpam search` (a thin wrapper for background runs).
+"""The global search of the credible box, as `wpam search` (a thin wrapper for background runs).
 
     nice -n 10 python scripts/global_search.py --out out/search --maxiter 5 [--resume]
 

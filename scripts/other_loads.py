@@ -1,4 +1,4 @@
-"""The paper's figures at loads between and beyond its own (issue 20): is the fit physical
+"""The paper's figures at loads between and beyond its own: is the fit physical
 away from 50/100/150 N?
 
 At 50, 75, 100, 125, 150 and 200 N, on the shipped parameters and protocol (or

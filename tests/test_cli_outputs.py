@@ -1,4 +1,4 @@
-"""Issue 10 at the command line: outputs a person and a script can trust (manifests, run
+"""At the command line: outputs a person and a script can trust (manifests, run
 ids, --json, flags), runs that cannot mean anything refused, signals and pipes handled.
 
 Runs are short (2 ms step, 1-2 s ramps, one load) so the file adds seconds.

@@ -1,4 +1,4 @@
-"""Issue 19, item 2: runs into one output folder never mix, and `check_files` catches a
+"""Concurrent commands: runs into one output folder never mix, and `check_files` catches a
 file of another run; a refused or failed command leaves no folder it created."""
 
 from __future__ import annotations

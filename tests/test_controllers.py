@@ -64,7 +64,7 @@ def _response(control: str, load: float, freq: float):
 
 
 def test_pi_ff_beats_the_papers_pid_at_the_heavy_fast_point():
-    """Issue target at 150 N, 0.5 Hz, 25 mm: lag <= 0.7x PID's, gain >= PID's, Po within
+    """The target at 150 N, 0.5 Hz, 25 mm: lag <= 0.7x PID's, gain >= PID's, Po within
     [p_min, po_cap] and Pi within the regulator range."""
     pid = _response("pid", 150.0, 0.5)[1]
     r, ff = _response("pi_ff", 150.0, 0.5)

@@ -1,4 +1,4 @@
-"""Issue 10's hardening, library side: bad input is one ParameterError line naming the
+"""Hardening, library side: bad input is one ParameterError line naming the
 value and its range; outputs a script can trust; nothing meaningless runs silently."""
 
 from __future__ import annotations

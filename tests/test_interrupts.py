@@ -1,9 +1,9 @@
-"""Issue 19, item 1: every signal ends a command promptly with its status, no process and
+"""Interrupts: every signal ends a command promptly with its status, no process and
 no temporary file left; pool workers die with their parent however it dies.
 
 Signals are sent the moment the pool's workers exist (the race of the suite's SIGTERM
-test) and later; each run is a few seconds. Run under load to mean anything (the issue's
-target: ten passes in a row with the machine busy)."""
+test) and later; each run is a few seconds. Run under load to mean anything (the target:
+ten passes in a row with the machine busy)."""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143, signal.SIGHUP: 129}
 MESSAGE = {signal.SIGINT: "interrupted", signal.SIGTERM: "terminated",
            signal.SIGHUP: "hung up"}
-EXIT_WITHIN_S = 1.0  # the issue's target
+EXIT_WITHIN_S = 1.0  # a stopped command is gone within a second
 STUDY = """experiment = "step"
 dt = 2e-3
 [fixed]

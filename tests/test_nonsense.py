@@ -1,4 +1,4 @@
-"""Issue 19, items 3-5: inputs inside their ranges that ask for absurd work, results that
+"""Inputs inside their ranges that ask for absurd work, results that
 mean nothing, odd files and messages. Bad input is one line naming the value and the
 allowed range, exit status 2, no traceback, no folder left behind."""
 

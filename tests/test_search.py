@@ -1,4 +1,4 @@
-"""The global search (issue 20) on a cheap stand-in for the paper's targets: seeded and
+"""The global search on a cheap stand-in for the paper's targets: seeded and
 deterministic, journaled, resumable without rerunning, and its archive a feasibility map.
 The paper's own targets take minutes per generation: scripts/global_search.py."""
 

@@ -26,9 +26,9 @@ GAINS = {"ki": 10 * paper.KI}
 PARAMS = wpam_mj.preset().replace(controller=GAINS)
 PACKAGE_ROOT = str(Path(wpam_mj.__file__).resolve().parents[1])
 X_TOOLS = ("Xvfb", "xwd", "convert")
-# N along +z: a pull down on the 100 N load, from 2 to 3 s, twice the load: the muscle's
-# dry friction (30 N + mu dP S, ~60 N here) and the Po the integral gathers hold a 150 N
-# pull within 0.4 mm
+# N along +z: a pull down on the 100 N load from 2 to 3 s. The muscle's dry friction
+# (30 N + mu dP S, ~60 N here) and the Po the integral gathers hold a 150 N pull within
+# 0.4 mm, so the pull is 200 N, twice the load, to move it more than 1 mm
 PULL = -200.0
 
 

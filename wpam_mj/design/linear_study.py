@@ -3,7 +3,7 @@
 For one load and operating contraction, `compare` builds the §3 and extended models for PI
 and PID and runs the simulated sweep (`studies.sweep_batch`) at several target amplitudes
 (the paper's 25 mm and smaller ones), all in one process pool. A `LinearComparison` holds
-both; `agreement` is the issue's yardstick: at 0.1-0.25 Hz, does the simulated gain lie
+both; `agreement` is the yardstick: at 0.1-0.25 Hz, does the simulated gain lie
 within 1 dB and the lag within 10 deg of the model's? Everything is recomputed from the
 current parameters, so the numbers follow any change of the physics.
 
@@ -30,7 +30,7 @@ from wpam_mj.experiments.responses import SweepResult
 
 SMALL_AMPLITUDE_MM = 5.0  # about the friction band's reach in error at 150 N (docs/linear_model.md)
 AMPLITUDES_MM = (SINE_AMPLITUDE_MM, SMALL_AMPLITUDE_MM)  # the paper's, and a small one
-AGREEMENT_FREQS_HZ = (0.1, 0.2, 0.25)  # issue 12: where the linear model should hold
+AGREEMENT_FREQS_HZ = (0.1, 0.2, 0.25)  # compared with the simulation (docs/linear_model.md)
 GAIN_TOL_DB = 1.0
 LAG_TOL_DEG = 10.0
 

@@ -1,4 +1,4 @@
-"""The static experiments' protocol readings that the paper does not state (issue 20).
+"""The static experiments' protocol readings that the paper does not state.
 
 Figs. 8-9 and Table 2 come from "slow" Pi ramps up and back down (§2.3), with Po applied
 "only when the internal pressure Pi is decreased" in Fig. 9. The paper does not give:

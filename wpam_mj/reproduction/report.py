@@ -121,7 +121,7 @@ def report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResult
 
 
 # Why the shipped parameters give up a finding, keyed by the start of its text: the
-# measured search of issue 20 (`wpam search --maxiter 5`, 204 points; the feasibility
+# measured global search (`wpam search --maxiter 5`, 204 points; the feasibility
 # map in docs/physics.md).
 GIVEN_UP = {
     "Table 2 'Po =": (

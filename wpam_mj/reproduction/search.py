@@ -1,4 +1,4 @@
-"""Global search of the credible box and the protocol readings (issue 20).
+"""Global search of the credible box and the protocol readings.
 
 One point of the search is a parameter set (the credible ranges of `calibrate.FREE`,
 `wpam_mj.physics.params`) together with the readings the paper does not state: the Pi
