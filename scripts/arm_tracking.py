@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from wpam_mj.simulation import arm
-from wpam_mj.simulation.results import write_atomic
+from wpam_mj.experiments import arm
+from wpam_mj.infra.files import write_atomic
 
 
 def main() -> None:

@@ -24,7 +24,7 @@ from wpam_mj.experiments.drives import SineSpec, sine_run
 from wpam_mj.design.linear_study import AGREEMENT_FREQS_HZ, GAIN_TOL_DB, LAG_TOL_DEG
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import MM, MPA, preset
-from wpam_mj.simulation.results import write_text_atomic
+from wpam_mj.infra.files import write_text_atomic
 
 SCAN_AMPLITUDES_MM = (0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 25.0)
 

@@ -27,7 +27,7 @@ from wpam_mj import paper
 from wpam_mj.infra import pool
 from wpam_mj.physics.params import MM, MPA, apply_overrides, load_toml, preset
 from wpam_mj.experiments.protocol import LOOP_METHODS, SHIPPED, table2_batch
-from wpam_mj.simulation.results import write_text_atomic
+from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.experiments.studies import PLATEAU_SETTLE_S, sweep_batch
 
 LOADS_N = (50.0, 75.0, 100.0, 125.0, 150.0, 200.0)

@@ -163,8 +163,8 @@ def test_replay_from_pressures_uses_an_ideal_regulator():
 
 
 def test_reduced_recovery_within_five_percent():
-    """Recovery of known parameters through the simulator, at a reduced size: three parameters 20-30 % off, two short
-    static ramps with 0.05 mm / 1 kPa noise."""
+    """Recovery of known parameters through the simulator, at a reduced size: three
+    parameters 20-30 % off, two short static ramps with 0.05 mm / 1 kPa noise."""
     shipped = preset()
     free = tuple(fitting.FreeParameter.of(n) for n in
                  ("muscle.output_coeff", "muscle.friction_coeff", "muscle.axial_area"))

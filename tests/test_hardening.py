@@ -30,7 +30,8 @@ from wpam_mj.simulation.model import check_dt
 from wpam_mj.physics.params import (MAX_TOML_BYTES, MM, MPA, Braid, ParameterError, apply_overrides,
                             load_toml, preset)
 from wpam_mj.physics.pneumatics import chamber_volumes, outer_bag_volume
-from wpam_mj.simulation.results import SimResult, write_atomic
+from wpam_mj.simulation.results import SimResult
+from wpam_mj.infra.files import write_atomic
 from wpam_mj.simulation.simulate import Drive, SimulationDiverged, simulate
 
 ROOT = Path(__file__).resolve().parent.parent

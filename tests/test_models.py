@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import wpam_mj  # noqa: F401 (registers the plugin)
-from wpam_mj.simulation import arm
+from wpam_mj.experiments import arm
 from wpam_mj.simulation import plugin
 from wpam_mj.physics.geometry import BraidGeometry
 from wpam_mj.physics.params import MPA, preset

@@ -1,23 +1,36 @@
-"""wpam-mj: MuJoCo simulator of the double-air-chamber pneumatic artificial muscle (W-PAM)."""
+"""wpam-mj: MuJoCo simulator of the double-air-chamber pneumatic artificial muscle (W-PAM).
+
+The public face is flat; the code lives in sub-packages by concern (docs/architecture.md):
+physics, control, infra, simulation, experiments, design, fitting, reproduction,
+environments, visualisation and cli.
+
+    import wpam_mj
+    params = wpam_mj.preset("wpam")                        # or "rlam", "mckibben"
+    result = wpam_mj.simulate(params, 100.0, drive, control="pi")
+
+Importing the package registers the `wpam_mj.muscle` MuJoCo actuator plugin (built at
+first use; docs/plugin.md), so any MJCF that declares it compiles. No GL backend is chosen
+here (loading EGL breaks PyTorch): `wpam_mj.visualisation.gl` chooses where rendering
+starts.
+"""
 
 import importlib.util as _importlib_util
 
-# No GL backend is chosen here (loading EGL breaks PyTorch): wpam_mj.visualisation.gl, where
-# rendering starts.
+from wpam_mj.control.controllers import CONTROLS
+from wpam_mj.physics.muscle_types import MUSCLE_TYPES
+from wpam_mj.physics.params import Params, ParameterError, preset
 from wpam_mj.simulation import engine as _engine
 from wpam_mj.simulation import plugin as _plugin
-from wpam_mj.physics.params import Params, ParameterError, preset
-from wpam_mj.simulation.results import SimResult
 from wpam_mj.simulation.loop_contract import SimulationDiverged
-from wpam_mj.simulation.simulate import Drive
+from wpam_mj.simulation.results import SimResult
+from wpam_mj.simulation.simulate import Drive, Run, simulate, simulate_many
+from wpam_mj.version import __version__
 
-# `wpam_mj.simulation.simulate` is the module; run a simulation with
-# `wpam_mj.simulation.simulate.simulate`.
-__all__ = ["Drive", "Params", "ParameterError", "SimResult", "SimulationDiverged", "preset"]
-__version__ = "0.1.0"
+__all__ = ["CONTROLS", "Drive", "MUSCLE_TYPES", "Params", "ParameterError", "Run", "SimResult",
+           "SimulationDiverged", "__version__", "preset", "simulate", "simulate_many"]
 
-# Register the `wpam_mj.muscle` actuator plugin (built at first use; docs/plugin.md), or,
-# where it cannot be built, a stand-in that lets MJCF naming it parse for the Python engine.
+# Where the plugin cannot be built, a stand-in lets MJCF naming it parse for the Python
+# engine.
 if _plugin.load() is None:
     _engine.register_stand_in()
 

@@ -38,7 +38,8 @@ from concurrent.futures import BrokenExecutor
 from pathlib import Path
 from typing import Sequence
 
-from wpam_mj import __version__, paper
+from wpam_mj import paper
+from wpam_mj.version import __version__
 from wpam_mj.physics.muscle_types import COMPARED_TYPES
 from wpam_mj.reproduction import findings
 from wpam_mj.infra import outputs

@@ -19,7 +19,8 @@ from wpam_mj.infra.manifest import png_metadata
 from wpam_mj.physics.muscle_types import MUSCLE_TYPES
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import MM, MPA, Params
-from wpam_mj.simulation.results import SimResult, write_atomic
+from wpam_mj.simulation.results import SimResult
+from wpam_mj.infra.files import write_atomic
 from wpam_mj.paper import TABLE2
 from wpam_mj.experiments.responses import StaticLoop, StepRun, SweepResult, Table2Result
 

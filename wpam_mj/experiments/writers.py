@@ -1,5 +1,5 @@
 """Output files of the studies: their names and the CSV/JSON summaries, each written
-whole or not at all (`wpam_mj.simulation.results.write_text_atomic`), and the figure-and-CSV sets
+whole or not at all (`wpam_mj.infra.files.write_text_atomic`), and the figure-and-CSV sets
 the single-study commands write."""
 
 from __future__ import annotations
@@ -12,7 +12,8 @@ from typing import Sequence
 
 from wpam_mj.experiments import figures as plots
 from wpam_mj.experiments.feasibility import MOVE_MIN_MM, load_moved
-from wpam_mj.simulation.results import SimResult, write_text_atomic
+from wpam_mj.simulation.results import SimResult
+from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.experiments.responses import StaticLoop, StepRun, SweepKey, SweepResult, Table2Result
 from wpam_mj.experiments.tables import mpa_label
 

@@ -36,7 +36,7 @@ from wpam_mj.physics.geometry import BraidGeometry
 from wpam_mj.simulation.model import check_load
 from wpam_mj.infra.budget import check_duration
 from wpam_mj.physics.params import MM, MPA, Params, ParameterError, check_regular_file, file_kind
-from wpam_mj.simulation.results import write_text_atomic
+from wpam_mj.infra.files import write_text_atomic
 
 REQUIRED = ("time_s", "load_n", "pi_mpa", "po_mpa", "x_mm")
 OPTIONAL = ("pi_cmd_mpa", "po_cmd_mpa", "x_ref_mm")

@@ -32,9 +32,9 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from wpam_mj import __version__
+from wpam_mj.version import __version__
 from wpam_mj.physics.params import Params, ParameterError
-from wpam_mj.simulation.results import write_text_atomic
+from wpam_mj.infra.files import write_text_atomic
 
 RUN_ID_KEY = "wpam_mj run_id"  # PNG text keyword; "<key> <id>" in video comments
 _ID_LENGTH = 16  # hex digits of SHA-256: 64 bits, no collisions among a user's runs

@@ -26,7 +26,7 @@ from concurrent.futures import InvalidStateError
 from pathlib import Path
 from typing import Iterator
 
-from wpam_mj.simulation.results import _process_exists
+from wpam_mj.infra.files import _process_exists
 
 # write_atomic's temporary names: ".<name>.wpam<pid>-<random><suffix>"
 _TEMPORARY = re.compile(r"\..+\.wpam(\d+)-\w+(\.\w+)?")

@@ -49,7 +49,7 @@ from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import MM, MPA, Params, ParameterError, check_int, check_range, preset
 from wpam_mj.infra.executors import executor_for
 from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
-from wpam_mj.simulation.results import write_text_atomic
+from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.experiments.studies import PLATEAU_SETTLE_S, StepTask, sweep_batch
 
 # The parameters fitted to the paper, by name. The other parameters with a plausible range

@@ -19,7 +19,7 @@ from wpam_mj.physics.muscle_types import COMPARED_TYPES
 from wpam_mj.physics.params import Params, preset
 from wpam_mj.infra.pool import Batch, TaskPool, submit_batches
 from wpam_mj.reproduction.report import report_markdown
-from wpam_mj.simulation.results import write_text_atomic
+from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
 from wpam_mj.experiments.studies import StaticTask, StepTask, figure_run_key, sweep_batch
 from wpam_mj.experiments.responses import SweepResult, Table2Result

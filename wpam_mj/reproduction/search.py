@@ -49,7 +49,7 @@ from wpam_mj.reproduction.calibrate import FREE, READINGS, PaperTargets
 from wpam_mj.simulation.loop_contract import SimulationDiverged
 from wpam_mj.physics.params import MPA, Params, ParameterError, check_range, preset
 from wpam_mj.experiments.protocol import LOOP_METHODS, Protocol
-from wpam_mj.simulation.results import write_text_atomic
+from wpam_mj.infra.files import write_text_atomic
 
 PHYSICAL = tuple(n for n in FREE if n != "controller.feedforward_friction")
 PO_FF_RANGE_MPA = (0.005, 0.04)  # from p_min to the Po of Fig. 9

@@ -2,8 +2,9 @@
 
     python -m wpam_mj.visualisation.native_viewer models/arm/arm.xml
 
-is ``python -m mujoco.viewer --mjcf=FILE`` after registering the plugin (MuJoCo's viewer
-loads only the plugins shipped in its wheel). The muscle's input channels are the
+is ``python -m mujoco.viewer --mjcf=FILE`` with the plugin registered: MuJoCo's viewer
+loads only the plugins shipped in its wheel, and running this module imports wpam_mj,
+which registers ours. The muscle's input channels are the
 actuator sliders of the Control panel; the viewer needs a display.
 """
 
@@ -12,8 +13,6 @@ from __future__ import annotations
 import sys
 
 import mujoco.viewer
-
-import wpam_mj  # noqa: F401 (registers the plugin)
 
 
 def main(argv: list[str] | None = None) -> int:
