@@ -4,10 +4,9 @@ Every row advances the same physics: the hung muscle at 100 N, 1 ms physics step
 control step, Pi from the feedforward for a 20 mm target and a constant Po command (no
 policy, so only the layers differ). Figures in control steps per second of wall time
 (best of --repeats, interleaved):
-  direct rig steps       `wpam_mj.simulation.live.LiveRig`: commands set, then 10 physics steps of
-  the
-                         plugin (what the environments call), no environment layers; the
-                         reference
+  direct rig steps       `wpam_mj.simulation.live.LiveRig`: commands set, then 10 physics
+                         steps of the plugin (what the environments call), no environment
+                         layers; the reference
   simulate               `simulate(engine="plugin")` for the same physics steps (model build
                          and result assembly included); information
   dm_control env.step    `wpam_mj.environments.dm_env_task.make_env(flat_observation=True)`

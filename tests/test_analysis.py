@@ -1,5 +1,5 @@
-"""Tests of wpam_mj.experiments.analysis on loops and signals whose answer is known in closed
-form."""
+"""Tests of wpam_mj.experiments.analysis on loops and signals whose answer is known in
+closed form."""
 
 from __future__ import annotations
 

@@ -45,8 +45,7 @@ def pi_feedforward(muscle: MuscleModel, params: Params, x_ref: np.ndarray, load:
 
     The mechanical equilibrium model (paper eqs. 5-6) on the branch weighted by
     `Controller.feedforward_friction` (0: frictionless; 1: contracting, eq. 5; above 1
-    beyond it), clamped
-    to the regulator range.
+    beyond it), clamped to the regulator range.
     """
     pn = params.pneumatics
     pi = muscle.equilibrium_pressure(np.asarray(x_ref, dtype=float), load, po,
@@ -68,8 +67,9 @@ class PoController:
     runs it), `reset()` (back to the state at the start of a run) and
     `update(x, x_ref, po_cmd)` -> Po command [Pa]. A new controller is one subclass here
     plus its entry in `CONTROLLERS`; the plugin runs the names of
-    `wpam_mj.simulation.plugin.CONTROLS`,
-    any other runs on the Python engine (`wpam_mj.simulation.engine`).
+    `wpam_mj.simulation.plugin.CONTROLS`, any other runs on the Python engine
+    (`wpam_mj.simulation.engine`). `needs_target_ahead` says whether it can run where the
+    target comes as it goes (`check_live`).
     """
 
     name: ClassVar[str]

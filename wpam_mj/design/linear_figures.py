@@ -1,9 +1,9 @@
 """Bode plot of the linear models' G_yr beside the simulated frequency response.
 
-`control.bode_plot` draws the models on a pyplot-free `Figure` (as `wpam_mj.experiments.figures`
-does);
-the simulated gain and lag at each amplitude go on the same axes as markers. Display
-units: Hz, gain [1] on a log axis, phase [deg] (negative = lag).
+`control.bode_plot` draws the models on a pyplot-free `Figure` (as
+`wpam_mj.experiments.figures` does); the simulated gain and lag at each amplitude go on
+the same axes as markers. Display units: Hz, gain [1] on a log axis, phase [deg]
+(negative = lag).
 """
 
 from __future__ import annotations

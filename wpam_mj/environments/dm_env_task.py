@@ -103,9 +103,8 @@ class MusclePhysics(engine.Physics):
     """dm_control Physics of the hung muscle whose `step` is the project's physics step.
 
     The muscle is the rig's `wpam_mj.muscle` plugin (or the Python engine where it is
-    unavailable), stepped by `wpam_mj.simulation.live.LiveRig`: its pneumatic state lives in
-    MuJoCo's
-    data, so `reset` and `copy` carry it. Set the regulator commands with `set_commands`
+    unavailable), stepped by `wpam_mj.simulation.live.LiveRig`: its pneumatic state lives
+    in MuJoCo's data, so `reset` and `copy` carry it. Set the regulator commands with `set_commands`
     before stepping.
     """
 

@@ -37,9 +37,8 @@ Normalised spaces (normalize=True; the learning variants): float32 everywhere.
     over +-`ERROR_SCALE` (a policy needs it finer than x and x_r give it).
 Reward: `reward="tolerance"` (default): 1 within +-0.5 mm of the target, Gaussian fall-off
 to 0.1 at 2 mm outside; `reward="tracking"`: 1 - |x - x_r| / 5 mm, floored at 0 (see
-`wpam_mj.environments.dm_env_task`). Episode: `time_limit` [s], then truncated=True. Each env step
-is
-`frame_skip` physics steps of `dt` [s]. The registered ids' TimeLimit cuts at 1000
+`wpam_mj.environments.dm_env_task`). Episode: `time_limit` [s], then truncated=True. Each
+env step is `frame_skip` physics steps of `dt` [s]. The registered ids' TimeLimit cuts at 1000
 steps: with a longer time_limit pass max_episode_steps to gymnasium.make too. If the
 state diverges (non-physical pressures, MuJoCo's instability warnings) the episode ends
 with terminated=True, reward 0, the last valid observation and the reason in

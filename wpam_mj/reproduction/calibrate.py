@@ -299,8 +299,8 @@ def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
       max_nfev: most least-squares steps (each also runs a Jacobian: len(FREE) + 1 sets).
       resume: replay the journal of an interrupted fit to `out` (evaluations already run
         are not run again).
-      protocol: the static ramps' readings (`wpam_mj.experiments.protocol`) Table 2 is measured
-      with.
+      protocol: the static ramps' readings (`wpam_mj.experiments.protocol`) Table 2 is
+        measured with.
     """
     check_range("samples", samples, *SAMPLES_RANGE, "")
     check_range("max_nfev", max_nfev, *NFEV_RANGE, "")

@@ -2,10 +2,9 @@
 
 MuJoCo's passive viewer (`mujoco.viewer.launch_passive`) draws the model in its own
 thread, with the sleeve, its braid and the outer bag as `wpam render` draws them
-(`wpam_mj.visualisation.render.MuscleDecor`); this module's loop owns the physics. Every physics
-step
-it runs the same plant step as every other path (`wpam_mj.simulation.simulate.Plant.actuate`:
-regulators, chambers, muscle force and friction, then `mj_step`), with Pi from the
+(`wpam_mj.visualisation.render.MuscleDecor`); this module's loop owns the physics. It
+steps the rig's muscle plugin as every other path does (`wpam_mj.simulation.live.LiveRig`:
+regulators, chambers, muscle force and friction inside `mj_step`), with Pi from the
 equilibrium feedforward for the target and Po from PI/PID feedback
 (`wpam_mj.control.controllers.PoFeedback`) or 0 in open loop, as in the paper's experiments
 (`wpam_mj.experiments.drives.drive_for_targets`). Simulated time follows the wall clock.
@@ -17,11 +16,11 @@ Keys (MuJoCo's viewer uses every letter and the digits 0-5 itself):
     End         next controller: pi, pid, open (switching is bumpless: the new PI/PID
                 starts from the current Po command; `VIEW_CONTROLS`)
 Mouse: double-click the load to select it, then Ctrl + right drag pulls it (MuJoCo's
-perturbation). The viewer writes that
-force into `data.xfrc_applied` of the load body at each sync; MuJoCo maps it onto the
-slide joint through the body's Jacobian, so it acts on the contraction x like any other
-load and the Po feedback rejects it (a pull must exceed the muscle's dry friction, ~50 N at
-100 N, to move it at all). Scripts can add a force of their own (`perturb`).
+perturbation). The viewer writes that force into `data.xfrc_applied` of the load body at
+each sync; MuJoCo maps it onto the slide joint through the body's Jacobian, so it acts on
+the contraction x like any other load and the Po feedback rejects it (a pull must exceed
+the muscle's dry friction, ~50 N at 100 N, to move it at all). Scripts can add a force of
+their own (`perturb`).
 
 The viewer needs a display and GLFW; without them `view` raises `ViewerUnavailable` (one
 line) before any window is attempted, since MuJoCo's viewer thread would otherwise exit
