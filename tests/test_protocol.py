@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from wpam_mj import cli
+from wpam_mj.cli.runs import protocol_of
 from wpam_mj.physics.params import MPA, ParameterError, preset
 from wpam_mj.experiments.protocol import SHIPPED, Protocol, ProtocolStaticTask, static_drive
 from wpam_mj.experiments.studies import StaticTask
@@ -45,12 +46,12 @@ def test_every_reading_is_a_command_option():
         ["reproduce", "--ramp-top", "0.19", "--ramp-time", "90", "--top-hold", "1.5",
          "--loop-area", "shoelace", "--po-feedforward", "0.01",
          "--feedforward-friction", "0.9", "--gain-reading", "volts-10"])
-    params, protocol = cli._protocol(args, preset("wpam"))
+    params, protocol = protocol_of(args, preset("wpam"))
     assert protocol == Protocol(0.19 * MPA, 90.0, 1.5, "shoelace")
     c = params.controller
     assert (c.po_feedforward, c.feedforward_friction, c.command_scale) == (0.01 * MPA, 0.9,
                                                                           0.05)
     default = cli.build_parser().parse_args(["reproduce"])
-    assert cli._protocol(default, preset("wpam")) == (preset("wpam"), SHIPPED)
+    assert protocol_of(default, preset("wpam")) == (preset("wpam"), SHIPPED)
     per_load = cli.build_parser().parse_args(["reproduce", "--ramp-top", "per-load"])
-    assert cli._protocol(per_load, preset("wpam"))[1].ramp_top == 0.0
+    assert protocol_of(per_load, preset("wpam"))[1].ramp_top == 0.0

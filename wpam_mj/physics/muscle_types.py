@@ -3,10 +3,11 @@
 A muscle type is a preset of the parameters (`params.preset(name)` applies its
 `overrides` on top of the calibrated W-PAM) plus what the rest of the package needs to
 know about it: whether it has an outer chamber for Po to fill (the simulation refuses Po
-on a muscle without one, the fit does not free the outer line, the renderer draws no outer
-bag), its colour in figures and a one-line summary. The command line offers every type here
-(`--preset`), and the plugin's MJCF attribute `preset` takes the same names. A new muscle
-type without new physics is one entry of `MUSCLE_TYPES`.
+on a muscle without one, the fit does not free the outer line, the renderer draws no
+outer bag), its colour in figures and a few words for the command line's help. The
+command line offers every type here (`--preset`), and the plugin's MJCF attribute
+`preset` takes the same names. A new muscle type without new physics is one entry of
+`MUSCLE_TYPES`.
 
 This module imports nothing of wpam_mj: `params` builds on it.
 """
@@ -25,28 +26,24 @@ class MuscleType:
     name: str  # the preset's name: --preset, the plugin's `preset` attribute, file names
     outer_chamber: bool  # an outer bag around the inner one, for Po to fill
     colour: str  # its line colour where figures compare the types
-    summary: str  # one line: what it is
+    brief: str  # what sets it apart, in a few words (the command line's --preset help)
     # the parameter values that differ from the W-PAM's, as {section: {field: value}}
     overrides: Mapping[str, Mapping[str, float]] = field(default_factory=dict)
 
 
 MUSCLE_TYPES: Mapping[str, MuscleType] = MappingProxyType({t.name: t for t in (
-    MuscleType("wpam", True, "tab:blue",
-               "the paper's double-air-chamber muscle: an RLAM inside an outer bag; "
-               "calibrated values from models/wpam/calibrated.toml"),
+    # The paper's double-air-chamber muscle: an RLAM inside an outer bag; its calibrated
+    # values are models/wpam/calibrated.toml.
+    MuscleType("wpam", True, "tab:blue", "double chamber"),
     # A bare RLAM has no outer bag: nothing for Po to push on.
-    MuscleType("rlam", False, "tab:red",
-               "the same inner muscle with no outer chamber",
-               {"muscle": {"axial_area": 0.0}}),
+    MuscleType("rlam", False, "tab:red", "no outer chamber", {"muscle": {"axial_area": 0.0}}),
     # Rubber McKibben muscle of the same braid: K_R is an estimate for a 1.5 mm latex tube
     # (Chou & Hannaford 1996 report tens of N of elastic loss over the stroke), friction
     # between a rubber tube and a sleeve is much lower than for a loose airbag (paper
     # §2.2). As defined it sits inside the W-PAM's outer bag (outer chamber, axial area):
     # a bare McKibben would set outer_chamber False and axial_area 0, which changes the
     # Fig. 3 comparison of `wpam reproduce`, so it is a physics change of its own.
-    MuscleType("mckibben", True, "tab:green",
-               "a rubber-tube McKibben muscle of the same braid: elastic Fco term "
-               "(paper eq. 7), low bag/sleeve friction",
+    MuscleType("mckibben", True, "tab:green", "rubber tube",
                {"muscle": {"rubber_stiffness": 3000.0, "friction_coeff": 0.01,
                            "friction_const": 1.0}}),
 )})

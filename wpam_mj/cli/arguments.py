@@ -1,0 +1,142 @@
+"""How `wpam` reads its arguments: the parser, argument types, and the options several
+commands share (model and run options, output folder, ramp time, protocol readings)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from wpam_mj.experiments.drives import STATIC_RAMP_S
+from wpam_mj.experiments.protocol import LOOP_METHODS, SHIPPED
+from wpam_mj.infra import pool
+from wpam_mj.physics.muscle_types import MUSCLE_TYPES
+from wpam_mj.physics.params import MPA, PRESETS
+
+# --gain-reading: controller.command_scale [MPa/u] (docs/physics.md, the unitless gains)
+GAIN_READINGS = {"mpa-per-mm": 1.0, "volts-5": 0.1, "volts-10": 0.05}
+JOBS_PER_CPU = 4  # --jobs above this many per CPU is refused: no run gains from it
+JOBS_HELP = (f"parallel worker processes [count], 1 to {JOBS_PER_CPU} per CPU (default: the "
+             f"number of CPUs, {pool.default_jobs()}); never more than the command has "
+             "runs; results do not depend on it")
+
+
+class UsageError(Exception):
+    """Bad command-line arguments: exit status 2."""
+
+
+class Parser(argparse.ArgumentParser):
+    """Reports errors as one line through `main` instead of usage text + SystemExit."""
+
+    def error(self, message: str):  # type: ignore[override]
+        raise UsageError(message)
+
+
+def float_list(text: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a comma-separated list of numbers") from None
+    if not values:
+        raise argparse.ArgumentTypeError("empty list")
+    return _once(text, values)
+
+
+def name_list(text: str) -> tuple[str, ...]:
+    return _once(text, tuple(v.strip() for v in text.split(",") if v.strip()))
+
+
+def _once(text: str, values: tuple) -> tuple:
+    """`values`, refused when one is repeated (each sweep point is run once)."""
+    repeated = [v for i, v in enumerate(values) if v in values[:i]]
+    if repeated:
+        raise argparse.ArgumentTypeError(f"{text!r} repeats {repeated[0]!r}; give each "
+                                         "value once")
+    return values
+
+
+def ramp_top(text: str) -> float:
+    """--ramp-top: "per-load" (0) or a Pi [MPa], returned in Pa."""
+    if text == "per-load":
+        return 0.0
+    try:
+        return float(text) * MPA
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is neither per-load nor a number") from None
+
+
+def out_path(text: str) -> Path:
+    """An --out path; the empty string is refused (Path("") would mean the current folder)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"{text!r} is empty; give a folder or file name")
+    return Path(text)
+
+
+def frame_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = text.lower().split("x")
+        return int(w), int(h)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not WIDTHxHEIGHT, e.g. 640x480") \
+            from None
+
+
+def common_options() -> argparse.ArgumentParser:
+    common = Parser(add_help=False)
+    g = common.add_argument_group("model and run options")
+    g.add_argument("--preset", choices=PRESETS, default="wpam",
+                   help="muscle type: " + ", ".join(f"{t.name} ({t.brief})"
+                                                    for t in MUSCLE_TYPES.values())
+                   + " (default: wpam)")
+    g.add_argument("--dt", type=float, default=1e-3, metavar="S",
+                   help="physics time step [s] (default: 0.001)")
+    g.add_argument("--config", type=Path, metavar="FILE.toml",
+                   help="parameter overrides: TOML with sections braid, muscle, "
+                        "pneumatics, controller; SI values (m, Pa, N, s)")
+    g.add_argument("--jobs", type=int, default=pool.default_jobs(), metavar="N",
+                   help=JOBS_HELP)
+    g.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="progress bars on stderr (default: when stderr is a terminal)")
+    return common
+
+
+def out_dir_option(p: argparse.ArgumentParser, name: str) -> None:
+    p.add_argument("--out", type=out_path, metavar="DIR",
+                   help=f"output folder (default: out/{name} under the current folder)")
+
+def ramp_time_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--ramp-time", type=float, default=STATIC_RAMP_S, metavar="S",
+                   help="duration of each open-loop Pi ramp, up and then down [s], "
+                        f"1-3600 (default: {STATIC_RAMP_S:g}; the paper does not state "
+                        "its own)")
+
+def json_option(p: argparse.ArgumentParser, what: str) -> None:
+    p.add_argument("--json", action="store_true", help=f"print {what} on stdout")
+
+def loop_area_option(p) -> None:  # a parser or an argument group
+    p.add_argument("--loop-area", choices=LOOP_METHODS, default=None,
+                   help="loop area of the open-loop ramps: branches (every lobe of a "
+                        "crossing loop counts) or shoelace (signed: lobes cancel) "
+                        f"(default: the shipped {SHIPPED.loop_method})")
+
+def protocol_options(p: argparse.ArgumentParser) -> None:
+    """The readings the paper does not state (`wpam_mj.experiments.protocol`,
+    docs/physics.md)."""
+    g = p.add_argument_group("protocol readings (the paper does not state them; "
+                             "defaults: the shipped reading)")
+    g.add_argument("--ramp-top", type=ramp_top, default=None, metavar="per-load|MPA",
+                   help="top of the open-loop Pi ramps: per-load (the Pi whose "
+                        "contracting branch reaches 50 mm) or one Pi [MPa] for every load")
+    g.add_argument("--top-hold", type=float, default=None, metavar="S",
+                   help="seconds Pi is held at its top with Po on before it falls "
+                        "(0: Po switched on as Pi starts to fall)")
+    loop_area_option(g)
+    g.add_argument("--po-feedforward", type=float, default=None, metavar="MPA",
+                   help="the Po [MPa] the Pi feedforward assumes "
+                        "(controller.po_feedforward)")
+    g.add_argument("--feedforward-friction", type=float, default=None, metavar="PHI",
+                   help="the share of the friction band the Pi feedforward adds "
+                        "(controller.feedforward_friction; 1: eq. 5's contracting branch)")
+    g.add_argument("--gain-reading", choices=tuple(GAIN_READINGS), default=None,
+                   help="unit of the paper's unitless gains: " + ", ".join(
+                       f"{k} ({v:g} MPa/u)" for k, v in GAIN_READINGS.items()))

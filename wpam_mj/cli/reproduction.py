@@ -1,0 +1,118 @@
+"""Reproducing the paper from the command line: `wpam reproduce`, `search`, `calibrate`."""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+from wpam_mj import paper
+from wpam_mj.cli.arguments import out_dir_option, out_path, protocol_options, ramp_time_option
+from wpam_mj.cli.runs import (liftable_loads, out_dir_of, out_file, output_modules, params_of,
+                              protocol_of, protocol_settings, run_id_of, run_options, writable_dir,
+                              write_run_manifest)
+from wpam_mj.experiments.protocol import SHIPPED
+from wpam_mj.physics.muscle_types import COMPARED_TYPES
+from wpam_mj.physics.params import ParameterError
+from wpam_mj.reproduction import findings
+
+
+def add_parsers(add) -> None:
+    """reproduce, search, calibrate."""
+    p = add("reproduce", "every experiment into one folder with report.md (figures, the "
+            "paper's numbers beside ours, checks, parameters)", _cmd_reproduce)
+    ramp_time_option(p)
+    protocol_options(p)
+    out_dir_option(p, "reproduce")
+
+    p = add("search", "global search (differential evolution) of the credible parameter box "
+            "and the protocol readings on every finding of the paper; writes the best "
+            "point and the pairwise feasibility map of the findings", _cmd_search)
+    p.add_argument("--out", type=out_path, metavar="DIR",
+                   help="output folder (default: out/search): journal.jsonl, best.toml, "
+                        "best.txt, feasibility.md, feasibility.png")
+    p.add_argument("--seed", type=int, default=20, help="seed of the search (default: 20)")
+    p.add_argument("--popsize", type=int, default=2, metavar="K",
+                   help="population K x 15 points (default: 2)")
+    p.add_argument("--maxiter", type=int, default=3, metavar="N",
+                   help="generations after the first population (default: 3: about 145 "
+                        "points, 12 min on two free cores; docs/physics.md used 5)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted search in --out: journaled points are "
+                        "replayed, not run again (a finished search replays in seconds)")
+    p.add_argument("--map-only", action="store_true",
+                   help="run nothing: the best point and the feasibility map of the points "
+                        "journaled in --out so far (e.g. while the search still runs)")
+
+    p = add("calibrate", "fit the parameters the paper does not give (braid angle, Kf, "
+            "friction, axial area, regulators) to its Table 2 and findings", _cmd_calibrate)
+    p.add_argument("--out", type=out_path, metavar="FILE",
+                   help="calibrated parameter TOML (SI units) for --config (default: "
+                        "calibrated.toml in the current folder; the shipped values are "
+                        "models/wpam/calibrated.toml in the package)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted calibration to the same --out: the "
+                        "evaluations it journaled are replayed, not run again")
+    p.add_argument("--samples", type=int, default=0, metavar="N",
+                   help="score N random parameter sets of the plausible ranges first and "
+                        "start from the best of them and the preset (default: 0)")
+    p.add_argument("--seed", type=int, default=7,
+                   help="seed of the random samples (default: 7)")
+    ramp_time_option(p)
+    protocol_options(p)
+    p.add_argument("--max-steps", type=int, default=6, metavar="N",
+                   help="most least-squares steps, each ~10 parameter sets (default: 6)")
+
+
+def _cmd_reproduce(args: argparse.Namespace) -> int:
+    summaries, _ = output_modules()
+    from wpam_mj.reproduction.reproduce import reproduce  # noqa: PLC0415 (matplotlib: slow import)
+    run = run_options(args)
+    params, protocol = protocol_of(args, run.params)
+    compare = [params if n == args.preset else params_of(args, n) for n in COMPARED_TYPES]
+    liftable_loads(paper.LOADS_N, [params], "reproduce load")
+    out = out_dir_of(args)
+    settings = {"compare_presets": COMPARED_TYPES, "dt_s": run.dt, **protocol_settings(protocol)}
+    rid = run_id_of(args, params, settings)
+    start = time.perf_counter()
+    rep = reproduce(out, params, dt=run.dt, jobs=run.jobs, progress=run.progress,
+                    compare=compare, run_id=rid, protocol=protocol)
+    manifest = write_run_manifest(args, out, rid, params, settings, rep.files)
+    print(summaries.table2_text(rep.table2))
+    print(findings.checks_text(rep.checks))
+    print(f"wrote {rep.report} and {manifest} ({time.perf_counter() - start:.1f} s)")
+    return 0
+
+
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    if args.preset != "wpam":
+        raise ParameterError(f"--preset {args.preset}: calibrate fits the wpam preset "
+                             "(start from other values with --config)")
+    run = run_options(args)  # the search starts from the preset plus --config
+    start, protocol = protocol_of(args, run.params)
+    out = out_file(Path("calibrated.toml") if args.out is None else args.out)
+    from wpam_mj.reproduction.calibrate import calibrate  # noqa: PLC0415 (scipy.optimize: slow import)
+    readings = {} if protocol == SHIPPED else {"protocol": protocol}  # as before: none
+    result = calibrate(out=out, jobs=run.jobs, dt=run.dt, progress=run.progress,
+                       start=start, samples=args.samples, seed=args.seed,
+                       max_nfev=args.max_steps, resume=args.resume, **readings)
+    print(result.table())
+    print(f"wrote {out} (use it with --config {out})")
+    return 0
+
+
+def _cmd_search(args: argparse.Namespace) -> int:
+    if args.preset != "wpam":
+        raise ParameterError(f"--preset {args.preset}: search explores the wpam preset")
+    run = run_options(args)  # the search's shipped point: the preset plus --config
+    out = writable_dir(Path("out") / "search" if args.out is None else args.out)
+    from wpam_mj.reproduction import search  # noqa: PLC0415 (scipy, matplotlib: slow imports)
+    if args.map_only:
+        written = search.write_outputs(out, search.load_records(out), run.params)
+    else:
+        written = search.write_search(out, base=run.params, seed=args.seed,
+                                      popsize=args.popsize, maxiter=args.maxiter,
+                                      jobs=run.jobs, resume=args.resume, progress=run.progress)
+    for path in written:
+        print(f"wrote {path}")
+    return 0
