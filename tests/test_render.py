@@ -174,3 +174,19 @@ def test_bad_extension_and_gif_fps(tmp_path) -> None:
 def test_render_frames_validates_before_iterating() -> None:
     with pytest.raises(ParameterError, match="valid cameras"):
         render.render_frames(ramp(10), PARAMS, camera="top")
+
+
+@pytest.mark.parametrize("name", sorted(wpam_mj.MUSCLE_TYPES))
+def test_the_outer_bag_is_drawn_only_on_a_muscle_type_that_has_one(name):
+    """The bag is the decor's one cylinder (the sleeve is a capsule, the threads lines);
+    drawn into a bare MjvScene, no GL needed."""
+    from wpam_mj.visualisation.decor import MuscleDecor
+    params = wpam_mj.preset(name)
+    model = build_model(params, 100.0, xml=SCENE_XML)
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    scene = mujoco.MjvScene(model, maxgeom=2000)
+    MuscleDecor(params).draw(scene, model, data, 0.02, 0.2 * MPA, 0.04 * MPA)
+    kinds = [scene.geoms[i].type for i in range(scene.ngeom)]
+    assert kinds.count(mujoco.mjtGeom.mjGEOM_CAPSULE) == 1
+    assert kinds.count(mujoco.mjtGeom.mjGEOM_CYLINDER) == int(params.outer_chamber)

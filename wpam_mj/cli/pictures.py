@@ -53,7 +53,7 @@ def add_parsers(add) -> None:
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
-    from wpam_mj.visualisation.render import check_fps  # noqa: PLC0415 (needs OpenGL; only here)
+    from wpam_mj.visualisation.encoders import check_fps  # noqa: PLC0415 (Pillow; only here)
     run = run_options(args)
     (load,) = liftable_loads((args.load,), [run.params])
     control = check_control(args.control)

@@ -207,7 +207,7 @@ class WPAMEnv(Env):
         self.episode_steps = math.ceil(time_limit / self._env.control_timestep() - 1e-9)
         self.render_mode = render_mode
         self._render_size = render_size
-        self._frames = None  # wpam_mj.visualisation.render.StateFrames, made on the first render
+        self._frames = None  # wpam_mj.visualisation.scene.StateFrames, made on the first render
         self.metadata = {**self.metadata, "render_fps": 1.0 / self._env.control_timestep()}
 
         spec = self._env.action_spec()
@@ -278,7 +278,7 @@ class WPAMEnv(Env):
         if self.render_mode != "rgb_array":
             return None
         if self._frames is None:
-            from wpam_mj.visualisation.render import StateFrames  # noqa: PLC0415 (needs OpenGL; only here)
+            from wpam_mj.visualisation.scene import StateFrames  # noqa: PLC0415 (needs OpenGL; only here)
             self._frames = StateFrames(self._params, self.physics.load(),
                                        size=self._render_size)
         pi, po = self.physics.pressures()

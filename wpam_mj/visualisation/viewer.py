@@ -2,7 +2,7 @@
 
 MuJoCo's passive viewer (`mujoco.viewer.launch_passive`) draws the model in its own
 thread, with the sleeve, its braid and the outer bag as `wpam render` draws them
-(`wpam_mj.visualisation.render.MuscleDecor`); this module's loop owns the physics. It
+(`wpam_mj.visualisation.decor.MuscleDecor`); this module's loop owns the physics. It
 steps the rig's muscle plugin as every other path does (`wpam_mj.simulation.live.LiveRig`:
 regulators, chambers, muscle force and friction inside `mj_step`), with Pi from the
 equilibrium feedforward for the target and Po from PI/PID feedback
@@ -260,7 +260,7 @@ def view(params: Params, *, load: float = 100.0, control: str = "pi",
     check_display()
     import mujoco.viewer  # noqa: PLC0415 (GLFW; only with a display)
 
-    from wpam_mj.visualisation.render import MuscleDecor  # noqa: PLC0415 (drawing code; only here)
+    from wpam_mj.visualisation.decor import MuscleDecor  # noqa: PLC0415 (drawing code; only here)
 
     decor = MuscleDecor(params)
 
