@@ -34,7 +34,7 @@ import time
 from pathlib import Path
 
 from common import Figure, describe, print_table
-from wpam_mj.design import study
+from wpam_mj.design import sampling, study, study_spec
 from wpam_mj.infra.executors import open_workers
 from wpam_mj.experiments.drives import STEP_LEVELS_MM, step_run
 from wpam_mj.physics.params import preset
@@ -71,9 +71,9 @@ def _cpu() -> float:
                                                 resource.getrusage(resource.RUSAGE_CHILDREN)))
 
 
-def time_floor(spec: study.StudySpec, duration: float) -> tuple[float, float]:
+def time_floor(spec: study_spec.StudySpec, duration: float) -> tuple[float, float]:
     """(wall, CPU) seconds of two forked processes simulating half of the runs each."""
-    runs = study.sample(spec)
+    runs = sampling.sample(spec)
     ctx = multiprocessing.get_context("fork")
     cpu, start = _cpu(), time.perf_counter()
     procs = [ctx.Process(target=_floor_share, args=(runs[i::2], duration)) for i in (0, 1)]
@@ -84,7 +84,7 @@ def time_floor(spec: study.StudySpec, duration: float) -> tuple[float, float]:
     return time.perf_counter() - start, _cpu() - cpu
 
 
-def time_study(spec: study.StudySpec, jobs: int) -> tuple[float, float]:
+def time_study(spec: study_spec.StudySpec, jobs: int) -> tuple[float, float]:
     """(wall, CPU) seconds of `run_study` on `jobs` local processes, pool start and
     shutdown included."""
     with tempfile.TemporaryDirectory() as out:
@@ -94,7 +94,7 @@ def time_study(spec: study.StudySpec, jobs: int) -> tuple[float, float]:
         return time.perf_counter() - start, _cpu() - cpu
 
 
-def time_dask(spec: study.StudySpec, cluster) -> float:
+def time_dask(spec: study_spec.StudySpec, cluster) -> float:
     """Wall seconds of `run_study` on a running Dask cluster (connection included)."""
     with tempfile.TemporaryDirectory() as out:
         start = time.perf_counter()
@@ -128,7 +128,7 @@ def main() -> int:
     ap.add_argument("--rss-duration", type=float, default=2.2,
                     help="simulated seconds per run of the RSS studies (default 2.2)")
     args = ap.parse_args()
-    spec = study.parse_spec(spec_dict(args.runs, args.duration))
+    spec = study_spec.parse_spec(spec_dict(args.runs, args.duration))
     print(describe())
     print(f"study: {args.runs} random PI step runs of {args.duration:g} s "
           f"({args.runs * args.duration / 1e-3:.3g} physics steps at 1 ms)")

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from wpam_mj.infra import budget
-from wpam_mj.design import study
+from wpam_mj.design import metrics, study
 from wpam_mj.experiments import writers
 from wpam_mj.cli import main
 from wpam_mj.fitting.measured_fit import check_replay
@@ -79,7 +79,7 @@ def test_a_gif_that_would_not_fit_in_memory_is_refused_before_rendering(here, ca
 def test_a_study_row_at_an_absurd_frequency_is_infeasible_not_a_crash():
     inputs = {"load": 100.0, "frequency": 1e-6, "amplitude": 0.025, "controller": "pi"}
     with pytest.raises(ParameterError, match="at most 10000 s"):
-        study.run_metrics("sine", PARAMS, inputs, 1e-3)
+        metrics.run_metrics("sine", PARAMS, inputs, 1e-3)
 
 
 @pytest.mark.parametrize("line, text", [
@@ -139,7 +139,7 @@ def test_a_study_row_whose_load_never_moved_is_infeasible():
     params = PARAMS.replace(pneumatics={"inner_conductance": 1e-15})
     inputs = {"load": 100.0, "controller": "pi", "duration": 11.0}
     with pytest.raises(ParameterError, match="never moved"):
-        study.run_metrics("step", params, inputs, 5e-3)
+        metrics.run_metrics("step", params, inputs, 5e-3)
 
 
 def test_a_feedback_step_whose_load_never_moved_is_flagged(here, capsys):

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from wpam_mj.infra import executors
-from wpam_mj.design import study
+from wpam_mj.design import sampling, study, study_spec, study_table
 from wpam_mj.cli import main
 from wpam_mj.infra.executors import Workers, open_workers
 from wpam_mj.physics.params import ParameterError, preset
@@ -30,7 +30,7 @@ SMALL = {
 
 
 def _run(tmp_path, name, workers, spec=SMALL, **kw):
-    return study.run_study(study.parse_spec(spec), tmp_path / name, workers, **kw)
+    return study.run_study(study_spec.parse_spec(spec), tmp_path / name, workers, **kw)
 
 
 def _bytes(path):
@@ -39,40 +39,40 @@ def _bytes(path):
 
 
 def test_grid_order_and_list_pairs():
-    spec = study.parse_spec({"experiment": "sine", "vary": {"method": "grid", "values": {
+    spec = study_spec.parse_spec({"experiment": "sine", "vary": {"method": "grid", "values": {
         "load": [50, 150], "controller": {"po_cap": [6e4, 8e4, 1e5]}}}})
-    runs = study.sample(spec)
+    runs = sampling.sample(spec)
     assert len(runs) == 6
     assert [r["controller.po_cap"] for r in runs[:3]] == [6e4, 8e4, 1e5]  # last varies fastest
     assert [r["load"] for r in runs] == [50.0] * 3 + [150.0] * 3
-    spec = study.parse_spec({"experiment": "sine", "vary": {"method": "list", "values": {
+    spec = study_spec.parse_spec({"experiment": "sine", "vary": {"method": "list", "values": {
         "load": [50, 150], "frequency": [0.2, 1.0]}}})
-    assert study.sample(spec) == [{"load": 50.0, "frequency": 0.2},
+    assert sampling.sample(spec) == [{"load": 50.0, "frequency": 0.2},
                                   {"load": 150.0, "frequency": 1.0}]
 
 
 def test_latin_hypercube_fills_every_stratum_once():
     n = 20
-    spec = study.parse_spec({"experiment": "step", "vary": {
+    spec = study_spec.parse_spec({"experiment": "step", "vary": {
         "method": "lhs", "n": n, "seed": 3,
         "ranges": {"load": [50.0, 150.0], "pneumatics.dead_time": [0.0, 0.01]}}})
-    runs = study.sample(spec)
+    runs = sampling.sample(spec)
     for name, (lo, hi) in spec.ranges.items():
         strata = np.floor((np.array([r[name] for r in runs]) - lo) / (hi - lo) * n)
         assert sorted(strata) == list(range(n))
-    assert study.sample(spec) == runs  # the seed fixes the sample
+    assert sampling.sample(spec) == runs  # the seed fixes the sample
 
 
 def test_random_sample_stays_in_range_and_depends_on_seed():
     data = {"experiment": "sine", "vary": {"method": "random", "n": 50, "seed": 1,
                                            "ranges": {"frequency": [0.1, 1.0]},
                                            "values": {"controller": ["pi", "pid"]}}}
-    runs = study.sample(study.parse_spec(data))
+    runs = sampling.sample(study_spec.parse_spec(data))
     f = np.array([r["frequency"] for r in runs])
     assert f.min() >= 0.1 and f.max() < 1.0
     assert {r["controller"] for r in runs} == {"pi", "pid"}
     data["vary"]["seed"] = 2
-    assert study.sample(study.parse_spec(data)) != runs
+    assert sampling.sample(study_spec.parse_spec(data)) != runs
 
 
 @pytest.mark.parametrize("data, words", [
@@ -87,7 +87,7 @@ def test_random_sample_stays_in_range_and_depends_on_seed():
 ])
 def test_bad_study_files_name_the_problem(data, words):
     with pytest.raises(ParameterError, match=words.replace(".", r"\.")):
-        study.parse_spec(data)
+        study_spec.parse_spec(data)
 
 
 def test_diverged_and_infeasible_runs_are_flagged_rows(tmp_path):
@@ -129,7 +129,7 @@ def test_resume_redoes_only_missing_runs_and_ends_with_the_same_table(tmp_path):
     workers = Workers(None, 1, "here")
     full = _run(tmp_path, "out", workers)
     before = _bytes(tmp_path / "out")
-    parts = sorted((tmp_path / "out" / study.PARTS).glob("runs_*.csv"))
+    parts = sorted((tmp_path / "out" / study_table.PARTS).glob("runs_*.csv"))
     assert len(parts) == 3  # batch_size 2
     parts[1].unlink()  # as if interrupted before this batch finished
     (tmp_path / "out" / "study.csv").unlink()

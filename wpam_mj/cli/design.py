@@ -86,7 +86,7 @@ def _cmd_linear(args: argparse.Namespace) -> int:
 
 
 def _cmd_study(args: argparse.Namespace) -> int:
-    from wpam_mj.design import study  # noqa: PLC0415 (the study's own modules)
+    from wpam_mj.design import study, study_spec  # noqa: PLC0415 (the study's own modules)
     from wpam_mj.infra.executors import open_workers  # noqa: PLC0415
     given = [f"--{n}" for n in ("preset", "dt", "config") if getattr(args, n) is not None]
     if given:
@@ -94,7 +94,7 @@ def _cmd_study(args: argparse.Namespace) -> int:
                              "parameters (preset = \"rlam\", dt = 5e-4, [fixed] "
                              "\"section.field\" = value)")
     jobs = jobs_option(args.jobs)
-    spec = study.load_spec(args.spec)
+    spec = study_spec.load_spec(args.spec)
     out = writable_dir(args.out if args.out is not None
                         else Path("out") / "study" / args.spec.stem)
     progress = sys.stderr.isatty() if args.progress is None else args.progress

@@ -17,7 +17,7 @@ from matplotlib.figure import Figure
 
 from wpam_mj.physics.params import preset
 from wpam_mj.experiments.figures import save_figure
-from wpam_mj.design.study import StudySpec, input_column, metric_labels
+from wpam_mj.design.study_spec import StudySpec, input_column, metric_labels
 
 MAX_LINES = 8  # our choice: more lines than this are unreadable; plot points instead
 
