@@ -35,7 +35,7 @@ from pathlib import Path
 
 from common import Figure, describe, print_table
 from wpam_mj.design import sampling, study, study_spec
-from wpam_mj.infra.executors import open_workers
+from wpam_mj.infra.pool import open_workers
 from wpam_mj.experiments.drives import STEP_LEVELS_MM, step_run
 from wpam_mj.physics.params import preset
 

@@ -213,7 +213,7 @@ def test_check_raises_a_pending_signal_once_and_later_signals_only_record():
 
 def test_leaving_dask_workers_on_an_exception_cancels_instead_of_waiting():
     distributed = pytest.importorskip("distributed")
-    from wpam_mj.infra.executors import open_workers  # noqa: PLC0415
+    from wpam_mj.infra.pool import open_workers  # noqa: PLC0415
     with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster:
         start = time.monotonic()

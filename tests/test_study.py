@@ -9,10 +9,10 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
-from wpam_mj.infra import executors
+from wpam_mj.infra import pool
 from wpam_mj.design import sampling, study, study_spec, study_table
 from wpam_mj.cli import main
-from wpam_mj.infra.executors import Workers, open_workers
+from wpam_mj.infra.pool import Workers, open_workers
 from wpam_mj.physics.params import ParameterError, preset
 from wpam_mj.infra.pool import run_tasks
 from wpam_mj.experiments.studies import StepTask
@@ -157,8 +157,8 @@ def test_scheduler_without_dask_is_one_line(monkeypatch):
     with pytest.raises(ParameterError, match=r'pip install "\.\[cluster\]"'):
         with open_workers(2, "tcp://127.0.0.1:1"):
             pass
-    monkeypatch.setenv(executors.SCHEDULER_ENV, "tcp://example:8786")
-    assert executors.scheduler_address(None) == "tcp://example:8786"
+    monkeypatch.setenv(pool.SCHEDULER_ENV, "tcp://example:8786")
+    assert pool.scheduler_address(None) == "tcp://example:8786"
 
 
 def test_cli_study_writes_table_and_plots(tmp_path, capsys):

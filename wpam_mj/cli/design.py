@@ -36,7 +36,7 @@ def add_parsers(add, sub) -> None:
                         "comparison rows) on stdout")
     p.add_argument("--out", type=out_path, metavar="DIR",
                    help="output folder (default: out/linear under the current folder)")
-    from wpam_mj.infra.executors import SCHEDULER_ENV  # noqa: PLC0415 (the study's own modules)
+    from wpam_mj.infra.pool import SCHEDULER_ENV  # noqa: PLC0415 (the study's own modules)
     p = sub.add_parser("study", help="a design-space study: the runs of a study file "
                        "(grid, list, random or Latin-hypercube sample), one table row each",
                        description="Run a study file (see examples/ and the README) and "
@@ -87,7 +87,7 @@ def _cmd_linear(args: argparse.Namespace) -> int:
 
 def _cmd_study(args: argparse.Namespace) -> int:
     from wpam_mj.design import study, study_spec  # noqa: PLC0415 (the study's own modules)
-    from wpam_mj.infra.executors import open_workers  # noqa: PLC0415
+    from wpam_mj.infra.pool import open_workers  # noqa: PLC0415
     given = [f"--{n}" for n in ("preset", "dt", "config") if getattr(args, n) is not None]
     if given:
         raise ParameterError(f"{', '.join(given)}: a study file sets its own preset, dt and "

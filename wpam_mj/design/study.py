@@ -1,7 +1,7 @@
 """Running a design-space study: a study file (`study_spec`) in, one tidy table (a row
 per run, `study_table`) out. The runs (`sampling`) run in batches, one task per batch
 building its parameter set once, on any `concurrent.futures.Executor`
-(`wpam_mj.infra.executors`); each run reduced to its metrics (`metrics`). A run that
+(`wpam_mj.infra.pool`); each run reduced to its metrics (`metrics`). A run that
 diverges (SimulationDiverged) or whose inputs are infeasible (ParameterError, e.g. a Po
 cap below the feedforward Po) is a row with its flag set and NaN metrics, not a failed
 study. The table is the same bytes whatever the executor, the number of jobs or the
@@ -27,7 +27,7 @@ from wpam_mj.design.study_spec import (FLAGS, METRICS, PO_DOWN_DEFAULT, RUN_INPU
 from wpam_mj.design.study_table import (column_kinds, csv_text, finished_rows, start_parts,
                                         write_tables)
 from wpam_mj.experiments.drives import SineSpec
-from wpam_mj.infra.executors import Workers
+from wpam_mj.infra.pool import Workers
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.physics.params import ParameterError, Params, preset
 from wpam_mj.simulation.simulate import SimulationDiverged

@@ -21,7 +21,7 @@ Runs are numbered in sampling order (grid: the last name varies fastest; random 
 Latin-hypercube samples come from numpy's PCG64 seeded with `seed`, through
 scipy.stats.qmc for the hypercube), so a study file always means the same runs. They run
 in batches (one task per batch, each building its parameter set once) on any
-`concurrent.futures.Executor` (`wpam_mj.infra.executors`). Every finished batch is written at
+`concurrent.futures.Executor` (`wpam_mj.infra.pool`). Every finished batch is written at
 once as its own part file, so an interrupted study resumes where it stopped; the table is
 then assembled from the part files in run order: the same bytes whatever the executor,
 the number of jobs or the interruptions. A run that diverges (SimulationDiverged) or

@@ -47,7 +47,7 @@ from scipy.optimize import least_squares
 
 from wpam_mj.simulation.loop_contract import SimulationDiverged
 from wpam_mj.physics.params import Params, ParameterError, describe_with_ranges, plausible_range
-from wpam_mj.infra.executors import executor_for
+from wpam_mj.infra.pool import executor_for
 from wpam_mj.infra.files import write_text_atomic
 
 DIFF_STEP = 1e-3  # forward-difference step in scaled coordinates (see the module doc)

@@ -41,7 +41,7 @@ from wpam_mj.infra.budget import check_run
 from wpam_mj.fitting.measurements import Experiment
 from wpam_mj.simulation.model import DT_RANGE_S, check_dt
 from wpam_mj.physics.params import MM, Params, ParameterError
-from wpam_mj.infra.executors import executor_for
+from wpam_mj.infra.pool import executor_for
 from wpam_mj.simulation.simulate import Drive, simulate
 
 # The rough first pass of `fit_data` replays at this multiple of dt (a 2 ms replay of

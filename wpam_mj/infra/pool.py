@@ -1,8 +1,21 @@
-"""Running many independent, deterministic tasks: in this process or in one process pool.
+"""Where and how independent, deterministic runs execute: in this process, in one local
+process pool, or on a Dask cluster.
+
+Everything that runs many simulations takes a `concurrent.futures.Executor`, so the
+choice is made once, here (`open_workers`, or `executor_for` where a caller may bring
+its own):
+
+  * jobs = 1, no scheduler: no executor (runs in this process, in order);
+  * jobs > 1: a `WorkerPool` of `jobs` processes (the default), whose workers never
+    outlive the command;
+  * a Dask scheduler address (`--scheduler tcp://host:8786` or the environment variable
+    DASK_SCHEDULER_ADDRESS): `distributed.Client(address).get_executor()`, the Executor
+    interface of Dask distributed. Workers must have wpam_mj installed. Dask is an
+    optional dependency (`pip install ".[cluster]"`), imported only when asked for.
 
 A task is any picklable object with `.run()` (its result) and `.cost` (a relative run
-time, so that the longest start first). Results come back in task order and do not
-depend on the number of workers.
+time, so that the longest start first); `TaskPool` runs them, results in task order,
+not depending on the number of workers.
 """
 
 from __future__ import annotations
@@ -12,8 +25,9 @@ import os
 import signal
 import sys
 from concurrent.futures import FIRST_EXCEPTION, Executor, Future, ProcessPoolExecutor, wait
+from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Callable, Iterator, Sequence
 
 import numpy as np
 from tqdm import tqdm
@@ -109,7 +123,7 @@ class TaskPool:
     queue behind them, so follow-up work (figures of finished runs) keeps the cores busy
     without a second pool. The first failure cancels every task not yet started and is
     re-raised (by `submit` when jobs = 1, else by `results`). Use as a context manager.
-    `executor`: any concurrent.futures.Executor (e.g. Dask's, `wpam_mj.infra.executors`) to
+    `executor`: any concurrent.futures.Executor (e.g. Dask's, from `open_workers`) to
     run on instead of a pool of its own, whatever `jobs` is; the caller shuts it down.
     """
 
@@ -203,3 +217,74 @@ def run_batches(batches: Sequence[Batch], *, jobs: int = 1, progress: bool = Fal
     response, in the order given."""
     with TaskPool(jobs, progress=progress, desc=desc, executor=executor) as pool:
         return [response() for response in submit_batches(pool, batches)]
+
+
+# ---- the choice of workers
+
+SCHEDULER_ENV = "DASK_SCHEDULER_ADDRESS"
+CONNECT_TIMEOUT_S = 10.0  # our choice: a scheduler that does not answer in 10 s is not there
+
+
+@dataclass(frozen=True)
+class Workers:
+    """An executor (None: run in this process) and how many tasks it runs at once."""
+
+    executor: Executor | None
+    slots: int
+    where: str  # for messages: "this process", "2 local processes", "Dask at tcp://..."
+
+
+def scheduler_address(scheduler: str | None) -> str | None:
+    """The Dask scheduler to use: `scheduler`, else $DASK_SCHEDULER_ADDRESS, else None."""
+    return scheduler or os.environ.get(SCHEDULER_ENV) or None
+
+
+@contextmanager
+def open_workers(jobs: int = 1, scheduler: str | None = None) -> Iterator[Workers]:
+    """Context manager yielding the `Workers` for `jobs` local processes or a Dask
+    scheduler (see the module docstring); shuts them down (or disconnects) on exit."""
+    address = scheduler_address(scheduler)
+    if address is not None:
+        with _dask_executor(address) as workers:
+            yield workers
+    elif jobs == 1:
+        yield Workers(None, 1, "this process")
+    else:
+        with WorkerPool(jobs) as workers:  # stops its workers at once on an exception
+            yield Workers(workers, jobs, f"{jobs} local processes")
+
+
+@contextmanager
+def executor_for(jobs: int = 1, executor: Executor | None = None) -> Iterator[Executor | None]:
+    """`executor` if given (the caller's: not shut down here), else the executor of
+    `open_workers(jobs)` (None: run in this process)."""
+    if executor is not None:
+        yield executor
+        return
+    with open_workers(jobs) as workers:
+        yield workers.executor
+
+
+@contextmanager
+def _dask_executor(address: str) -> Iterator[Workers]:
+    try:
+        from distributed import Client  # noqa: PLC0415 (optional dependency)
+    except ImportError:
+        raise ParameterError(f"Dask scheduler {address}: Dask distributed is not installed; "
+                             'pip install ".[cluster]"') from None
+    try:
+        client = Client(address, timeout=CONNECT_TIMEOUT_S)
+    except (OSError, ValueError) as err:  # TimeoutError is an OSError
+        raise ParameterError(f"Dask scheduler {address}: cannot connect "
+                             f"({' '.join(str(err).split())})") from None
+    try:
+        slots = sum(client.nthreads().values())  # threads of the workers connected now
+        executor = client.get_executor()
+        try:
+            yield Workers(executor, max(slots, 1), f"Dask at {address}")
+        except BaseException:
+            executor.shutdown(wait=False)  # cancel the cluster's tasks; do not wait for them
+            raise
+        executor.shutdown(wait=True)
+    finally:
+        client.close()

@@ -47,7 +47,7 @@ from wpam_mj.fitting import estimation as fitting
 from wpam_mj.experiments.drives import STATIC_TOP_MM
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import MM, MPA, Params, ParameterError, check_int, check_range, preset
-from wpam_mj.infra.executors import executor_for
+from wpam_mj.infra.pool import executor_for
 from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.experiments.studies import PLATEAU_SETTLE_S, StepTask, sweep_batch

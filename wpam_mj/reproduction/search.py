@@ -44,7 +44,7 @@ from scipy.optimize import differential_evolution
 from wpam_mj import paper
 from wpam_mj.reproduction import findings
 from wpam_mj.fitting import estimation as fitting
-from wpam_mj.infra.executors import executor_for
+from wpam_mj.infra.pool import executor_for
 from wpam_mj.reproduction.calibrate import FREE, READINGS, PaperTargets
 from wpam_mj.simulation.loop_contract import SimulationDiverged
 from wpam_mj.physics.params import MPA, Params, ParameterError, check_range, preset
