@@ -26,7 +26,7 @@ from pathlib import Path
 
 from common import Figure, describe, parallel_capacity, print_table
 from wpam_mj.physics.params import preset
-from wpam_mj.experiments.studies import sweep
+from wpam_mj.experiments.paper_studies import sweep
 
 def _tree_rss_mb(pid: int) -> float:
     """Resident memory of `pid` and all its descendants [MB] (Linux /proc; cheap enough

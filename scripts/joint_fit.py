@@ -32,7 +32,7 @@ from wpam_mj import paper, preset
 from wpam_mj.experiments.drives import SineSpec, sine_run
 from wpam_mj.physics.params import MM, MPA, Params, plausible_range
 from wpam_mj.infra.files import write_text_atomic
-from wpam_mj.experiments.studies import StaticTask, StepTask
+from wpam_mj.experiments.paper_studies import StaticTask, StepTask
 
 FREE = ("braid.braid_angle", "muscle.output_coeff", "muscle.friction_coeff",
         "muscle.friction_const", "muscle.axial_area", "pneumatics.outer_conductance",

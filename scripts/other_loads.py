@@ -28,7 +28,7 @@ from wpam_mj.infra import pool
 from wpam_mj.physics.params import MM, MPA, apply_overrides, load_toml, preset
 from wpam_mj.experiments.protocol import LOOP_METHODS, SHIPPED, table2_batch
 from wpam_mj.infra.files import write_text_atomic
-from wpam_mj.experiments.studies import PLATEAU_SETTLE_S, sweep_batch
+from wpam_mj.experiments.paper_studies import PLATEAU_SETTLE_S, sweep_batch
 
 LOADS_N = (50.0, 75.0, 100.0, 125.0, 150.0, 200.0)
 LAG_FREQ_HZ = 0.1

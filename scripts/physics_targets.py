@@ -26,7 +26,7 @@ from wpam_mj.experiments.drives import SineSpec, sine_run
 from wpam_mj.physics.params import MM, MPA, Params
 from wpam_mj.experiments.protocol import SHIPPED, remeasure
 from wpam_mj.infra.files import write_text_atomic
-from wpam_mj.experiments.studies import static_study, step_study, sweep, table2
+from wpam_mj.experiments.paper_studies import static_study, step_study, sweep, table2
 
 READINGS = {"MPa/mm": 1.0, "V/mm, 0-5 V input": 0.1, "V/mm, 0-10 V input": 0.05}
 SETTLE_S = 5.0  # the last 5 s of each 10 s plateau

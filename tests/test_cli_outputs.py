@@ -20,7 +20,7 @@ from wpam_mj import paper
 from wpam_mj.reproduction import findings
 from wpam_mj.infra import manifest
 from wpam_mj.infra import pool
-from wpam_mj.experiments import studies
+from wpam_mj.experiments import paper_studies
 from wpam_mj.cli import JOBS_PER_CPU, main
 from wpam_mj.physics.params import MPA, ParameterError
 from wpam_mj.simulation.simulate import Drive, SimulationDiverged
@@ -162,11 +162,11 @@ def test_table2_ramp_time_reaches_the_study(here, capsys, monkeypatch):
         seen.update(kwargs)
         raise SimulationDiverged("stopped by the test")
 
-    monkeypatch.setattr(studies, "table2", table2)
+    monkeypatch.setattr(paper_studies, "table2", table2)
     code, _, err = _run(capsys, "table2", "--ramp-time", "240", *FAST)
     assert code == 1 and "stopped by the test" in err
     assert seen["ramp_time"] == 240.0
-    batch = studies.table2_batch(__import__("wpam_mj").preset(), loads=(100.0,), dt=0.002,
+    batch = paper_studies.table2_batch(__import__("wpam_mj").preset(), loads=(100.0,), dt=0.002,
                                  ramp_time=240.0)
     assert [t.ramp_time for t in batch.tasks if hasattr(t, "ramp_time")] == [240.0, 240.0]
 
@@ -178,7 +178,7 @@ def test_jobs_never_exceed_the_runs(here, capsys, monkeypatch):
         seen["jobs"] = jobs
         raise SimulationDiverged("stopped by the test")
 
-    monkeypatch.setattr(studies, "run_tasks", run_tasks)
+    monkeypatch.setattr(paper_studies, "run_tasks", run_tasks)
     code, _, _ = _run(capsys, "static", "--load", "100", "--jobs", "2", *FAST)
     assert code == 1 and seen["jobs"] == 1  # one run: no pool
 

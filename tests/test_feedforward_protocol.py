@@ -15,7 +15,7 @@ import pytest
 from wpam_mj.experiments.drives import drive_for_targets, step_targets
 from wpam_mj.physics.params import MM, MPA, ParameterError, preset
 from wpam_mj.simulation.simulate import simulate
-from wpam_mj.experiments.studies import step_study
+from wpam_mj.experiments.paper_studies import step_study
 
 WPAM = preset("wpam")
 DT = 1e-3  # s

@@ -9,7 +9,7 @@ from wpam_mj import cli
 from wpam_mj.cli.runs import protocol_of
 from wpam_mj.physics.params import MPA, ParameterError, preset
 from wpam_mj.experiments.protocol import SHIPPED, Protocol, ProtocolStaticTask, static_drive
-from wpam_mj.experiments.studies import StaticTask
+from wpam_mj.experiments.paper_studies import StaticTask
 
 
 def test_the_default_protocol_runs_the_ramps_of_the_static_study():

@@ -8,7 +8,7 @@ import pytest
 
 from wpam_mj import paper
 from wpam_mj.experiments import figures as plots
-from wpam_mj.experiments import studies
+from wpam_mj.experiments import paper_studies
 from wpam_mj.experiments.analysis import loop_area
 from wpam_mj.infra.pool import TaskPool, run_tasks
 from wpam_mj.physics.params import MPA, ParameterError, preset
@@ -29,7 +29,7 @@ def _same_result(a, b):
 @pytest.fixture(scope="module")
 def table2_pair(params):
     """Table 2 at one load, serial and with two worker processes."""
-    return [studies.table2(params, loads=(100.0,), jobs=jobs) for jobs in (1, 2)]
+    return [paper_studies.table2(params, loads=(100.0,), jobs=jobs) for jobs in (1, 2)]
 
 
 def test_table2_pool_equals_serial(table2_pair):
@@ -45,7 +45,7 @@ def test_table2_pool_equals_serial(table2_pair):
 
 
 def test_sweep_pool_equals_serial(params):
-    runs = [studies.sweep(params, (100.0,), (1.0,), ("pi", "pid"), jobs=jobs)
+    runs = [paper_studies.sweep(params, (100.0,), (1.0,), ("pi", "pid"), jobs=jobs)
             for jobs in (1, 2)]
     assert runs[0].points == runs[1].points  # exact float equality
     assert runs[0].series.keys() == runs[1].series.keys() == {(100.0, 1.0, "pi")}
@@ -74,8 +74,8 @@ def test_feedback_area_uses_plateau_means(table2_pair):
 
 
 def test_worker_errors_reach_the_caller(params):
-    bad = studies.StaticTask(params, -1.0, 0.0, 1e-3)  # skips the up-front validation
-    good = studies.StaticTask(params, 100.0, 0.0, 1e-3)
+    bad = paper_studies.StaticTask(params, -1.0, 0.0, 1e-3)  # skips the up-front validation
+    good = paper_studies.StaticTask(params, 100.0, 0.0, 1e-3)
     with pytest.raises(ParameterError, match="load"):
         run_tasks([good, bad], jobs=2)
 
@@ -117,19 +117,19 @@ def test_task_pool_failure_reaches_the_caller():
 
 def test_inputs_are_checked_before_running(params):
     with pytest.raises(ParameterError, match="freq"):
-        studies.sweep(params, (100.0,), (0.5, 0.0), ("pi",))
+        paper_studies.sweep(params, (100.0,), (0.5, 0.0), ("pi",))
     with pytest.raises(ParameterError, match="control"):
-        studies.sweep(params, (100.0,), (0.5,), ("pi", "bangbang"))
+        paper_studies.sweep(params, (100.0,), (0.5,), ("pi", "bangbang"))
     with pytest.raises(ParameterError, match="po_down"):
-        studies.static_study(params, (100.0,), 0.7 * MPA)
+        paper_studies.static_study(params, (100.0,), 0.7 * MPA)
     with pytest.raises(ParameterError, match="jobs"):
         run_tasks([], jobs=0)
 
 
 def test_figure_run_key():
-    assert studies.figure_run_key(paper.LOADS_N, paper.SWEEP_FREQS_HZ,
+    assert paper_studies.figure_run_key(paper.LOADS_N, paper.SWEEP_FREQS_HZ,
                                   ("pi", "pid")) == (150.0, 0.5, "pi")
-    assert studies.figure_run_key((50.0, 80.0), (0.2, 1.0), ("pid",)) == (80.0, 0.2, "pid")
+    assert paper_studies.figure_run_key((50.0, 80.0), (0.2, 1.0), ("pid",)) == (80.0, 0.2, "pid")
 
 
 def test_figures_from_a_small_study(table2_pair, tmp_path):

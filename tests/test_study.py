@@ -15,7 +15,7 @@ from wpam_mj.cli import main
 from wpam_mj.infra.pool import Workers, open_workers
 from wpam_mj.physics.params import ParameterError, preset
 from wpam_mj.infra.pool import run_tasks
-from wpam_mj.experiments.studies import StepTask
+from wpam_mj.experiments.paper_studies import StepTask
 
 # A small study: 6 seeded random step runs of 2.2 s (0.2 s plateaus), 2 runs per task,
 # varying the load, a model parameter and the controller.

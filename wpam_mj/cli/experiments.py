@@ -11,7 +11,7 @@ from wpam_mj.cli.runs import (amplitude_m, flag_still, liftable_loads, out_dir_o
                               params_of, print_json, run_id_of, run_options, write_run_manifest,
                               wrote)
 from wpam_mj.control.controllers import CONTROLS, check_control
-from wpam_mj.experiments import studies
+from wpam_mj.experiments import paper_studies
 from wpam_mj.experiments.drives import SINE_AMPLITUDE_MM, SINE_MEAN_MM, SineSpec, check_po
 from wpam_mj.experiments.feasibility import load_moved
 from wpam_mj.experiments.protocol import SHIPPED, remeasure
@@ -81,9 +81,9 @@ def _cmd_static(args: argparse.Namespace) -> int:
     plist = [run.params if n == args.preset else params_of(args, n) for n in names]
     loads = liftable_loads(paper.LOADS_N if args.load is None else (args.load,), plist)
     po_down = check_po("--po-down", args.po_down * MPA, run.params)
-    ramp_time = studies.check_ramp_time(args.ramp_time)
+    ramp_time = paper_studies.check_ramp_time(args.ramp_time)
     out = out_dir_of(args)
-    loops = studies.compare_presets(plist, loads, po_down, dt=run.dt,
+    loops = paper_studies.compare_presets(plist, loads, po_down, dt=run.dt,
                                     jobs=run.jobs_for(len(plist) * len(loads)),
                                     progress=run.progress, ramp_time=ramp_time)
     settings = {"presets": names, "loads_n": loads, "po_down_mpa": args.po_down,
@@ -115,7 +115,7 @@ def _cmd_step(args: argparse.Namespace) -> int:
     (load,) = liftable_loads((args.load,), [run.params])
     control = check_control(args.control)
     out = out_dir_of(args)
-    (res,) = studies.step_study(run.params, [(load, control)], dt=run.dt, jobs=1,
+    (res,) = paper_studies.step_study(run.params, [(load, control)], dt=run.dt, jobs=1,
                                 progress=run.progress)
     settings = {"load_n": load, "control": control, "dt_s": run.dt}
     rid = run_id_of(args, run.params, settings)
@@ -142,9 +142,9 @@ def _cmd_table2(args: argparse.Namespace) -> int:
     summaries, writers = output_modules()
     run = run_options(args)
     liftable_loads(paper.LOADS_N, [run.params], "Table 2 load")
-    ramp_time = studies.check_ramp_time(args.ramp_time)
+    ramp_time = paper_studies.check_ramp_time(args.ramp_time)
     out = out_dir_of(args)
-    t2 = studies.table2(run.params, dt=run.dt, jobs=run.jobs_for(3 * len(paper.LOADS_N)),
+    t2 = paper_studies.table2(run.params, dt=run.dt, jobs=run.jobs_for(3 * len(paper.LOADS_N)),
                         progress=run.progress, ramp_time=ramp_time)
     loop_area = args.loop_area or SHIPPED.loop_method
     t2 = remeasure(t2, loop_area)
@@ -180,8 +180,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         raise ParameterError("--controllers: no controller given; valid: "
                              + ", ".join(CONTROLS))
     out = out_dir_of(args)
-    key = studies.figure_run_key(loads, freqs, controllers)
-    sw = studies.sweep(run.params, loads, freqs, controllers, keep=[key], dt=run.dt,
+    key = paper_studies.figure_run_key(loads, freqs, controllers)
+    sw = paper_studies.sweep(run.params, loads, freqs, controllers, keep=[key], dt=run.dt,
                        jobs=run.jobs_for(len(loads) * len(freqs) * len(controllers)),
                        progress=run.progress, amplitude=amplitude)
     po_cap = run.params.controller.po_cap

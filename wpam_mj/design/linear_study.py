@@ -1,7 +1,7 @@
 """The linear models (`wpam_mj.design.linear`) beside the simulated frequency response.
 
 For one load and operating contraction, `compare` builds the §3 and extended models for PI
-and PID and runs the simulated sweep (`studies.sweep_batch`) at several target amplitudes
+and PID and runs the simulated sweep (`paper_studies.sweep_batch`) at several target amplitudes
 (the paper's 25 mm and smaller ones), all in one process pool. A `LinearComparison` holds
 both; `agreement` is the yardstick: at 0.1-0.25 Hz, does the simulated gain lie
 within 1 dB and the lag within 10 deg of the model's? Everything is recomputed from the
@@ -23,7 +23,7 @@ import numpy as np
 from wpam_mj import paper
 from wpam_mj.design import linear
 from wpam_mj.infra import pool
-from wpam_mj.experiments import studies
+from wpam_mj.experiments import paper_studies
 from wpam_mj.experiments.drives import SINE_AMPLITUDE_MM, SINE_MEAN_MM
 from wpam_mj.physics.params import MM, Params, ParameterError
 from wpam_mj.experiments.responses import SweepResult
@@ -199,7 +199,7 @@ def compare(params: Params, loads: Sequence[float], *, contraction: float = SINE
     loops = {load: tuple(linear.linear_loop(params, load, contraction, c, m)
                          for m in linear.MODELS for c in controllers) for load in loads}
     keys = [(load, a) for load in loads for a in amplitudes]
-    batches = [studies.sweep_batch(params, (load,), freqs, controllers, keep=(), dt=dt,
+    batches = [paper_studies.sweep_batch(params, (load,), freqs, controllers, keep=(), dt=dt,
                                    amplitude=a) for load, a in keys]
     results = dict(zip(keys, pool.run_batches(batches, jobs=jobs, progress=progress,
                                                  desc="linear vs sim")))

@@ -10,7 +10,8 @@ from wpam_mj.experiments.analysis import frequency_response, loop_area, steady_s
 from wpam_mj.experiments.drives import SineSpec, check_po, sine_run, step_run
 from wpam_mj.experiments.feasibility import MOVE_MIN_MM, check_liftable, load_moved
 from wpam_mj.experiments.responses import LOOP_METHOD
-from wpam_mj.experiments.studies import PLATEAU_SETTLE_S, StaticTask, plateau_segments, table2_batch
+from wpam_mj.experiments.paper_studies import (PLATEAU_SETTLE_S, StaticTask, plateau_segments,
+                                             table2_batch)
 from wpam_mj.paper import STEP_HOLD_S, STEP_LEVELS_MM
 from wpam_mj.physics.params import MM, MPA, ParameterError, Params
 
@@ -21,7 +22,7 @@ def params_for(base: Params, inputs: Mapping[str, Any]) -> Params:
 
 
 def _step_metrics(result, hold: float) -> dict[str, float]:
-    """Plateau means (last half of each plateau, as `studies.step_study`) and their area."""
+    """Plateau means (last half of each plateau, as `paper_studies.step_study`) and their area."""
     seg = plateau_segments(STEP_LEVELS_MM, hold)
     settle = hold * PLATEAU_SETTLE_S / STEP_HOLD_S
     x = steady_state_means(result.time, result.x, seg, settle)
@@ -35,7 +36,7 @@ def _step_metrics(result, hold: float) -> dict[str, float]:
 
 def _sine_metrics(result, spec: SineSpec) -> dict[str, float]:
     """Gain and lag of the analysed cycles (`analysis.frequency_response`) and the highest
-    regulator-gauge Po over them (as `studies.SweepPoint.po_max`)."""
+    regulator-gauge Po over them (as `responses.SweepPoint.po_max`)."""
     fr = frequency_response(result.time, result.x_ref, result.x, spec.freq,
                             settle_cycles=spec.settle_cycles, n_cycles=spec.cycles)
     window = spec.analysed(result.time)

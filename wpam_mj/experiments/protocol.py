@@ -35,7 +35,7 @@ from wpam_mj.paper import LOADS_N, PO_DOWN_STATIC_MPA
 from wpam_mj.physics.params import MPA, ParameterError, Params, check_range
 from wpam_mj.infra.pool import Batch
 from wpam_mj.simulation.simulate import Drive, simulate
-from wpam_mj.experiments.studies import StepTask, check_ramp_time
+from wpam_mj.experiments.paper_studies import StepTask, check_ramp_time
 from wpam_mj.experiments.responses import StaticLoop, Table2Result
 
 LOOP_METHODS = ("branches", "shoelace")
@@ -114,7 +114,7 @@ def static_drive(params: Params, load: float, po_down: float, protocol: Protocol
 
 @dataclass(frozen=True)
 class ProtocolStaticTask:
-    """One open-loop ramp under `protocol` (a pool task, as `studies.StaticTask`)."""
+    """One open-loop ramp under `protocol` (a pool task, as `paper_studies.StaticTask`)."""
 
     params: Params
     load: float
@@ -138,7 +138,7 @@ class ProtocolStaticTask:
 def table2_batch(params: Params, protocol: Protocol = SHIPPED, *,
                  loads: Iterable[float] = LOADS_N,
                  po_down: float = PO_DOWN_STATIC_MPA * MPA, dt: float = 1e-3) -> Batch:
-    """`studies.table2_batch` under `protocol`: the open-loop ramps with and without Po
+    """`paper_studies.table2_batch` under `protocol`: the open-loop ramps with and without Po
     and the PI staircase at each load [N]. `Protocol()` runs the same ramps as it."""
     loads = tuple(check_load(v) for v in loads)
     if not loads:

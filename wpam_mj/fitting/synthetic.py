@@ -24,7 +24,7 @@ from wpam_mj.fitting.measurements import Experiment
 from wpam_mj.simulation.model import check_dt, check_load
 from wpam_mj.physics.params import MM, MPA, Params, ParameterError, check_int, check_range
 from wpam_mj.simulation.results import SimResult
-from wpam_mj.experiments.studies import run_tasks
+from wpam_mj.experiments.paper_studies import run_tasks
 
 HOLDOUT_FREQ_HZ = 0.25  # the sine run of the held-out set
 HOLDOUT_DIR = "holdout"

@@ -50,7 +50,7 @@ from wpam_mj.physics.params import MM, MPA, Params, ParameterError, check_int, c
 from wpam_mj.infra.pool import executor_for
 from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
 from wpam_mj.infra.files import write_text_atomic
-from wpam_mj.experiments.studies import PLATEAU_SETTLE_S, StepTask, sweep_batch
+from wpam_mj.experiments.paper_studies import PLATEAU_SETTLE_S, StepTask, sweep_batch
 
 # The parameters fitted to the paper, by name. The other parameters with a plausible range
 # are not: the slide's damping is an estimate of the rig (docs/physics.md), and the

@@ -21,7 +21,7 @@ from wpam_mj.infra.pool import Batch, TaskPool, submit_batches
 from wpam_mj.reproduction.report import report_markdown
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
-from wpam_mj.experiments.studies import StaticTask, StepTask, figure_run_key, sweep_batch
+from wpam_mj.experiments.paper_studies import StaticTask, StepTask, figure_run_key, sweep_batch
 from wpam_mj.experiments.responses import SweepResult, Table2Result
 from wpam_mj.experiments.writers import (run_metadata, sine_csv_name, static_csv_name,
                                          step_csv_name, write_sweep, write_table2)
