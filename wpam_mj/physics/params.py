@@ -138,7 +138,7 @@ class Braid(_Validated):
 
 @dataclass(frozen=True)
 class Muscle(_Validated):
-    """Force terms of the tension model (`wpam_mj.muscle`)."""
+    """Force terms of the tension model (`wpam_mj.physics.muscle`)."""
 
     output_coeff: float = _p(0.8, "1", 0.0, 1.0,
                              "calibrated: paper Kf (Table 1) as the efficiency of the "

@@ -173,7 +173,8 @@ class PaperTargets:
                                                params.controller.po_cap)))
 
     def residual_groups(self, params: Params, results: list) -> dict[str, np.ndarray]:
-        """The residuals by target, in the order `residuals` concatenates them."""
+        """The residuals by target (each §4.2 finding as "sweep.<name>"), in the order
+        `residuals` concatenates them."""
         w = WEIGHTS
         table2, steps, sweep = self._assemble(params, results)
         s = self._scores(params, table2, steps, sweep)
@@ -188,7 +189,7 @@ class PaperTargets:
             "steps": beyond,
             "feedback_row": w.feedback_row * findings.residuals(
                 [findings.check(findings.FINDINGS["table2_feedback_row"], table2, math.nan)]),
-            "sweep": w.sweep * findings.residuals(s.sweep_checks),
+            **{f"sweep.{c.name}": w.sweep * findings.residuals([c]) for c in s.sweep_checks},
             "po_rise": [max(0.0, a - b) / w.po_rise_mpa for a, b in zip(po, po[1:])],
             "pressure": _pressure_walls(params, self.protocol)}
         return {k: np.asarray(v, dtype=float) for k, v in groups.items()}

@@ -120,11 +120,11 @@ def report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResult
     return "\n".join(md)
 
 
-# Why the shipped parameters give up a finding, keyed by the start of its text: the
-# measured global search (`wpam search --maxiter 5`, 204 points; the feasibility
+# Why the shipped parameters give up a finding, by the finding's name: the measured
+# global search (`wpam search --maxiter 5`, 204 points; the feasibility
 # map in docs/physics.md).
 GIVEN_UP = {
-    "Table 2 'Po =": (
+    "table2_po_row": (
         "the paper's row falls 11x from 50 to 150 N, which needs a friction band narrow at "
         "50 N beside Po's 0.04 MPa shift and about equal to it at 150 N. One point of the "
         "search meets it (a common 0.44 MPa ramp top, mu 0.40, F_f0 29 N, signed area: "
@@ -132,23 +132,23 @@ GIVEN_UP = {
         "steps nor keeps the frequency response (it fails six other findings); while any "
         "frequency-response finding or settled steps hold, the row's worst cell is at "
         "least 32 % off, this point's 50 N cell."),
-    "Table 2 feedback row": (
+    "table2_feedback_row": (
         "no point of the search meets it. Its best (0.0018/0.0016/0.0101, the 150 N loop "
         "6x the 100 N one) misses the order and has the 150 N staircase stalled at 0.74 mm: "
         "the heavy load's Fig. 16 loop grows only where its steps do not settle; with "
         "settled steps the 150 N cell stays near the 100 N one (Po keeps authority to "
         "spare at rest)."),
-    "gain falls and phase lag": (
+    "gain_falls_lag_grows": (
         "missed by 0.001: a gain peak of 1.017 near 0.2 Hz at 150 N, the under-damped Po "
         "loop through dry friction. Points of the search meet it with settled steps, but "
         "with Table 2's row far off (at best 30-60 % in a cell); calibrate's cost trades "
         "it for the row."),
-    "gains of the loads within": (
+    "gain_spread": (
         "above the limit velocity (0.5-1 Hz) the lines' air flow sets the speed and the "
         "heavier load runs at a higher Pi, so the same restriction passes more air; the "
         "search meets it, with other frequency-response findings too, but never together "
         "with settled steps (best margin -4.5 there; 204 and 294 points searched)."),
-    "below 0.5 Hz the phase lag": (
+    "lag_order_low_freq": (
         "the order needs Po to rest deep in the friction band (a feedforward Po above "
         "the regulator minimum), where the paper's slow integral (Kp/Ki = 12.5 s) cannot "
         "finish a step within its 10 s plateau: no point of the search meets it together "
@@ -163,8 +163,7 @@ def given_up_markdown(checks: Sequence[Check]) -> list[str]:
         return []
     md = ["## Findings this parameter set gives up, and why", ""]
     for c in failed:
-        why = next((v for k, v in GIVEN_UP.items() if c.finding.startswith(k)),
-                   "not measured by the feasibility search (docs/physics.md).")
+        why = GIVEN_UP.get(c.name, "not measured by the feasibility search (docs/physics.md).")
         md.append(f"- **{c.finding}**: {why}")
     return md + [""]
 
