@@ -3,11 +3,10 @@
 A muscle type is a preset of the parameters (`params.preset(name)` applies its
 `overrides` on top of the calibrated W-PAM) plus what the rest of the package needs to
 know about it: whether it has an outer chamber for Po to fill (the simulation refuses Po
-on a muscle without one, the fit does not free the outer line, the renderer draws no
-outer bag), its colour in figures and a few words for the command line's help. The
-command line offers every type here (`--preset`), and the plugin's MJCF attribute
-`preset` takes the same names. A new muscle type without new physics is one entry of
-`MUSCLE_TYPES`.
+on a muscle without one, a fit replays it with Po held at 0, the renderer draws no outer
+bag), its colour in figures and a few words for the command line's help. The command line
+offers every type here (`--preset`), and the plugin's MJCF attribute `preset` takes the
+same names. A new muscle type without new physics is one entry of `MUSCLE_TYPES`.
 
 This module imports nothing of wpam_mj: `params` builds on it.
 """
