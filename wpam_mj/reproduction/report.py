@@ -37,8 +37,8 @@ def report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResult
         *given_up_markdown(checks),
         "## Table 2: hysteresis-loop areas",
         "",
-        f"Static ramps: {protocol.describe()} (`wpam_mj.protocol`; the paper does not state"
-        " them).",
+        f"Static ramps: {protocol.describe()} (`--ramp-top`, `--ramp-time`, `--top-hold`, "
+        "`--loop-area`; the paper does not state them).",
         "",
         f"Loop areas of the measured chamber Pi against x "
         f"(`loop_area(method=\"{protocol.loop_method}\")`),"
