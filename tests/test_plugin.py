@@ -21,7 +21,7 @@ from wpam_mj.experiments.analysis import frequency_response
 from wpam_mj.experiments.drives import SineSpec, drive_for_targets, sine_run, step_targets
 from wpam_mj.simulation.loop_contract import REC_FIELDS
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import MPA, STANDARD_GRAVITY, preset
+from wpam_mj.physics.params import MPA, STANDARD_GRAVITY, ParameterError, preset
 from wpam_mj.simulation.simulate import Drive, simulate
 
 # Where a C compiler exists the plugin must build: these tests then fail, never skip.
@@ -114,6 +114,19 @@ def test_a_bad_attribute_fails_the_compile_with_one_line_naming_it(key, value, a
 def test_bad_instance_keys_fail_naming_the_allowed_values(config, what):
     with pytest.raises(ValueError, match=what):
         mujoco.MjModel.from_xml_string(user_model(config))
+
+
+@pytest.mark.parametrize("control", ["pi", "pid", "pi_ff"])
+def test_po_feedback_on_a_muscle_type_without_an_outer_chamber_is_refused_by_both_engines(
+        control):
+    """The RLAM has nothing for Po to fill: its type says so, and both engines refuse a
+    feedback mode on it when the model is made, with the same line."""
+    xml = user_model({"preset": "rlam"}, control=control, channels=1)
+    what = f"preset 'rlam' has no outer chamber for Po feedback \\(control = '{control}'\\)"
+    with pytest.raises(ValueError, match=what):
+        mujoco.MjData(mujoco.MjModel.from_xml_string(xml))
+    with pytest.raises(ParameterError, match=what):
+        engine.python_model(mujoco.MjSpec.from_string(xml))
 
 
 def test_the_wrong_number_of_input_channels_is_refused():

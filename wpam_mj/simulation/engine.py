@@ -80,6 +80,10 @@ class InstanceConfig:
         if control not in CONTROLLERS:
             raise ParameterError(f"wpam_mj.muscle instance '{name}': control = {control!r} "
                                  f"is not one of: {', '.join(CONTROLLERS)}")
+        if CONTROLLERS[control].feedback and not params.outer_chamber:
+            raise ParameterError(f"wpam_mj.muscle instance '{name}': preset "
+                                 f"'{params.preset}' has no outer chamber for Po feedback "
+                                 f"(control = '{control}'); use control = 'open'")
         start = config.get("start") or "vented"
         if start not in ("vented", "rest"):
             raise ParameterError(f"wpam_mj.muscle instance '{name}': start = {start!r} is "

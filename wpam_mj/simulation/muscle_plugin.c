@@ -299,6 +299,7 @@ static int parse_config(const mjModel* m, int instance, Constants* k, int channe
   static const int LO_OPEN[] = {WPAM_PARAMS(WPAM_LO_OPEN)};
   static const char* const UNITS[] = {WPAM_PARAMS(WPAM_UNIT)};
   static const char* const PRESETS[] = {WPAM_PRESETS};
+  static const int PRESET_OUTER[] = {WPAM_PRESET_OUTER};  /* MuscleType.outer_chamber */
   const char* name = mj_id2name(m, mjOBJ_PLUGIN, instance);
   const char* text;
   char msg[400];
@@ -335,6 +336,12 @@ static int parse_config(const mjModel* m, int instance, Constants* k, int channe
   if (k->control < 0) {
     snprintf(msg, sizeof(msg), "wpam_mj.muscle instance '%s': control = '%s' is not one of: "
              "%s", name, text, WPAM_CONTROL_LIST);
+    return fail(err, nerr, msg);
+  }
+  if (CONTROL_FEEDBACK[k->control] && !PRESET_OUTER[preset]) {
+    snprintf(msg, sizeof(msg), "wpam_mj.muscle instance '%s': preset '%s' has no outer "
+             "chamber for Po feedback (control = '%s'); use control = 'open'", name,
+             PRESETS[preset], CONTROL_NAMES[k->control]);
     return fail(err, nerr, msg);
   }
   text = mj_getPluginConfig(m, instance, "start");

@@ -154,6 +154,8 @@ def tables_header() -> str:
               f"#define WPAM_NPRESET {len(presets)}",
               "#define WPAM_PRESETS " + ", ".join(f'"{n}"' for n in prm.PRESETS),
               f'#define WPAM_PRESET_LIST "{", ".join(prm.PRESETS)}"',
+              "#define WPAM_PRESET_OUTER " + ", ".join(
+                  str(int(p.outer_chamber)) for p in presets),
               "#define WPAM_STATE(ENTRY) " + " ".join(
                   f"ENTRY({n.upper()}, {n})" for n in STATE_FIELDS),
               "#define WPAM_CONTROLS(ENTRY) " + " ".join(
