@@ -14,11 +14,11 @@ from __future__ import annotations
 
 import argparse
 import time
-from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
 from common import Figure, parallel_capacity, print_table
+from wpam_mj.infra.pool import WorkerPool
 from wpam_mj import preset
 from wpam_mj.simulation import plugin
 from wpam_mj.experiments.drives import drive_for_targets, step_targets
@@ -46,7 +46,7 @@ def _one(load: float, duration: float) -> float:
 
 def time_pool(n: int, duration: float) -> float:
     start = time.perf_counter()
-    with ProcessPoolExecutor(2) as pool:
+    with WorkerPool(2) as pool:
         list(pool.map(_one, np.linspace(50.0, 150.0, n), [duration] * n))
     return time.perf_counter() - start
 

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import math
-from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 from scipy.optimize import minimize
@@ -32,6 +31,7 @@ from wpam_mj import paper, preset
 from wpam_mj.experiments.drives import SineSpec, sine_run
 from wpam_mj.physics.params import MM, MPA, Params, plausible_range
 from wpam_mj.infra.files import write_text_atomic
+from wpam_mj.infra.pool import WorkerPool
 from wpam_mj.experiments.paper_studies import StaticTask, StepTask
 
 FREE = ("braid.braid_angle", "muscle.output_coeff", "muscle.friction_coeff",
@@ -69,7 +69,7 @@ def _job(args):
     return float(sine_run(params, load, "pi", SineSpec(extra)).po_reg.max())
 
 
-def cost(params: Params, pool: ProcessPoolExecutor) -> float:
+def cost(params: Params, pool: WorkerPool) -> float:
     loads = paper.LOADS_N
     jobs = ([("step", params, f, 0.0) for f in loads]
             + [("static", params, f, po) for f in loads for po in (0.0, 0.04 * MPA)]
@@ -103,7 +103,7 @@ def main() -> int:
     rng = np.random.default_rng(args.seed)
     samples = [(rng.uniform(size=len(FREE)), float(rng.choice(READINGS)))
                for _ in range(args.samples)]
-    with ProcessPoolExecutor(args.jobs) as pool:
+    with WorkerPool(args.jobs) as pool:
         scored = []
         for i, (u, reading) in enumerate(samples):
             scored.append((cost(params_at(u, reading), pool), i))

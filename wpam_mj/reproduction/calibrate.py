@@ -52,12 +52,11 @@ from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.experiments.paper_studies import PLATEAU_SETTLE_S, StepTask, sweep_batch
 
-# The parameters fitted to the paper, by name. The other parameters with a plausible range
-# are not: the slide's damping is an estimate of the rig (docs/physics.md), and the
-# regulator's lag and dead time are identified from the regulator's own step data.
-FREE = ("braid.braid_angle", "muscle.output_coeff", "muscle.friction_coeff",
-        "muscle.friction_const", "muscle.axial_area", "pneumatics.inner_conductance",
-        "pneumatics.outer_conductance", "controller.feedforward_friction")
+# The parameters fitted to the paper, by name: the plant parameters a fit frees by default
+# (`estimation.default_free`: a plausible range, and not measurable on a rig as the
+# slide's damping and the regulators' lag and dead time are), and the share of the
+# friction band the Pi feedforward adds, a reading of the paper's controller.
+FREE = (*fitting.default_free(), "controller.feedforward_friction")
 # Protocol readings written with the fit but not fitted: the gain reading (drawn by the
 # random search) and the Po the feedforward assumes (docs/physics.md)
 KEPT = ("controller.command_scale", "controller.po_feedforward")

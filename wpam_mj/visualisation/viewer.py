@@ -151,7 +151,7 @@ class LiveRig:
         """Switch controller; PI/PID start from the current Po command (bumpless) or, at
         the start, from the Po the feedforward assumes (the loop at rest)."""
         self.control = check_live(control)
-        if control == "open":
+        if not CONTROLLERS[control].feedback:
             self._feedback = None
             return
         start = self.po_cmd if bumpless else self.params.controller.po_feedforward
