@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 
 from wpam_mj import preset
-from wpam_mj.fitting import estimation as fitting
+from wpam_mj.fitting import estimation
 from wpam_mj.fitting.measured_fit import fit_data
 from wpam_mj.fitting.measurements import experiment_files, read_experiment
 from wpam_mj.physics.params import MM
@@ -33,7 +33,7 @@ TARGET_REL = 0.05  # every free parameter within 5 % of its true value
 TARGET_HOLDOUT = 1.5  # held-out RMS within 1.5x the x noise
 
 
-def true_values(shipped, free: tuple[fitting.FreeParameter, ...]) -> dict[str, float]:
+def true_values(shipped, free: tuple[estimation.FreeParameter, ...]) -> dict[str, float]:
     out = {}
     for p, d in zip(free, OFFSETS * 2):
         v0 = p.value(shipped)
@@ -61,9 +61,9 @@ def main() -> int:
     args = ap.parse_args()
 
     shipped = preset("wpam")
-    free = tuple(fitting.FreeParameter.of(n) for n in fitting.default_free())
+    free = tuple(estimation.FreeParameter.of(n) for n in estimation.default_free())
     truth = true_values(shipped, free)
-    hidden = fitting.with_values(shipped, free, [truth[p.name] for p in free])
+    hidden = estimation.with_values(shipped, free, [truth[p.name] for p in free])
     folder = args.keep or Path(tempfile.mkdtemp(prefix="wpam_recovery_"))
     start = time.perf_counter()
     synth(hidden, folder, noise_mm=args.noise_mm, noise_kpa=args.noise_kpa,

@@ -11,7 +11,7 @@ import pytest
 
 from wpam_mj import paper
 from wpam_mj.reproduction import findings
-from wpam_mj.fitting import estimation as fitting
+from wpam_mj.fitting import estimation
 from wpam_mj.reproduction.calibrate import (FREE, KEPT, READINGS, WEIGHTS, CalibrationResult,
                                             PaperTargets, calibrate, random_starts)
 from wpam_mj.physics.params import (MPA, ParameterError, apply_overrides, load_toml,
@@ -25,7 +25,7 @@ HELD = ("pid_leads_pi", "po_reaches_cap", "po_cap_light_slow")
 
 @pytest.mark.parametrize("name", FREE)
 def test_fitted_parameters_are_bounded_by_their_plausible_range(name):
-    p = fitting.FreeParameter.of(name)
+    p = estimation.FreeParameter.of(name)
     assert (p.lo, p.hi) == plausible_range(name)
 
 
@@ -107,7 +107,7 @@ def test_random_starts_are_seeded_inside_the_plausible_ranges():
         assert p.controller.command_scale in READINGS
         for name in FREE:
             lo, hi = plausible_range(name)
-            assert lo <= fitting.FreeParameter.of(name).value(p) <= hi
+            assert lo <= estimation.FreeParameter.of(name).value(p) <= hi
 
 
 @pytest.mark.parametrize("kwargs, match", [
@@ -123,8 +123,8 @@ def test_resume_without_a_journal_is_refused(tmp_path):
 
 
 def test_written_toml_reproduces_the_fitted_parameters(tmp_path, shipped):
-    free = [fitting.FreeParameter.of(n) for n in FREE[:5]]  # the static ones
-    params = fitting.with_values(preset("wpam"), free, [0.36, 0.7, 0.2, 3.0, 1e-3])
+    free = [estimation.FreeParameter.of(n) for n in FREE[:5]]  # the static ones
+    params = estimation.with_values(preset("wpam"), free, [0.36, 0.7, 0.2, 3.0, 1e-3])
     fitted = {n: params.value(n) for n in (*FREE, *KEPT)}
     result = CalibrationResult(params, fitted, 1.0, 2.0, shipped[0], 10, 60.0)
     path = tmp_path / "fit.toml"
@@ -151,7 +151,7 @@ class _Quadratic:
     stop_after: int | None = None
 
     def __init__(self, dt, protocol):
-        self.target = [fitting.FreeParameter.of(n).from_z(0.3) for n in FREE]
+        self.target = [estimation.FreeParameter.of(n).from_z(0.3) for n in FREE]
 
     def tasks(self, params):
         type(self).runs += 1
@@ -160,7 +160,7 @@ class _Quadratic:
         return [_Values(params)]
 
     def residuals(self, params, results):
-        free = [fitting.FreeParameter.of(n) for n in FREE]
+        free = [estimation.FreeParameter.of(n) for n in FREE]
         return np.array([(v - t) / (p.hi - p.lo)
                          for p, v, t in zip(free, results[0], self.target)])
 
@@ -179,7 +179,7 @@ def test_an_interrupted_calibration_resumes_from_its_journal(tmp_path, monkeypat
     with pytest.raises(KeyboardInterrupt):
         cal.calibrate(out=out, jobs=1, progress=False, max_nfev=4)
     assert cal.journal_path(out).exists() and not out.exists()
-    journaled = fitting.Journal(cal.journal_path(out), keep=True).size
+    journaled = estimation.Journal(cal.journal_path(out), keep=True).size
     _Quadratic.runs, _Quadratic.stop_after = 0, None
     resumed = cal.calibrate(out=out, jobs=1, progress=False, max_nfev=4, resume=True)
     rerun = _Quadratic.runs

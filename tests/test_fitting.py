@@ -8,15 +8,15 @@ import numpy as np
 import pytest
 
 from wpam_mj import preset
-from wpam_mj.fitting import estimation as fitting
+from wpam_mj.fitting import estimation
 from wpam_mj.fitting.measured_fit import fit_data, replay
 from wpam_mj.physics.params import MM, ParameterError, describe_with_ranges
 from wpam_mj.fitting.synthetic import SynthTask, measured
 
 
 def test_scaling_is_log_for_wide_positive_ranges_and_round_trips():
-    cond = fitting.FreeParameter.of("pneumatics.inner_conductance")
-    mu = fitting.FreeParameter.of("muscle.friction_coeff")
+    cond = estimation.FreeParameter.of("pneumatics.inner_conductance")
+    mu = estimation.FreeParameter.of("muscle.friction_coeff")
     assert cond.log and not mu.log
     for p in (cond, mu):
         for v in (p.lo, p.hi, 0.5 * (p.lo + p.hi)):
@@ -28,7 +28,7 @@ def test_scaling_is_log_for_wide_positive_ranges_and_round_trips():
 
 def test_default_free_set_is_the_plausible_ranges_minus_the_measured_and_the_controller():
     ranged = {n for n, _, _, r, _ in describe_with_ranges(preset()) if r is not None}
-    free = set(fitting.default_free())
+    free = set(estimation.default_free())
     assert free < ranged
     assert ranged - free == {"muscle.damping", "pneumatics.time_constant",
                              "pneumatics.dead_time", "controller.feedforward_friction"}
@@ -36,11 +36,11 @@ def test_default_free_set_is_the_plausible_ranges_minus_the_measured_and_the_con
 
 def test_unknown_names_and_bad_bounds_are_refused():
     with pytest.raises(ParameterError, match="valid names: .*muscle.friction_coeff"):
-        fitting.FreeParameter.of("muscle.fricton")
+        estimation.FreeParameter.of("muscle.fricton")
     with pytest.raises(ParameterError, match="no plausible range"):
-        fitting.FreeParameter.of("braid.natural_length")
+        estimation.FreeParameter.of("braid.natural_length")
     with pytest.raises(ParameterError, match="low < high"):
-        fitting.FreeParameter.of("muscle.friction_coeff", (0.3, 0.1))
+        estimation.FreeParameter.of("muscle.friction_coeff", (0.3, 0.1))
 
 
 # ---- the engine on a problem with a closed-form answer: a straight line y = a t + b
@@ -68,8 +68,8 @@ class _Line:
         return a * self.t + b - self.y
 
 
-FREE = (fitting.FreeParameter.of("muscle.friction_coeff"),
-        fitting.FreeParameter.of("muscle.friction_const"))
+FREE = (estimation.FreeParameter.of("muscle.friction_coeff"),
+        estimation.FreeParameter.of("muscle.friction_const"))
 
 
 def test_estimates_and_sigmas_match_linear_least_squares():
@@ -79,7 +79,7 @@ def test_estimates_and_sigmas_match_linear_least_squares():
     A = np.column_stack([t, np.ones_like(t)])
     coef, rss, *_ = np.linalg.lstsq(A, y, rcond=None)
     sigma = np.sqrt(np.diag(rss[0] / (t.size - 2) * np.linalg.inv(A.T @ A)))
-    result = fitting.fit(_Line(t, y), preset(), FREE, executor=ThreadPoolExecutor(2))
+    result = estimation.fit(_Line(t, y), preset(), FREE, executor=ThreadPoolExecutor(2))
     for est, c, s in zip(result.estimates, coef, sigma):
         assert est.value == pytest.approx(c, rel=1e-4), est.name
         assert est.sigma == pytest.approx(s, rel=0.02), est.name
@@ -98,7 +98,7 @@ def test_parameter_without_effect_is_unidentifiable_and_bound_is_flagged():
             return a * self.t - self.y
 
     line = SlopeOnly(t, 0.9 * t)  # slope above friction_coeff's plausible range
-    result = fitting.fit(line, preset(), FREE)
+    result = estimation.fit(line, preset(), FREE)
     slope, const = result.estimates
     assert slope.at_bound and slope.value == pytest.approx(slope.hi)
     assert not const.identifiable
@@ -121,17 +121,17 @@ def test_an_interrupted_fit_resumes_from_its_journal_without_rerunning(tmp_path)
     model, path = Counted(t, 0.2 * t + 4.0), tmp_path / "fit.journal.json"
     resumed = False
     with pytest.raises(KeyboardInterrupt):
-        fitting.fit(model, preset(), FREE, journal=fitting.Journal(path))
-    journaled = fitting.Journal(path, keep=True).size
+        estimation.fit(model, preset(), FREE, journal=estimation.Journal(path))
+    journaled = estimation.Journal(path, keep=True).size
     assert journaled == 4
     resumed, before = True, len(runs)
-    again = fitting.fit(model, preset(), FREE, journal=fitting.Journal(path, keep=True))
+    again = estimation.fit(model, preset(), FREE, journal=estimation.Journal(path, keep=True))
     replayed = len(runs) - before
     runs.clear()
-    whole = fitting.fit(model, preset(), FREE)
+    whole = estimation.fit(model, preset(), FREE)
     assert again.params == whole.params and np.array_equal(again.residuals, whole.residuals)
     assert replayed == len(runs) - journaled  # the journaled sets were not run again
-    assert fitting.Journal(tmp_path / "new.json", keep=True).size == 0
+    assert estimation.Journal(tmp_path / "new.json", keep=True).size == 0
 
 
 # ---- the simulator: replay and a reduced recovery
@@ -166,10 +166,10 @@ def test_reduced_recovery_within_five_percent():
     """Recovery of known parameters through the simulator, at a reduced size: three
     parameters 20-30 % off, two short static ramps with 0.05 mm / 1 kPa noise."""
     shipped = preset()
-    free = tuple(fitting.FreeParameter.of(n) for n in
+    free = tuple(estimation.FreeParameter.of(n) for n in
                  ("muscle.output_coeff", "muscle.friction_coeff", "muscle.axial_area"))
     truth = [p.value(shipped) * f for p, f in zip(free, (0.8, 1.3, 1.25))]
-    hidden = fitting.with_values(shipped, free, truth)
+    hidden = estimation.with_values(shipped, free, truth)
     data = [_experiment(hidden, load, noise_mm=0.05, noise_kpa=1.0, seed=i)
             for i, load in enumerate((50.0, 150.0))]
     held = [_experiment(hidden, 100.0, noise_mm=0.05, noise_kpa=1.0, seed=7)]

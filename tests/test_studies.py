@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from wpam_mj import paper
-from wpam_mj.experiments import figures as plots
+from wpam_mj.experiments import figures
 from wpam_mj.experiments import paper_studies
 from wpam_mj.experiments.analysis import loop_area
 from wpam_mj.infra.pool import TaskPool, run_tasks
@@ -134,12 +134,12 @@ def test_figure_run_key():
 
 def test_figures_from_a_small_study(table2_pair, tmp_path):
     t2 = table2_pair[0]
-    for name, fig in {"static.png": plots.static_figure(t2.open_loops + t2.po_loops),
-                      "step.png": plots.step_figure([r.result for r in t2.feedback_runs]),
-                      "fig16.png": plots.closed_loop_static_figure(t2.feedback_runs,
-                                                                   preset("wpam")),
-                      "table2.png": plots.table2_figure(t2)}.items():
-        path = plots.save_figure(fig, tmp_path / name)
+    for name, fig in {"static.png": figures.static_figure(t2.open_loops + t2.po_loops),
+                      "step.png": figures.step_figure([r.result for r in t2.feedback_runs]),
+                      "fig16.png": figures.closed_loop_static_figure(t2.feedback_runs,
+                                                                     preset("wpam")),
+                      "table2.png": figures.table2_figure(t2)}.items():
+        path = figures.save_figure(fig, tmp_path / name)
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
     for obj in (t2, t2.open_loops[0], t2.feedback_runs[0]):
         assert obj.plot().axes, type(obj).__name__

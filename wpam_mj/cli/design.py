@@ -61,7 +61,7 @@ def add_parsers(add, sub) -> None:
 
 def _cmd_linear(args: argparse.Namespace) -> int:
     from wpam_mj.design import linear_study
-    from wpam_mj.experiments import figures as plots  # noqa: PLC0415 (python-control, matplotlib: slow)
+    from wpam_mj.experiments import figures  # noqa: PLC0415 (python-control, matplotlib: slow)
     run = run_options(args)
     load = check_load(args.load)
     amplitudes = tuple(amplitude_m("--amplitudes", a) for a in
@@ -74,7 +74,7 @@ def _cmd_linear(args: argparse.Namespace) -> int:
                 "amplitudes_mm": [a / MM for a in amplitudes], "dt_s": run.dt}
     rid = run_id_of(args, run.params, settings)
     stem = f"linear_{load:g}N"
-    written = [plots.save_figure(cmp.plot(), out / f"{stem}.png", run_id=rid),
+    written = [figures.save_figure(cmp.plot(), out / f"{stem}.png", run_id=rid),
                write_text_atomic(out / f"{stem}.csv", cmp.csv_text())]
     manifest = write_run_manifest(args, out, rid, run.params, settings, written)
     if args.json:

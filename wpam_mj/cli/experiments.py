@@ -110,7 +110,7 @@ def _cmd_static(args: argparse.Namespace) -> int:
 
 
 def _cmd_step(args: argparse.Namespace) -> int:
-    summaries, writers = output_modules()
+    tables, writers = output_modules()
     run = run_options(args)
     (load,) = liftable_loads((args.load,), [run.params])
     control = check_control(args.control)
@@ -131,7 +131,7 @@ def _cmd_step(args: argparse.Namespace) -> int:
                                   for tg, x, pi, po in zip(res.target, res.x_mean,
                                                            res.pi_mean, res.po_mean)]})
     else:
-        print(summaries.step_text(res))
+        print(tables.step_text(res))
     flag_still([(f"step {res.preset} {load:g} N {control}", moved)], args.json)
     if not args.json:
         wrote([*written, manifest])
@@ -139,7 +139,7 @@ def _cmd_step(args: argparse.Namespace) -> int:
 
 
 def _cmd_table2(args: argparse.Namespace) -> int:
-    summaries, writers = output_modules()
+    tables, writers = output_modules()
     run = run_options(args)
     liftable_loads(paper.LOADS_N, [run.params], "Table 2 load")
     ramp_time = paper_studies.check_ramp_time(args.ramp_time)
@@ -161,7 +161,7 @@ def _cmd_table2(args: argparse.Namespace) -> int:
     if args.json:
         print_json(t2.as_json())
     else:
-        print(summaries.table2_text(t2))
+        print(tables.table2_text(t2))
         print(findings.checks_text(findings.table2_checks(t2)))
     flag_still(still, args.json)
     if not args.json:
@@ -170,7 +170,7 @@ def _cmd_table2(args: argparse.Namespace) -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    summaries, writers = output_modules()
+    tables, writers = output_modules()
     run = run_options(args)
     loads = liftable_loads(args.loads, [run.params], "--loads")
     amplitude = amplitude_m("--amplitude", args.amplitude)
@@ -193,7 +193,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     if args.json:
         print_json(sw.as_json())
     else:
-        print(summaries.sweep_text(sw))
+        print(tables.sweep_text(sw))
         print(findings.checks_text(findings.sweep_checks(sw, po_cap)))
     flag_still([(f"sweep {point}", False) for point in writers.still_points(sw)], args.json)
     if not args.json:

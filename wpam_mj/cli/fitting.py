@@ -79,34 +79,34 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     if not 0 < args.max_evals <= 10000:
         raise ParameterError(f"--max-evals = {args.max_evals} must be in [1, 10000]")
     k = check_range("--randomize-k", args.randomize_k, 0.0, 10.0, "")
-    from wpam_mj.fitting import estimation as fitting  # noqa: PLC0415 (scipy.optimize: slow import)
-    from wpam_mj.fitting import measured_fit as datafit
+    from wpam_mj.fitting import estimation  # noqa: PLC0415 (scipy.optimize: slow import)
+    from wpam_mj.fitting import measured_fit
     from wpam_mj.fitting.measurements import experiment_files, read_experiment  # noqa: PLC0415
     data = [read_experiment(f, run.params) for f in experiment_files(args.data)]
     held = [read_experiment(f, run.params) for f in experiment_files(args.holdout)] \
         if args.holdout else []
-    names = args.free or fitting.default_free()
+    names = args.free or estimation.default_free()
     bounds = _bounds(args.bounds)
     for name in bounds:
         if name not in names:
             raise ParameterError(f"--bounds {name}: not a free parameter (free: "
                                  f"{', '.join(names)})")
-    free = [fitting.FreeParameter.of(n, bounds.get(n)) for n in names]
+    free = [estimation.FreeParameter.of(n, bounds.get(n)) for n in names]
     out = out_file(args.out)
     if args.randomize_out is not None:
         out_file(args.randomize_out)
-    result = datafit.fit_data(run.params, data, free, holdout=held, dt=run.dt,
-                              jobs=run.jobs, max_nfev=args.max_evals, progress=run.progress)
+    result = measured_fit.fit_data(run.params, data, free, holdout=held, dt=run.dt,
+                                   jobs=run.jobs, max_nfev=args.max_evals, progress=run.progress)
     header = (f"Fitted by `wpam fit --preset {args.preset}` to "
               + ", ".join(e.name for e in data) + f"; use with --preset {args.preset}.")
-    written = [write_text_atomic(out, datafit.params_toml(result.params, preset(args.preset),
-                                                          result, header))]
+    written = [write_text_atomic(out, measured_fit.params_toml(result.params, preset(args.preset),
+                                                               result, header))]
     if args.randomize_out is not None:
         from wpam_mj.fitting.randomize import ParameterRanges  # noqa: PLC0415
         ranges = ParameterRanges.from_estimates(result.result.estimates, k)
         written.append(write_text_atomic(args.randomize_out, ranges.toml(
             f"wpam fit: estimates +- {k:g} sigma, clipped to the fit bounds.")))
-    written += datafit.write_figures(result, out.parent)
+    written += measured_fit.write_figures(result, out.parent)
     if args.json:
         print_json(result.as_json())
         return 0

@@ -65,7 +65,7 @@ def add_parsers(add) -> None:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
-    summaries, _ = output_modules()
+    tables, _ = output_modules()
     from wpam_mj.reproduction.reproduce import reproduce  # noqa: PLC0415 (matplotlib: slow import)
     run = run_options(args)
     params, protocol = protocol_of(args, run.params)
@@ -78,7 +78,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     rep = reproduce(out, params, dt=run.dt, jobs=run.jobs, progress=run.progress,
                     compare=compare, run_id=rid, protocol=protocol)
     manifest = write_run_manifest(args, out, rid, params, settings, rep.files)
-    print(summaries.table2_text(rep.table2))
+    print(tables.table2_text(rep.table2))
     print(findings.checks_text(rep.checks))
     print(f"wrote {rep.report} and {manifest} ({time.perf_counter() - start:.1f} s)")
     return 0

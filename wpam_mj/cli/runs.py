@@ -28,7 +28,7 @@ class RunFailed(Exception):
 
 
 @dataclasses.dataclass(frozen=True)
-class Run:
+class RunOptions:
     """Options shared by every command, validated."""
 
     params: Params
@@ -63,12 +63,12 @@ def jobs_option(jobs: int) -> int:
     return jobs
 
 
-def run_options(args: argparse.Namespace) -> Run:
+def run_options(args: argparse.Namespace) -> RunOptions:
     params = params_of(args)
     dt = check_dt(args.dt, divides=RECORD_DT_S, name="--dt")
     jobs = jobs_option(args.jobs)
     progress = sys.stderr.isatty() if args.progress is None else args.progress
-    return Run(params, dt, jobs, progress)
+    return RunOptions(params, dt, jobs, progress)
 
 
 def protocol_of(args: argparse.Namespace, params: Params) -> tuple[Params, Protocol]:
@@ -108,11 +108,11 @@ def out_file(path: Path) -> Path:
 
 
 def output_modules():
-    """`summaries` and `writers` (matplotlib): imported only by commands that write
+    """`tables` and `writers` (matplotlib): imported only by commands that write
     figures, so that --help and argument errors stay quick."""
-    from wpam_mj.experiments import tables as summaries
+    from wpam_mj.experiments import tables
     from wpam_mj.experiments import writers  # noqa: PLC0415
-    return summaries, writers
+    return tables, writers
 
 
 def liftable_loads(values: Sequence[float], params_list: Sequence[Params],

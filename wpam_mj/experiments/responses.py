@@ -48,8 +48,8 @@ class StaticLoop:
 
     def plot(self):
         """x against Pi with direction arrows (`wpam_mj.experiments.figures.static_figure`)."""
-        from wpam_mj.experiments import figures as plots  # noqa: PLC0415 (matplotlib only when plotting)
-        return plots.static_figure([self])
+        from wpam_mj.experiments import figures  # noqa: PLC0415 (matplotlib only when plotting)
+        return figures.static_figure([self])
 
 
 @dataclass(frozen=True)
@@ -99,8 +99,8 @@ class StepRun:
     def plot(self):
         """Figure of x, target, Pi and Po against time
         (`wpam_mj.experiments.figures.step_figure`)."""
-        from wpam_mj.experiments import figures as plots  # noqa: PLC0415 (matplotlib only when plotting)
-        return plots.step_figure([self.result])
+        from wpam_mj.experiments import figures  # noqa: PLC0415 (matplotlib only when plotting)
+        return figures.step_figure([self.result])
 
 
 @dataclass(frozen=True)
@@ -151,9 +151,9 @@ class Table2Result:
                 "paper": paper}
 
     def plot(self):
-        """Bar chart of the normalized areas beside the paper's (`plots.table2_figure`)."""
-        from wpam_mj.experiments import figures as plots  # noqa: PLC0415 (matplotlib only when plotting)
-        return plots.table2_figure(self)
+        """Bar chart of the normalized areas beside the paper's (`figures.table2_figure`)."""
+        from wpam_mj.experiments import figures  # noqa: PLC0415 (matplotlib only when plotting)
+        return figures.table2_figure(self)
 
     def rows(self) -> list[dict]:
         """One dict per load: raw areas [MPa mm] and normalized values, ours and paper's."""
@@ -229,8 +229,8 @@ class SweepResult:
 
     def plot(self):
         """Gain and phase lag against frequency (`wpam_mj.experiments.figures.sweep_figure`)."""
-        from wpam_mj.experiments import figures as plots  # noqa: PLC0415 (matplotlib only when plotting)
-        return plots.sweep_figure(self)
+        from wpam_mj.experiments import figures  # noqa: PLC0415 (matplotlib only when plotting)
+        return figures.sweep_figure(self)
 
     @property
     def loads(self) -> list[float]:

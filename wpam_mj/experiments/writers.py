@@ -10,7 +10,7 @@ import json
 from pathlib import Path
 from typing import Sequence
 
-from wpam_mj.experiments import figures as plots
+from wpam_mj.experiments import figures
 from wpam_mj.experiments.feasibility import MOVE_MIN_MM, load_moved
 from wpam_mj.simulation.results import SimResult
 from wpam_mj.infra.files import write_text_atomic
@@ -102,8 +102,8 @@ def write_static_outputs(out: Path, loops: Sequence[StaticLoop], *,
     po = "" if po_down == 0.0 else f"_po{mpa_label(po_down)}MPa"
     stem = "static_presets" if compare_presets else f"static_{loops[0].preset}"
     still = [f"{lp.preset} {lp.load:g} N" for lp in loops if not load_moved(lp.result)]
-    written[plots.save_figure(flag_still(plots.static_figure(loops), still),
-                              out / f"{stem}{po}.png", run_id=run_id)] = {}
+    written[figures.save_figure(flag_still(figures.static_figure(loops), still),
+                                out / f"{stem}{po}.png", run_id=run_id)] = {}
     return written
 
 
@@ -112,17 +112,17 @@ def write_step_outputs(out: Path, run: StepRun, *,
     """The run's CSV and its figure (`wpam step`)."""
     name = step_csv_name(run)
     return {run.result.to_csv(out / name): run_metadata(run.result),
-            plots.save_figure(flag_still(plots.step_figure([run.result]),
-                                         [] if load_moved(run.result) else [name[:-4]]),
-                              out / name.replace(".csv", ".png"), run_id=run_id): {}}
+            figures.save_figure(flag_still(figures.step_figure([run.result]),
+                                           [] if load_moved(run.result) else [name[:-4]]),
+                                out / name.replace(".csv", ".png"), run_id=run_id): {}}
 
 
 def write_table2_outputs(out: Path, t2: Table2Result, *,
                          run_id: str | None = None) -> dict[Path, dict]:
     """table2.json, table2.csv and table2.png (`wpam table2`)."""
     return {**dict.fromkeys(write_table2(out, t2), {}),
-            plots.save_figure(flag_still(plots.table2_figure(t2), table2_still(t2)),
-                              out / "table2.png", run_id=run_id): {}}
+            figures.save_figure(flag_still(figures.table2_figure(t2), table2_still(t2)),
+                                out / "table2.png", run_id=run_id): {}}
 
 
 def table2_still(t2: Table2Result) -> list[str]:
@@ -139,10 +139,10 @@ def write_sweep_outputs(out: Path, sw: SweepResult, key: SweepKey, po_cap: float
     `key` (`wpam sweep`); po_cap [Pa] is drawn in the Po panel."""
     series = sw.series[key]
     return {**dict.fromkeys(write_sweep(out, sw), {}),
-            plots.save_figure(flag_still(plots.sweep_figure(sw), still_points(sw)),
-                              out / "sweep_gain_phase.png", run_id=run_id): {},
+            figures.save_figure(flag_still(figures.sweep_figure(sw), still_points(sw)),
+                                out / "sweep_gain_phase.png", run_id=run_id): {},
             series.to_csv(out / sine_csv_name(key)): run_metadata(series),
-            plots.save_figure(flag_still(plots.sine_figure(series, key[1], po_cap),
-                                         [] if load_moved(series) else [sine_csv_name(key)[:-4]]),
-                              out / sine_csv_name(key).replace(".csv", ".png"),
-                              run_id=run_id): {}}
+            figures.save_figure(flag_still(figures.sine_figure(series, key[1], po_cap),
+                                           [] if load_moved(series) else [sine_csv_name(key)[:-4]]),
+                                out / sine_csv_name(key).replace(".csv", ".png"),
+                                run_id=run_id): {}}

@@ -36,7 +36,7 @@ from typing import Sequence
 
 import numpy as np
 
-from wpam_mj.fitting import estimation as fitting
+from wpam_mj.fitting import estimation
 from wpam_mj.infra.budget import check_run
 from wpam_mj.fitting.measurements import Experiment
 from wpam_mj.simulation.model import DT_RANGE_S, check_dt
@@ -113,7 +113,7 @@ class ReplayTask:
 
 @dataclass(frozen=True)
 class DataModel:
-    """`fitting.ResidualModel` of measured experiments: x_sim - x_meas [mm]."""
+    """`estimation.ResidualModel` of measured experiments: x_sim - x_meas [mm]."""
 
     experiments: tuple[Experiment, ...]
     dt: float = 1e-3
@@ -152,7 +152,7 @@ class FileFit:
 class DataFit:
     """A fit to measured data: the engine's result and every file replayed with it."""
 
-    result: fitting.FitResult
+    result: estimation.FitResult
     files: tuple[FileFit, ...]
 
     @property
@@ -176,13 +176,13 @@ class DataFit:
 
 
 def fit_data(start: Params, experiments: Sequence[Experiment],
-             free: Sequence[fitting.FreeParameter], *, holdout: Sequence[Experiment] = (),
+             free: Sequence[estimation.FreeParameter], *, holdout: Sequence[Experiment] = (),
              dt: float = 1e-3, jobs: int = 1, executor=None, max_nfev: int = 60,
              progress: bool = False) -> DataFit:
     """Fit `free` to `experiments` from `start`, then replay every file (fitted and
     held out) with the fitted parameters.
 
-    Two passes (each a `fitting.fit`): a rough one on the open-loop experiments (no
+    Two passes (each a `estimation.fit`): a rough one on the open-loop experiments (no
     x_ref) at COARSE_DT_FACTOR x dt, stopped at RELATIVE_COST_TOL (their residuals
     change smoothly with the parameters, and the search from far away is most of the
     work), then every experiment at dt from there. Feedback runs replayed open loop are
@@ -202,13 +202,13 @@ def fit_data(start: Params, experiments: Sequence[Experiment],
     model = DataModel(tuple(experiments), dt)
     everything = DataModel((*experiments, *holdout), dt)
     with executor_for(jobs, executor) as ex:
-        rough = fitting.fit(coarse, start, free, executor=ex, max_nfev=max_nfev,
-                            ftol=RELATIVE_COST_TOL, xtol=1e-3, progress=progress)
-        result = fitting.fit(model, rough.params, free, executor=ex, max_nfev=max_nfev,
-                             ftol=RELATIVE_COST_TOL, xtol=1e-3, progress=progress)
+        rough = estimation.fit(coarse, start, free, executor=ex, max_nfev=max_nfev,
+                               ftol=RELATIVE_COST_TOL, xtol=1e-3, progress=progress)
+        result = estimation.fit(model, rough.params, free, executor=ex, max_nfev=max_nfev,
+                                ftol=RELATIVE_COST_TOL, xtol=1e-3, progress=progress)
         tasks = everything.tasks(result.params)
         x = [t.run() for t in tasks] if ex is None else \
-            [f.result() for f in [ex.submit(fitting.run_task, t) for t in tasks]]
+            [f.result() for f in [ex.submit(estimation.run_task, t) for t in tasks]]
     files = tuple(FileFit(e, xs, i >= len(experiments))
                   for i, (e, xs) in enumerate(zip(everything.experiments, x)))
     return DataFit(result, files)

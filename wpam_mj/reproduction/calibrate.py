@@ -43,7 +43,7 @@ import numpy as np
 
 from wpam_mj import paper
 from wpam_mj.reproduction import findings
-from wpam_mj.fitting import estimation as fitting
+from wpam_mj.fitting import estimation
 from wpam_mj.experiments.drives import STATIC_TOP_MM
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import MM, MPA, Params, ParameterError, check_int, check_range, preset
@@ -56,7 +56,7 @@ from wpam_mj.experiments.paper_studies import PLATEAU_SETTLE_S, StepTask, sweep_
 # (`estimation.default_free`: a plausible range, and not measurable on a rig as the
 # slide's damping and the regulators' lag and dead time are), and the share of the
 # friction band the Pi feedforward adds, a reading of the paper's controller.
-FREE = (*fitting.default_free(), "controller.feedforward_friction")
+FREE = (*estimation.default_free(), "controller.feedforward_friction")
 # Protocol readings written with the fit but not fitted: the gain reading (drawn by the
 # random search) and the Po the feedforward assumes (docs/physics.md)
 KEPT = ("controller.command_scale", "controller.po_feedforward")
@@ -125,7 +125,7 @@ class Scores:
 
 @dataclass(frozen=True)
 class PaperTargets:
-    """`fitting.ResidualModel` of the paper's targets (module docstring), the static
+    """`estimation.ResidualModel` of the paper's targets (module docstring), the static
     ramps run and measured under `protocol` (`wpam_mj.experiments.protocol`)."""
 
     dt: float = 1e-3
@@ -249,10 +249,10 @@ def journal_path(out: Path) -> Path:
 
 def random_starts(start: Params, samples: int, seed: int) -> list[Params]:
     """`start` and `samples` parameter sets drawn uniformly over the plausible ranges of
-    FREE (log-uniform for conductances, as `fitting.FreeParameter` scales them), each with
+    FREE (log-uniform for conductances, as `estimation.FreeParameter` scales them), each with
     a gain reading drawn from READINGS (seeded: the same seed, the same sets)."""
     rng = np.random.default_rng(seed)
-    free = [fitting.FreeParameter.of(n) for n in FREE]
+    free = [estimation.FreeParameter.of(n) for n in FREE]
     out = [start]
     for _ in range(samples):
         z = rng.uniform(size=len(free))
@@ -263,14 +263,14 @@ def random_starts(start: Params, samples: int, seed: int) -> list[Params]:
 
 
 def _best_start(model: PaperTargets, candidates: list[Params], ex: Executor | None,
-                journal: fitting.Journal, progress: bool) -> Params:
+                journal: estimation.Journal, progress: bool) -> Params:
     """The candidate of least cost (the first on ties: the given start)."""
     costs = []
     batch = 8 if ex is not None else 1
     started = time.perf_counter()
     for i in range(0, len(candidates), batch):
         chunk = candidates[i:i + batch]
-        for r in fitting.evaluate(model, chunk, ex, journal=journal):
+        for r in estimation.evaluate(model, chunk, ex, journal=journal):
             costs.append(math.inf if r is None else 0.5 * float(r @ r))
         if progress:
             done = len(costs)
@@ -309,20 +309,20 @@ def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
     journal_file = None if out is None else journal_path(Path(out))
     if resume and (journal_file is None or not journal_file.exists()):
         raise ParameterError(f"--resume: no journal {journal_file} of an interrupted fit")
-    journal = fitting.Journal(journal_file, keep=resume)
+    journal = estimation.Journal(journal_file, keep=resume)
     model = PaperTargets(dt, protocol)
     started = time.perf_counter()
     with executor_for(jobs) as ex:
         if samples:
             params = _best_start(model, random_starts(params, samples, seed), ex, journal,
                                  progress)
-        free = [fitting.FreeParameter.of(n) for n in FREE]
-        fit = fitting.fit(model, params, free, executor=ex, max_nfev=max_nfev,
-                          diff_step=DIFF_STEP, progress=progress, journal=journal)
-        (first,) = fitting.evaluate(model, [params], ex, journal=journal)
+        free = [estimation.FreeParameter.of(n) for n in FREE]
+        fit = estimation.fit(model, params, free, executor=ex, max_nfev=max_nfev,
+                             diff_step=DIFF_STEP, progress=progress, journal=journal)
+        (first,) = estimation.evaluate(model, [params], ex, journal=journal)
         tasks = model.tasks(fit.params)  # once more, for the figures behind the residuals
         results = [t.run() for t in tasks] if ex is None else \
-            list(ex.map(fitting.run_task, tasks))
+            list(ex.map(estimation.run_task, tasks))
     # the fit, then the protocol readings it started from (written with it)
     fitted = {n: fit.params.value(n) for n in (*FREE, *KEPT)}
     result = CalibrationResult(fit.params, fitted, cost=0.5 * float(fit.residuals @ fit.residuals),

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Sequence
 
 from wpam_mj import paper
-from wpam_mj.experiments import figures as plots
+from wpam_mj.experiments import figures
 from wpam_mj.reproduction import findings
 from wpam_mj.reproduction.findings import Check
 from wpam_mj.physics.muscle_types import COMPARED_TYPES
@@ -53,8 +53,8 @@ class _FigureTask:
         self.run_id = run_id
 
     def run(self) -> Path:
-        return plots.save_figure(getattr(plots, self.builder)(*self.args, **self.kwargs),
-                                 self.path, run_id=self.run_id)
+        return figures.save_figure(getattr(figures, self.builder)(*self.args, **self.kwargs),
+                                   self.path, run_id=self.run_id)
 
 
 @dataclass(frozen=True)

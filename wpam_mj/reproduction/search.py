@@ -43,7 +43,7 @@ from scipy.optimize import differential_evolution
 
 from wpam_mj import paper
 from wpam_mj.reproduction import findings
-from wpam_mj.fitting import estimation as fitting
+from wpam_mj.fitting import estimation
 from wpam_mj.infra.pool import executor_for
 from wpam_mj.reproduction.calibrate import FREE, READINGS, PaperTargets
 from wpam_mj.simulation.loop_contract import SimulationDiverged
@@ -97,7 +97,7 @@ class Dim:
 def _physical_dims() -> list[Dim]:
     out = []
     for name in PHYSICAL:
-        f = fitting.FreeParameter.of(name)
+        f = estimation.FreeParameter.of(name)
         out.append(Dim(name, f.lo, f.hi, f.log))
     return out
 
@@ -287,7 +287,7 @@ class Journal:
 
 def _run(task):
     try:
-        return fitting.run_task(task)
+        return estimation.run_task(task)
     except (SimulationDiverged, ParameterError, ArithmeticError):
         return None
 
