@@ -39,12 +39,10 @@ MUSCLE_TYPES: Mapping[str, MuscleType] = MappingProxyType({t.name: t for t in (
     # Rubber McKibben muscle of the same braid: K_R is an estimate for a 1.5 mm latex tube
     # (Chou & Hannaford 1996 report tens of N of elastic loss over the stroke), friction
     # between a rubber tube and a sleeve is much lower than for a loose airbag (paper
-    # §2.2). As defined it sits inside the W-PAM's outer bag (outer chamber, axial area):
-    # a bare McKibben would set outer_chamber False and axial_area 0, which changes the
-    # Fig. 3 comparison of `wpam reproduce`, so it is a physics change of its own.
-    MuscleType("mckibben", True, "tab:green", "rubber tube",
+    # §2.2). A McKibben muscle is the tube in its sleeve: no outer bag, so no Po.
+    MuscleType("mckibben", False, "tab:green", "rubber tube",
                {"muscle": {"rubber_stiffness": 3000.0, "friction_coeff": 0.01,
-                           "friction_const": 1.0}}),
+                           "friction_const": 1.0, "axial_area": 0.0}}),
 )})
 
 # Every type, alphabetically: the order in which the Fig. 3 comparison runs, draws and
