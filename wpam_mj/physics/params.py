@@ -142,9 +142,13 @@ class Muscle(_Validated):
 
     output_coeff: float = _p(0.8, "1", 0.0, 1.0,
                              "calibrated: paper Kf (Table 1) as the efficiency of the "
-                             "virtual-work force dP dV/dx; braided muscles deliver 0.5-1 of "
-                             "it (Chou & Hannaford 1996; Tondu & Lopez 2000); > 1 would "
-                             "create work", lo_open=True, plausible=(0.5, 1.0))
+                             "virtual-work force dP dV/dx; > 1 would create work. Lower "
+                             "bound: models with an inextensible braid overestimate "
+                             "measured force by up to 70 % (Chambers & Wereley, Actuators "
+                             "2022, 11, 219), i.e. >= 0.59 of it, the lowest ratio "
+                             "published, for rubber bladders in compliant braids; a thin "
+                             "non-stretchable bag stores no elastic energy", lo_open=True,
+                             plausible=(0.6, 1.0))
     friction_coeff: float = _p(0.2, "1", 0.0, 1.0,
                                "calibrated: paper mu (eq. 4), friction per unit of the "
                                "pressure force dP S; polymer film on a polyester braid "
@@ -218,7 +222,9 @@ class Controller(_Validated):
                                "protocol reading (the paper does not state it): the Po the "
                                "Pi feedforward assumes; the W-PAM calibration reads it as the "
                                "regulator's minimum p_min, so that Pi sits on eq. 5's "
-                               "contracting branch at the least Po (docs/physics.md)")
+                               "contracting branch at the least Po (docs/physics.md); "
+                               "plausible from the regulator minimum to Fig. 9's 0.04 MPa",
+                               plausible=(0.005 * MPA, 0.04 * MPA))
     feedforward_friction: float = _p(0.0, "1", 0.0, 1.2,
                                      "calibrated protocol reading of §4.1: the share of the "
                                      "friction band the Pi feedforward adds (0 frictionless, "

@@ -6,8 +6,10 @@ is computed from one batch of runs at the same parameters:
 
   * Table 2's "Po = 0.04 MPa" row: the log error of each cell (open-loop loop areas with
     Po on the way down, normalized by the Po = 0 loops; paper Figs. 8-9);
-  * the step staircases (Fig. 14), PI and PID at 50/100/150 N: each worst settled plateau
-    error beyond 0.45 mm and x peak-to-peak beyond 0.18 mm (targets 0.5 and 0.2 mm);
+  * the step staircases (Fig. 14), PI at 50/100/150 N as the paper ran them (PID appears
+    only in its frequency response): each worst settled plateau error beyond the split
+    Table 2's feedback-row limit allows at that load (`findings.plateau_error_limit`) and
+    x peak-to-peak beyond 0.18 mm (target 0.2 mm, a plateau that has converged);
   * Table 2's feedback row (Fig. 16) as the margins of its finding,
     `findings.FINDINGS["table2_feedback_row"]`;
   * the frequency response (§4.2, Figs. 17-19; PI and PID, every load and frequency): the
@@ -32,6 +34,7 @@ The fitted values go to a TOML file that `--config` (or, shipped as
 
 from __future__ import annotations
 
+import functools
 import math
 import sys
 import time
@@ -50,16 +53,18 @@ from wpam_mj.physics.params import MM, MPA, Params, ParameterError, check_int, c
 from wpam_mj.infra.pool import executor_for
 from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
 from wpam_mj.infra.files import write_text_atomic
-from wpam_mj.experiments.paper_studies import PLATEAU_SETTLE_S, StepTask, sweep_batch
+from wpam_mj.reproduction.static_fit import STATIC_FIT, static_fit
+from wpam_mj.experiments.paper_studies import PLATEAU_SETTLE_S, sweep_batch
 
 # The parameters fitted to the paper, by name: the plant parameters a fit frees by default
 # (`estimation.default_free`: a plausible range, and not measurable on a rig as the
 # slide's damping and the regulators' lag and dead time are), and the share of the
 # friction band the Pi feedforward adds, a reading of the paper's controller.
-FREE = (*estimation.default_free(), "controller.feedforward_friction")
-# Protocol readings written with the fit but not fitted: the gain reading (drawn by the
-# random search) and the Po the feedforward assumes (docs/physics.md)
-KEPT = ("controller.command_scale", "controller.po_feedforward")
+FREE = (*estimation.default_free(), "controller.feedforward_friction",
+        "controller.po_feedforward")
+# A protocol reading written with the fit but not fitted: the gain reading (drawn by the
+# random search; docs/physics.md)
+KEPT = ("controller.command_scale",)
 # The paper's unitless gains read as MPa/mm, as volts on the ITV's 0-5 V input and on its
 # 0-10 V input (docs/physics.md): controller.command_scale [MPa per unit].
 READINGS = (1.0, 0.1, 0.05)
@@ -72,8 +77,10 @@ NFEV_RANGE = (1, 500)
 class Weights:
     """How much each calibration residual counts (the one place to tune them)."""
 
-    table2: float = 1.0  # per unit log error of a Table 2 "Po = 0.04" cell
-    step_error_mm: float = 0.45  # a plateau's settled error costs beyond this [mm] ...
+    table2: float = 1.0  # per unit log error of a Table 2 "Po = 0.04" cell ...
+    table2_limit: float = 1.0  # ... and per unit of its finding's margin residuals
+    step_error_share: float = 0.9  # a plateau's settled error costs beyond this share of
+    # findings.plateau_error_limit ...
     step_pp_mm: float = 0.18  # ... and its x peak-to-peak beyond this [mm] ...
     step: float = 2.0  # ... this residual per mm
     feedback_row: float = 0.3  # per unit of the feedback-row margins' residuals
@@ -94,6 +101,7 @@ class Scores:
     feedback_row: tuple[float, ...]
     step_error_mm: dict[str, tuple[float, ...]]  # controller -> per load
     step_pp_mm: dict[str, tuple[float, ...]]
+    step_limit_mm: tuple[float, ...]  # findings.plateau_error_limit per load
     po_plateau_mpa: tuple[float, ...]  # PI staircase, mean over plateaus, per load
     po_max_mpa: dict[tuple[float, float], float]  # (load, freq) -> PI sine's Po max
     sweep_checks: tuple[findings.Check, ...]  # the §4.2 findings checked on the sweep
@@ -109,9 +117,10 @@ class Scores:
         lines = [f"Table 2 'Po = 0.04' row (50/100/150 N): {errs}",
                  "Table 2 feedback row: " + "/".join(f"{v:.4f}" for v in self.feedback_row)]
         for c in self.step_error_mm:
-            lines.append(f"{c.upper()} steps, worst plateau error / x p-p [mm]: "
-                         + ", ".join(f"{e:.2f}/{p:.2f}" for e, p in
-                                     zip(self.step_error_mm[c], self.step_pp_mm[c])))
+            lines.append(f"{c.upper()} steps, worst plateau error (limit) / x p-p [mm]: "
+                         + ", ".join(f"{e:.2f} ({lim:.2f})/{p:.2f}" for e, lim, p in
+                                     zip(self.step_error_mm[c], self.step_limit_mm,
+                                         self.step_pp_mm[c])))
         lines.append("PI plateau-mean Po [MPa]: "
                      + "/".join(f"{v:.4f}" for v in self.po_plateau_mpa))
         lines.append("PI sine Po max [MPa]: " + ", ".join(
@@ -137,15 +146,13 @@ class PaperTargets:
 
     def tasks(self, params: Params) -> list:
         t2, sw = self._batches(params)
-        pid = [StepTask(params, load, "pid", self.dt) for load in paper.LOADS_N]
-        return [*t2.tasks, *pid, *sw.tasks]
+        return [*t2.tasks, *sw.tasks]
 
     def _assemble(self, params: Params, results: list):
         t2, sw = self._batches(params)
-        n, k = len(t2.tasks), len(paper.LOADS_N)
+        n = len(t2.tasks)
         table2 = t2.assemble(results[:n])
-        steps = {"pi": table2.feedback_runs, "pid": tuple(results[n:n + k])}
-        return table2, steps, sw.assemble(results[n + k:])
+        return table2, {"pi": table2.feedback_runs}, sw.assemble(results[n:])
 
     def scores(self, params: Params, results: list) -> Scores:
         return self._scores(params, *self._assemble(params, results))
@@ -165,6 +172,7 @@ class PaperTargets:
                            for c, runs in steps.items()},
             step_pp_mm={c: tuple(r.worst_peak_to_peak(PLATEAU_SETTLE_S) / MM
                                  for r in runs) for c, runs in steps.items()},
+            step_limit_mm=tuple(v / MM for v in findings.plateau_error_limit(table2).values()),
             po_plateau_mpa=tuple(float(np.mean(r.po_mean)) / MPA for r in steps["pi"]),
             po_max_mpa={(p.load, p.freq): p.po_max / MPA for p in sweep.points
                         if p.controller == "pi"},
@@ -180,11 +188,14 @@ class PaperTargets:
         row = [paper.TABLE2["open_po"][f] for f in paper.LOADS_N]
         beyond = []
         for c in s.step_error_mm:
-            beyond += [w.step * max(0.0, e - w.step_error_mm) for e in s.step_error_mm[c]]
+            beyond += [w.step * max(0.0, e - w.step_error_share * lim)
+                       for e, lim in zip(s.step_error_mm[c], s.step_limit_mm)]
             beyond += [w.step * max(0.0, p - w.step_pp_mm) for p in s.step_pp_mm[c]]
         po = s.po_plateau_mpa
         groups = {
             "table2": [w.table2 * math.log(v / p) for v, p in zip(s.table2_po_row, row)],
+            "table2_po_row": w.table2_limit * findings.residuals(
+                [findings.check(findings.FINDINGS["table2_po_row"], table2, math.nan)]),
             "steps": beyond,
             "feedback_row": w.feedback_row * findings.residuals(
                 [findings.check(findings.FINDINGS["table2_feedback_row"], table2, math.nan)]),
@@ -195,6 +206,31 @@ class PaperTargets:
 
     def residuals(self, params: Params, results: list) -> np.ndarray:
         return np.concatenate(list(self.residual_groups(params, results).values()))
+
+
+@functools.lru_cache(maxsize=1024)
+def _static_fitted(params: Params, protocol: Protocol) -> Params:
+    return static_fit(params, protocol)[0]
+
+
+@dataclass(frozen=True)
+class ScreenedTargets(PaperTargets):
+    """`PaperTargets` at each parameter set's static fit (`static_fit`: the friction
+    coefficient and axial area that meet Table 2's "Po = 0.04" row on the quasi-static
+    loops), so that a fit of the other parameters moves along the strip where that row
+    holds instead of trading it for the dynamic findings."""
+
+    def fitted(self, params: Params) -> Params:
+        return _static_fitted(params, self.protocol)
+
+    def tasks(self, params: Params) -> list:
+        return super().tasks(self.fitted(params))
+
+    def scores(self, params: Params, results: list) -> Scores:
+        return super().scores(self.fitted(params), results)
+
+    def residual_groups(self, params: Params, results: list) -> dict[str, np.ndarray]:
+        return super().residual_groups(self.fitted(params), results)
 
 
 def _pressure_walls(params: Params, protocol: Protocol) -> list[float]:
@@ -289,7 +325,8 @@ def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
               seed: int = 7, max_nfev: int = 6, resume: bool = False,
               protocol: Protocol = SHIPPED) -> CalibrationResult:
     """Fit FREE to `PaperTargets` (module docstring) and write the TOML to `out` (None: do
-    not write).
+    not write): the least squares moves FREE but STATIC_FIT, which every evaluation
+    takes from its static fit (`ScreenedTargets`).
 
     Args:
       start: where the search starts (default: the shipped calibration).
@@ -310,22 +347,23 @@ def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
     if resume and (journal_file is None or not journal_file.exists()):
         raise ParameterError(f"--resume: no journal {journal_file} of an interrupted fit")
     journal = estimation.Journal(journal_file, keep=resume)
-    model = PaperTargets(dt, protocol)
+    model = ScreenedTargets(dt, protocol)
     started = time.perf_counter()
     with executor_for(jobs) as ex:
         if samples:
             params = _best_start(model, random_starts(params, samples, seed), ex, journal,
                                  progress)
-        free = [estimation.FreeParameter.of(n) for n in FREE]
+        free = [estimation.FreeParameter.of(n) for n in FREE if n not in STATIC_FIT]
         fit = estimation.fit(model, params, free, executor=ex, max_nfev=max_nfev,
                              diff_step=DIFF_STEP, progress=progress, journal=journal)
         (first,) = estimation.evaluate(model, [params], ex, journal=journal)
         tasks = model.tasks(fit.params)  # once more, for the figures behind the residuals
         results = [t.run() for t in tasks] if ex is None else \
             list(ex.map(estimation.run_task, tasks))
+    final = model.fitted(fit.params)
     # the fit, then the protocol readings it started from (written with it)
-    fitted = {n: fit.params.value(n) for n in (*FREE, *KEPT)}
-    result = CalibrationResult(fit.params, fitted, cost=0.5 * float(fit.residuals @ fit.residuals),
+    fitted = {n: final.value(n) for n in (*FREE, *KEPT)}
+    result = CalibrationResult(final, fitted, cost=0.5 * float(fit.residuals @ fit.residuals),
                                start_cost=0.5 * float(first @ first),
                                scores=model.scores(fit.params, results),
                                evaluations=journal.size, seconds=time.perf_counter() - started)
