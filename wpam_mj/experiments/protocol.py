@@ -101,7 +101,8 @@ def remeasure(t2: Table2Result, method: str) -> Table2Result:
     return dataclasses.replace(t2, open_loops=area(t2.open_loops), po_loops=area(t2.po_loops))
 
 
-QUASI_STATIC_SAMPLES = 200  # Pi samples per ramp direction of `quasi_static_po_row`
+QUASI_STATIC_SAMPLES = 100  # Pi samples per ramp direction of `quasi_static_po_row`
+# (the row moves < 0.3 % from 100 to 800 samples)
 
 
 def quasi_static_po_row(params: Params, protocol: Protocol, *,

@@ -142,13 +142,15 @@ class Muscle(_Validated):
 
     output_coeff: float = _p(0.8, "1", 0.0, 1.0,
                              "calibrated: paper Kf (Table 1) as the efficiency of the "
-                             "virtual-work force dP dV/dx; > 1 would create work. Lower "
-                             "bound: models with an inextensible braid overestimate "
-                             "measured force by up to 70 % (Chambers & Wereley, Actuators "
-                             "2022, 11, 219), i.e. >= 0.59 of it, the lowest ratio "
-                             "published, for rubber bladders in compliant braids; a thin "
-                             "non-stretchable bag stores no elastic energy", lo_open=True,
-                             plausible=(0.6, 1.0))
+                             "virtual-work force dP dV/dx, constant over the stroke; > 1 "
+                             "would create work. Models with an inextensible braid "
+                             "overestimate measured force by up to 70 % (Chambers & "
+                             "Wereley, Actuators 2022, 11, 219: >= 0.59 of it), and end "
+                             "effects at the rigid fittings cut it further as the bag nears "
+                             "its full diameter (Tondu, J. Intell. Mater. Syst. Struct. "
+                             "2012), which the static ramps reach at 50 N: a constant "
+                             "averaged over the stroke lies below 0.59, down to 0.5",
+                             lo_open=True, plausible=(0.5, 1.0))
     friction_coeff: float = _p(0.2, "1", 0.0, 1.0,
                                "calibrated: paper mu (eq. 4), friction per unit of the "
                                "pressure force dP S; polymer film on a polyester braid "

@@ -34,7 +34,6 @@ The fitted values go to a TOML file that `--config` (or, shipped as
 
 from __future__ import annotations
 
-import functools
 import math
 import sys
 import time
@@ -53,7 +52,6 @@ from wpam_mj.physics.params import MM, MPA, Params, ParameterError, check_int, c
 from wpam_mj.infra.pool import executor_for
 from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
 from wpam_mj.infra.files import write_text_atomic
-from wpam_mj.reproduction.static_fit import STATIC_FIT, static_fit
 from wpam_mj.experiments.paper_studies import PLATEAU_SETTLE_S, sweep_batch
 
 # The parameters fitted to the paper, by name: the plant parameters a fit frees by default
@@ -208,31 +206,6 @@ class PaperTargets:
         return np.concatenate(list(self.residual_groups(params, results).values()))
 
 
-@functools.lru_cache(maxsize=1024)
-def _static_fitted(params: Params, protocol: Protocol) -> Params:
-    return static_fit(params, protocol)[0]
-
-
-@dataclass(frozen=True)
-class ScreenedTargets(PaperTargets):
-    """`PaperTargets` at each parameter set's static fit (`static_fit`: the friction
-    coefficient and axial area that meet Table 2's "Po = 0.04" row on the quasi-static
-    loops), so that a fit of the other parameters moves along the strip where that row
-    holds instead of trading it for the dynamic findings."""
-
-    def fitted(self, params: Params) -> Params:
-        return _static_fitted(params, self.protocol)
-
-    def tasks(self, params: Params) -> list:
-        return super().tasks(self.fitted(params))
-
-    def scores(self, params: Params, results: list) -> Scores:
-        return super().scores(self.fitted(params), results)
-
-    def residual_groups(self, params: Params, results: list) -> dict[str, np.ndarray]:
-        return super().residual_groups(self.fitted(params), results)
-
-
 def _pressure_walls(params: Params, protocol: Protocol) -> list[float]:
     """Walls if 150 N at the top step would need more than `pressure_share` of p_max."""
     w, p_max, worst = WEIGHTS, params.pneumatics.p_max, paper.LOADS_N[-1]
@@ -325,8 +298,7 @@ def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
               seed: int = 7, max_nfev: int = 6, resume: bool = False,
               protocol: Protocol = SHIPPED) -> CalibrationResult:
     """Fit FREE to `PaperTargets` (module docstring) and write the TOML to `out` (None: do
-    not write): the least squares moves FREE but STATIC_FIT, which every evaluation
-    takes from its static fit (`ScreenedTargets`).
+    not write).
 
     Args:
       start: where the search starts (default: the shipped calibration).
@@ -347,23 +319,22 @@ def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
     if resume and (journal_file is None or not journal_file.exists()):
         raise ParameterError(f"--resume: no journal {journal_file} of an interrupted fit")
     journal = estimation.Journal(journal_file, keep=resume)
-    model = ScreenedTargets(dt, protocol)
+    model = PaperTargets(dt, protocol)
     started = time.perf_counter()
     with executor_for(jobs) as ex:
         if samples:
             params = _best_start(model, random_starts(params, samples, seed), ex, journal,
                                  progress)
-        free = [estimation.FreeParameter.of(n) for n in FREE if n not in STATIC_FIT]
+        free = [estimation.FreeParameter.of(n) for n in FREE]
         fit = estimation.fit(model, params, free, executor=ex, max_nfev=max_nfev,
                              diff_step=DIFF_STEP, progress=progress, journal=journal)
         (first,) = estimation.evaluate(model, [params], ex, journal=journal)
         tasks = model.tasks(fit.params)  # once more, for the figures behind the residuals
         results = [t.run() for t in tasks] if ex is None else \
             list(ex.map(estimation.run_task, tasks))
-    final = model.fitted(fit.params)
     # the fit, then the protocol readings it started from (written with it)
-    fitted = {n: final.value(n) for n in (*FREE, *KEPT)}
-    result = CalibrationResult(final, fitted, cost=0.5 * float(fit.residuals @ fit.residuals),
+    fitted = {n: fit.params.value(n) for n in (*FREE, *KEPT)}
+    result = CalibrationResult(fit.params, fitted, cost=0.5 * float(fit.residuals @ fit.residuals),
                                start_cost=0.5 * float(first @ first),
                                scores=model.scores(fit.params, results),
                                evaluations=journal.size, seconds=time.perf_counter() - started)

@@ -5,12 +5,12 @@ A point is a parameter set of the credible ranges (`calibrate.FREE`,
 static-ramp readings are the shipped ones (`wpam_mj.experiments.protocol.SHIPPED`: one
 ramp for every load, 60 s each way, every loop lobe counted). Two stages:
 
-  * a quasi-static screen (`static_fit`): the open-loop loops of Table 2 follow from the
-    equilibrium model alone (`wpam_mj.physics.quasistatic`) in milliseconds, within a few
-    per cent of the simulated ones; for each point the friction coefficient and the axial
-    area (STATIC_FIT) are fitted there to the "Po = 0.04" row, so every point the search
-    simulates already lies on the narrow strip where that row holds, and a point no static
-    fit brings within the row's tolerance is scored without simulating it;
+  * a quasi-static screen (`wpam_mj.reproduction.static_fit`): the open-loop loops of
+    Table 2 follow from the equilibrium model alone in milliseconds, within a few per
+    cent of the simulated ones; for each point the friction coefficient, the axial area
+    and the ramp top are fitted there to the "Po = 0.04" row, so every point the search
+    simulates already lies on the narrow strip where that row holds, and a point no
+    static fit brings within the row's tolerance is scored without simulating it;
   * the dynamic findings: scipy's `differential_evolution` (Storn & Price 1997) over the
     remaining coordinates, each in [0, 1] of its range, Latin-hypercube start (no known
     point given), generations evaluated together ("deferred" updating) on a process pool,
@@ -29,7 +29,6 @@ the shipped one (volts on the regulator's 0-5 V input; docs/physics.md).
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import math
@@ -60,21 +59,18 @@ PHYSICAL = tuple(n for n in FREE if n not in (*STATIC_FIT, "controller.feedforwa
                                               "controller.po_feedforward"))
 PHI_RANGE = (0.0, 1.05)  # params' plausible range of controller.feedforward_friction
 PO_FF_RANGE_MPA = (0.005, 0.04)  # params' plausible range of controller.po_feedforward
-# One Pi ramp for every load (Fig. 8's one set of axes); below 0.08 MPa 150 N barely
-# contracts, above 0.45 MPa the regulator saturates
-RAMP_TOP_RANGE_MPA = (0.08, 0.45)
 PO_RISE_SCALE_MPA = 0.01
 STEP_PP_MM = 0.2  # a converged plateau (Fig. 14: "quickly converges"); our reading
 TRACK_MM = 5.0  # half a 10 mm step: a PI staircase worse than this does not follow it
 FAILED_COST = 1e6  # DE needs a finite cost where a simulation fails
 STATIC_MISS_COST = 1e3  # ... and where the screen finds no static fit (plus its error)
 SEARCH_DT = 1e-3  # s, the physics step of every evaluation (as reproduce)
-POPSIZE, MAXITER = 3, 8  # `wpam search`'s defaults: 24 points a generation, 9 generations
+POPSIZE, MAXITER = 3, 8  # `wpam search`'s defaults: 21 points a generation, 9 generations
 
 
 @dataclass(frozen=True)
 class Dim:
-    """One coordinate: a parameter "section.field" or "protocol.ramp_top", searched on
+    """One coordinate: a parameter "section.field", searched on
     [lo, hi] (log: as log(value)) through u in [0, 1]."""
 
     name: str
@@ -101,8 +97,7 @@ def _dim(name: str) -> Dim:
 
 SPACE = (*(_dim(n) for n in PHYSICAL),
          Dim("controller.feedforward_friction", *PHI_RANGE),
-         Dim("controller.po_feedforward", PO_FF_RANGE_MPA[0] * MPA, PO_FF_RANGE_MPA[1] * MPA),
-         Dim("protocol.ramp_top", RAMP_TOP_RANGE_MPA[0] * MPA, RAMP_TOP_RANGE_MPA[1] * MPA))
+         Dim("controller.po_feedforward", PO_FF_RANGE_MPA[0] * MPA, PO_FF_RANGE_MPA[1] * MPA))
 
 
 @dataclass(frozen=True)
@@ -116,10 +111,8 @@ class Point:
 
     def values(self) -> dict[str, object]:
         """Every searched and statically fitted value by name, and the ramp top."""
-        out: dict[str, object] = {n: self.params.value(n) for n in (*PHYSICAL, *STATIC_FIT)
-                                  if not n.startswith("protocol.")}
-        out.update({d.name: self.params.value(d.name) for d in SPACE
-                    if d.name.startswith("controller.")})
+        out: dict[str, object] = {d.name: self.params.value(d.name) for d in SPACE}
+        out.update({n: self.params.value(n) for n in STATIC_FIT})
         out["protocol.ramp_top"] = self.protocol.ramp_top
         return out
 
@@ -133,8 +126,7 @@ def _point_task(arg: tuple) -> Point | None:
     u, base, fit = arg
     v = {d.name: d.value(x) for d, x in zip(SPACE, u)}
     try:
-        protocol = dataclasses.replace(SHIPPED, ramp_top=float(v.pop("protocol.ramp_top")))
-        params, err = fit(base.with_values(v), protocol)
+        params, protocol, err = fit(base.with_values(v), SHIPPED)
     except (ParameterError, ArithmeticError):
         return None
     return Point(params, protocol, err)
@@ -152,11 +144,9 @@ def point_of(u: Sequence[float], base: Params) -> Point:
     return point
 
 
-def coordinates_of(params: Params, protocol: Protocol) -> np.ndarray:
-    """The searched coordinates of a parameter set and a common-top protocol."""
-    v = {d.name: params.value(d.name) for d in SPACE if not d.name.startswith("protocol.")}
-    v["protocol.ramp_top"] = protocol.ramp_top
-    return np.clip([d.coordinate(v[d.name]) for d in SPACE], 0.0, 1.0)
+def coordinates_of(params: Params) -> np.ndarray:
+    """The searched coordinates of a parameter set."""
+    return np.clip([d.coordinate(params.value(d.name)) for d in SPACE], 0.0, 1.0)
 
 
 # ---- scoring: the cost and every finding's signed margin
