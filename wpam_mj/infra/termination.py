@@ -146,8 +146,9 @@ def importing(package: str) -> Iterator[None]:
     import started is undone on the way out (the compiler's process group killed, its
     build folder removed); the previous handlers come back afterwards. Such an exception,
     or a `RequirementError`, leaving the block is raised on (a program may catch it); if
-    nothing does, the process ends with one line, "<package>: terminated", and the
-    signal's status (130, 143, 129; 1 for a requirement) instead of a traceback. An
+    nothing does, the process ends with one line ("<package>: terminated", or what the
+    requirement needs) and the signal's status (130, 143, 129; 1 for a requirement)
+    instead of a traceback. An
     interactive session (the REPL) keeps its usual KeyboardInterrupt.
     """
     global _state
@@ -186,8 +187,8 @@ def _end_uncaught(package: str, stop: BaseException) -> None:
         if value is not stop or (interactive and type(stop) is Interrupted):
             hook(exc_type, value, tb)
             return
-        text = stop.message if isinstance(stop, Interrupted) else " ".join(str(stop).split())
-        print(f"{package}: {text}", file=sys.stderr)
+        text = f"{package}: {stop.message}" if isinstance(stop, Interrupted) else str(stop)
+        print(" ".join(text.split()), file=sys.stderr)
         exit_now(stop.status)
 
     sys.excepthook = one_line
