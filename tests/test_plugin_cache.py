@@ -275,3 +275,32 @@ def test_the_stand_in_layout_is_the_headers(tmp_path):
                              check=True).stdout.split()
     assert [int(v) for v in printed] == [getattr(struct, n).offset for n in names] \
         + [ctypes.sizeof(struct)]
+
+
+USER_MODEL = """
+import mujoco, numpy as np, wpam_mj
+from wpam_mj.simulation import engine
+from wpam_mj.paths import MODELS_DIR
+path = str(MODELS_DIR / "elbow" / "elbow.xml")
+model, muscles = engine.python_model(mujoco.MjSpec.from_file(path))
+data = mujoco.MjData(model)
+data.ctrl[0] = 0.3e6
+with engine.stepping(model, muscles):
+    mujoco.mj_step(model, data, nstep=500)
+print("flexed", round(float(data.qpos[0]), 3))
+try:
+    mujoco.MjModel.from_xml_path(path)
+except ValueError:
+    print("refused")
+"""
+
+
+def test_a_users_model_runs_on_the_python_engine_without_a_compiler(tmp_path):
+    """Issue 28: without a compiler a user's own MJCF loads through python_model, and
+    compiling it directly says in one line what to call instead."""
+    proc = _run(tmp_path, USER_MODEL, WPAM_MJ_NO_COMPILE="1")
+    assert proc.returncode == 0, proc.stderr
+    flexed, refused = proc.stdout.splitlines()
+    assert float(flexed.split()[1]) > 0.1 and refused == "refused"
+    assert len(proc.stderr.splitlines()) == 1
+    assert "engine.python_model(mujoco.MjSpec.from_file(PATH))" in proc.stderr
