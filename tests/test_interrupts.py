@@ -8,6 +8,7 @@ ten passes in a row with the machine busy)."""
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -259,3 +260,27 @@ def test_leaving_dask_workers_on_an_exception_cancels_instead_of_waiting():
             w.executor.submit(time.sleep, 30)
             1 / 0
         assert time.monotonic() - start < 10.0  # not the task's 30 s
+
+
+def _can_mount_tmpfs() -> bool:
+    if shutil.which("unshare") is None:
+        return False
+    probe = subprocess.run(["unshare", "-rm", "sh", "-c", "mount -t tmpfs -o size=64k tmpfs /mnt"],
+                           capture_output=True, timeout=10)
+    return probe.returncode == 0
+
+
+@pytest.mark.skipif(not _can_mount_tmpfs(), reason="needs unshare -rm and a tmpfs mount")
+def test_reproduce_with_two_jobs_into_a_full_disk_exits_with_one_line(tmp_path):
+    """The issue's case on a real full disk: a 300 kB tmpfs (in a private mount namespace).
+    Before: 'No space left on device', then no exit (killed at 90 s)."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    script = (f"mount -t tmpfs -o size=300k tmpfs {disk} && exec {sys.executable} -m wpam_mj "
+              f"reproduce --jobs 2 --out {disk}/o")
+    start = time.monotonic()
+    proc = subprocess.run(["unshare", "-rm", "sh", "-c", script], capture_output=True,
+                          text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert proc.returncode == 1
+    assert proc.stderr == "wpam: error: [Errno 28] No space left on device\n"
+    assert time.monotonic() - start < 60

@@ -50,6 +50,7 @@ from pathlib import Path
 
 import mujoco
 
+from wpam_mj.infra import termination
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.simulation import plugin
 
@@ -189,17 +190,20 @@ def _compile(cmd: list[str], limit: float, logs: Path) -> None:
     """Run the compiler in its own session; kill its whole group when `limit` passes or
     anything (a signal's exception) interrupts the wait."""
     name = Path(cmd[0]).name
-    proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True, errors="replace",
-                            start_new_session=True)
+    proc = None
     try:
+        with termination.deferred():  # a signal while it starts: acted on once `proc` is set
+            proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                    stderr=subprocess.STDOUT, text=True, errors="replace",
+                                    start_new_session=True)
         output, _ = proc.communicate(timeout=limit)
     except subprocess.TimeoutExpired:
         _kill_group(proc)
         raise Unusable(f"{name} ran past the build's time limit of {limit:g} s "
                        f"(${TIMEOUT_ENV})") from None
     except BaseException:
-        _kill_group(proc)
+        if proc is not None:
+            _kill_group(proc)
         raise
     if proc.returncode != 0:
         log = write_text_atomic(logs / "build.log", f"{' '.join(cmd)}\n{output}")
