@@ -7,9 +7,9 @@ import argparse
 from wpam_mj import paper
 from wpam_mj.cli.arguments import (float_list, json_option, loop_area_option, name_list,
                                    out_dir_option, ramp_time_option)
-from wpam_mj.cli.runs import (amplitude_m, flag_still, liftable_loads, out_dir_of, output_modules,
-                              params_of, print_json, run_id_of, run_options, write_run_manifest,
-                              wrote)
+from wpam_mj.cli.runs import (amplitude_m, flag_still, flag_unsettled, liftable_loads,
+                              out_dir_of, output_modules, params_of, print_json, run_id_of,
+                              run_options, settled, write_run_manifest, wrote)
 from wpam_mj.control.controllers import CONTROLS, check_control
 from wpam_mj.experiments import paper_studies
 from wpam_mj.experiments.drives import SINE_AMPLITUDE_MM, SINE_MEAN_MM, SineSpec, check_po
@@ -42,7 +42,8 @@ def add_parsers(add) -> None:
                    help="hanging load [N] (default: 100)")
     p.add_argument("--control", choices=CONTROLS, default="pi",
                    help="open: Po = 0; pi/pid: feedback on Po (default: pi)")
-    json_option(p, "one JSON object: the run's settings, load_moved and its plateau means "
+    json_option(p, "one JSON object: the run's settings, load_moved, plateaus_settled (x "
+              "moved < 1 mm peak to peak where the means average) and its plateau means "
               "(target_mm, x_mm, error_mm, pi_mpa, po_mpa: chamber pressures)")
     out_dir_option(p, "step")
 
@@ -124,7 +125,8 @@ def _cmd_step(args: argparse.Namespace) -> int:
     moved = load_moved(res.result)
     if args.json:
         print_json({"preset": res.preset, "load_n": res.load, "control": res.control,
-                     "settle_s": res.settle, "load_moved": moved, "run_id": rid,
+                     "settle_s": res.settle, "load_moved": moved,
+                     "plateaus_settled": settled(res), "run_id": rid,
                      "plateaus": [{"target_mm": tg / MM, "x_mm": x / MM,
                                    "error_mm": (x - tg) / MM, "pi_mpa": pi / MPA,
                                    "po_mpa": po / MPA}
@@ -133,6 +135,7 @@ def _cmd_step(args: argparse.Namespace) -> int:
     else:
         print(tables.step_text(res))
     flag_still([(f"step {res.preset} {load:g} N {control}", moved)], args.json)
+    flag_unsettled(f"step {res.preset} {load:g} N {control}", res, args.json)
     if not args.json:
         wrote([*written, manifest])
     return 0

@@ -19,13 +19,10 @@ engine runs).
 
 from __future__ import annotations
 
-import ctypes
 import dataclasses
 import hashlib
 import os
 import shutil
-import subprocess
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -178,11 +175,6 @@ def _header_hash(header: str) -> str:
     return header.rsplit('"', 2)[-2]
 
 
-def cache_dir() -> Path:
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "wpam_mj"
-
-
 def compiler() -> str | None:
     """Path of the C compiler ($CC, default gcc), None if absent."""
     return shutil.which(os.environ.get("CC") or "gcc")
@@ -193,76 +185,13 @@ def disabled() -> bool:
     return os.environ.get("WPAM_MJ_NO_COMPILE", "") not in ("", "0")
 
 
-def libmujoco_path() -> Path:
-    libs = sorted(MUJOCO_DIR.glob("libmujoco.so.*"))
-    if not libs:
-        raise FileNotFoundError(f"no libmujoco.so.* in {MUJOCO_DIR}")
-    return libs[-1]
-
-
-def library_path(header: str) -> Path:
-    """Where the plugin built from this source, `header` and MuJoCo is cached."""
-    key = hashlib.sha256()
-    for part in (SOURCE.read_bytes(), header.encode(), mujoco.__version__.encode(),
-                 str(libmujoco_path()).encode(), " ".join(CFLAGS).encode()):
-        key.update(part)
-        key.update(b"\0")
-    return cache_dir() / f"wpam_muscle-{mujoco.__version__}-{key.hexdigest()[:16]}.so"
-
-
-def build(target: Path, header: str) -> None:
-    """Compile the plugin to `target`, atomically (temporary name, then os.replace), so
-    that processes building at once never load a half-written library."""
-    cc = compiler()
-    if cc is None:
-        raise FileNotFoundError(f"C compiler {os.environ.get('CC') or 'gcc'!r} not found")
-    include = MUJOCO_DIR / "include"
-    if not (include / "mujoco" / "mjplugin.h").exists():
-        raise FileNotFoundError(f"MuJoCo headers not found in {include}")
-    target.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=target.parent, prefix=".build-") as tmpdir:
-        (Path(tmpdir) / "wpam_plugin_tables.h").write_text(header)
-        out = Path(tmpdir) / target.name
-        libmujoco = libmujoco_path()
-        cmd = [cc, *CFLAGS, f"-I{include}", f"-I{tmpdir}", "-o", str(out), str(SOURCE),
-               str(libmujoco), f"-Wl,-rpath,{libmujoco.parent}", "-lm"]
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
-        if proc.returncode != 0:
-            raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stderr.strip()}")
-        os.replace(out, target)
-
-
-_state: dict[str, object] = {}  # "path" or "reason", once per process
-
-
 def load() -> Path | None:
-    """Build (once per source, tables and MuJoCo version) and register the plugin.
+    """Build (once per source, tables and MuJoCo version), check and register the plugin,
+    once per process (`wpam_mj.simulation.plugin_build`). Returns the library's path, or
+    None when it is unavailable (`unavailable_reason()` says why). Never raises."""
+    from wpam_mj.simulation import plugin_build  # noqa: PLC0415 (it imports this module)
 
-    Returns the library's path, or None when it is unavailable (`unavailable_reason()`
-    says why). Never raises; registering twice is harmless.
-    """
-    if "path" in _state or "reason" in _state:
-        return _state.get("path")  # type: ignore[return-value]
-    if disabled():
-        _state["reason"] = "disabled by WPAM_MJ_NO_COMPILE"
-        return None
-    try:
-        header = tables_header()
-        target = library_path(header)
-        if not target.exists():
-            build(target, header)
-        lib = ctypes.CDLL(str(target))
-        if not lib.wpam_abi_ok():
-            raise RuntimeError("MuJoCo headers and library versions differ")
-        lib.wpam_tables_hash.restype = ctypes.c_char_p
-        if lib.wpam_tables_hash().decode() != _header_hash(header):
-            raise RuntimeError(f"{target.name} was built from other tables")
-        mujoco.mj_loadPluginLibrary(str(target))
-    except Exception as err:  # noqa: BLE001 (any failure means: use the Python engine)
-        _state["reason"] = f"{type(err).__name__}: {err}"
-        return None
-    _state["path"] = target
-    return target
+    return plugin_build.load()
 
 
 def available() -> bool:
@@ -272,5 +201,6 @@ def available() -> bool:
 
 def unavailable_reason() -> str | None:
     """Why `available()` is False (None when it is True)."""
-    load()
-    return _state.get("reason")  # type: ignore[return-value]
+    from wpam_mj.simulation import plugin_build  # noqa: PLC0415 (it imports this module)
+
+    return plugin_build.reason()
