@@ -102,7 +102,10 @@ def rig_spec(params: Params, load: float, dt: float = 1e-3, *, control: str = "o
     joint.damping[0] = params.muscle.damping
     mode = plugin.control_mode(control)
     instance = next(p for p in spec.plugins if p.name == INSTANCE)
-    instance.config = {"preset": params.preset, "control": control,
+    # the rig's own attributes stay (end_fittings: how its end fittings carry Po's push)
+    instance.config = {**{k: v for k, v in dict(instance.config).items()
+                          if k in plugin.INSTANCE_WORDS},
+                       "preset": params.preset, "control": control,
                        "start": "rest" if start_at_rest else "vented",
                        "feedforward_load": repr(float(feedforward_load)),
                        **{key: repr(float(params.value(key)))
