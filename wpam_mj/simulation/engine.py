@@ -199,8 +199,9 @@ class PythonMuscle:
             what = "timestep" if model.opt.timestep != self.dt else "integrator"
             print(f"WARNING: wpam_mj.muscle instance '{self.config.name}': the {what} "
                   f"changed after the model compiled (timestep {model.opt.timestep:.6g} s, "
-                  f"integrator {int(model.opt.integrator)}); the muscle stops until it is "
-                  "changed back or the model recompiled", file=sys.stderr)
+                  f"integrator {plugin.INTEGRATORS[int(model.opt.integrator)]}); the "
+                  "muscle stops until it is changed back or the model recompiled",
+                  file=sys.stderr)
         self.refused = True
         self.status_bits |= plugin.STATUS_MODEL
         return True

@@ -688,11 +688,14 @@ static Instance* instance_of(const mjModel* m, mjData* d, int instance, double* 
   if (k->model != m || k->dt != m->opt.timestep || k->integrator != m->opt.integrator) {
     Instance fresh;
     if (k->model == m) { /* the same model, its options edited (MuJoCo's viewer) */
+      static const char* const INTEGRATORS[] = {WPAM_INTEGRATORS};
+      int i = m->opt.integrator;
       snprintf(err, sizeof(err), "wpam_mj.muscle instance '%s': the %s changed after the "
-               "model compiled (timestep %.6g s, integrator %d); the muscle stops until it "
+               "model compiled (timestep %.6g s, integrator %s); the muscle stops until it "
                "is changed back or the model recompiled", instance_name(m, instance),
                k->dt != m->opt.timestep ? "timestep" : "integrator", m->opt.timestep,
-               m->opt.integrator);
+               i >= 0 && i < (int)(sizeof(INTEGRATORS) / sizeof(INTEGRATORS[0]))
+                   ? INTEGRATORS[i] : "unknown");
       refuse(k, s, err);
       return NULL;
     }

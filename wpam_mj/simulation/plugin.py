@@ -59,6 +59,9 @@ STATE_FIELDS = (
     *(f"input{i}" for i in range(MAX_CHANNELS)))  # each channel's last finite command
 FIELD = {name: i for i, name in enumerate(STATE_FIELDS)}  # offset of each named field
 
+# MuJoCo's integrators by their mjtIntegrator values, as messages name them
+INTEGRATORS = ("Euler", "RK4", "implicit", "implicitfast")
+
 # Bits of the "status" field (docs/plugin.md), 0 while the muscle is well:
 STATUS_STROKE = 1  # the contraction left the stroke [0, full bag] by more than the tolerance
 STATUS_PRESSURE = 2  # a chamber pressure left its range: the muscle stops
@@ -215,6 +218,7 @@ def tables_header() -> str:
                   f"{int(c.feedback)})" for c in CONTROLS),
               f'#define WPAM_CONTROL_LIST "{", ".join(CONTROL_BY_NAME)}"',
               f"#define WPAM_MAX_CHANNELS {MAX_CHANNELS}",
+              "#define WPAM_INTEGRATORS " + ", ".join(f'"{n}"' for n in INTEGRATORS),
               "#define WPAM_INSTANCE_KEYS " + " ".join(f'"{k}",' for k in INSTANCE_KEYS),
               f"#define WPAM_RT0 {_c(pn.RT0)}", f"#define WPAM_RHO_0 {_c(pn.RHO_0)}",
               f"#define WPAM_R_LAMINAR {_c(pn.R_LAMINAR)}", f"#define WPAM_MM {_c(MM)}",
