@@ -23,7 +23,7 @@ import wpam_mj  # noqa: F401 (registers the plugin)
 from wpam_mj.paths import MODELS_DIR
 from wpam_mj.physics.geometry import BraidGeometry
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import MPA, preset
+from wpam_mj.physics.params import preset
 from wpam_mj.simulation import engine, plugin
 
 pytestmark = pytest.mark.skipif(plugin.compiler() is None or plugin.disabled(),

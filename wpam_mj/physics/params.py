@@ -36,12 +36,15 @@ class ParameterError(ValueError):
 
 
 def _p(default: float, unit: str, lo: float, hi: float, source: str, *,
-       lo_open: bool = False, plausible: tuple[float, float] | None = None) -> Any:
+       lo_open: bool = False, plausible: tuple[float, float] | None = None,
+       measured: bool = False) -> Any:
     """A parameter field: [lo, hi] is what the code accepts (other muscles and rigs);
     `plausible` is the physically credible range for the paper's W-PAM, with its source in
-    `source`, and the bounds of `wpam calibrate` (None: not fitted)."""
+    `source`, and the bounds of `wpam calibrate` (None: not fitted); `measured`: measurable
+    on a rig, so a fit leaves it fixed unless freed (`fitted_parameters`)."""
     return field(default=default, metadata=dict(unit=unit, lo=lo, hi=hi, source=source,
-                                                lo_open=lo_open, plausible=plausible))
+                                                lo_open=lo_open, plausible=plausible,
+                                                measured=measured))
 
 
 def shown(value: Any) -> str:
@@ -139,7 +142,8 @@ class Muscle(_Validated):
                                  "paper eq. 7 K_R; 0 for a non-stretchable bag (RLAM)")
     damping: float = _p(20.0, "N s/m", 0.0, 1e5,
                         "estimate: viscous losses of the linear guide and the hanging mass "
-                        "(tens of N s/m at most); not fitted", plausible=(0.0, 50.0))
+                        "(tens of N s/m at most); not fitted", plausible=(0.0, 50.0),
+                        measured=True)
 
 
 @dataclass(frozen=True)
@@ -151,11 +155,11 @@ class Pneumatics(_Validated):
     time_constant: float = _p(0.083, "s", 0.0, 5.0,
                               "ITV-series first-order lag identified from echo-step data "
                               "(porcaro_2026, scripts/itv_models.py: 83 ms)",
-                              plausible=(0.05, 0.1))
+                              plausible=(0.05, 0.1), measured=True)
     dead_time: float = _p(0.02, "s", 0.0, 1.0,
                           "ITV-series dead time identified from echo-step data "
                           "(porcaro_2026: 20-21 ms pilot models, 45 ms rounded)",
-                          plausible=(0.02, 0.045))
+                          plausible=(0.02, 0.045), measured=True)
     inner_conductance: float = _p(6e-9, "m^3/(s Pa)", 0.0, 1e-6,
                                   "calibrated: ISO 6358 C of valve + tube + fitting port; at "
                                   "most the ITV2031's 1500 L/min at 0.7 MPa abs (3.6e-8), at "
@@ -266,6 +270,15 @@ def parameter_fields() -> list[tuple[str, dataclasses.Field]]:
 
 
 _PARAMETER_NAMES = frozenset(key for key, _ in parameter_fields())
+
+
+def fitted_parameters() -> tuple[str, ...]:
+    """The plant parameters a fit frees by default, in `Params` order: those with a
+    plausible range that are not `measured` on a rig, the controller's readings left out
+    (a replay drives the muscle with the recorded commands, so it cannot see them)."""
+    return tuple(key for key, f in parameter_fields()
+                 if f.metadata["plausible"] is not None and not f.metadata["measured"]
+                 and not key.startswith("controller."))
 
 
 def apply_overrides(params: Params, overrides: Mapping[str, Any]) -> Params:

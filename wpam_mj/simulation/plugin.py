@@ -20,7 +20,6 @@ engine runs).
 from __future__ import annotations
 
 import ctypes
-import dataclasses
 import hashlib
 import os
 import shutil
