@@ -288,9 +288,10 @@ def test_the_python_engine_refuses_a_changed_time_step_alike(capsys):
 
 def test_a_pickled_mjdata_steps_on_its_own_memory():
     """pickle copies plugin_data raw (multiprocessing pickles): once a double free. The
-    copy steps as the original does, outlives it, and both are freed once each."""
+    copy steps as the original does, outlives it, and every copy (pickled or deep) is
+    freed once."""
     proc = run_child(f"""
-        import gc, pickle, mujoco, wpam_mj
+        import copy, gc, pickle, mujoco, wpam_mj
         m = mujoco.MjModel.from_xml_path("{ELBOW}")
         d = mujoco.MjData(m)
         d.ctrl[0] = 0.2e6
@@ -305,8 +306,10 @@ def test_a_pickled_mjdata_steps_on_its_own_memory():
         del d
         gc.collect()
         mujoco.mj_step(m, c, nstep=300)
-        again = pickle.loads(pickle.dumps(c))
-        del c, again
+        again, deep = pickle.loads(pickle.dumps(c)), copy.deepcopy(c)
+        for other in (again, deep):
+            mujoco.mj_step(m, other, nstep=10)
+        del c, again, deep
         gc.collect()
         print("ok", reference)
     """)

@@ -20,9 +20,9 @@ length by holding it at the nearest end of the stroke:
     the bag inside it does not stretch, so D, V and S keep their natural-length values
     (a stretched muscle pulls as at x = 0; its length is held by whatever limits it).
 D, V and S are continuous across both ends, so a soft joint or tendon limit at an end
-holds the muscle there smoothly. Outside the stroke no air moves
-(`wpam_mj.physics.pneumatics`), and the plugin reports a muscle well outside it
-(`wpam_mj.simulation.loop_contract.STROKE_TOLERANCE`).
+holds the muscle there smoothly (the chambers' air sees the same S there,
+`wpam_mj.physics.pneumatics`), and the plugin reports a muscle well outside the stroke
+(`wpam_mj.simulation.plugin.STROKE_TOLERANCE`).
 
 Methods take floats (inside the per-step loop) or numpy arrays (feedforward, plots);
 np.sqrt of a float is the correctly rounded IEEE sqrt, like C's (see
@@ -87,8 +87,7 @@ class BraidGeometry:
         return L * (self.thread_length ** 2 - L * L) / (4.0 * math.pi * self.turns ** 2)
 
     def area(self, x: float) -> float:
-        """Effective area S(x) = dV/dx [m^2] (Chou & Hannaford eq. 5); inside the stroke.
-        Outside it the volume is held (the module docstring): its air sees no dV/dx
-        (`wpam_mj.physics.pneumatics`), the force the area of the nearest end."""
+        """Effective area S(x) = dV/dx [m^2] (Chou & Hannaford eq. 5); outside the stroke,
+        that of its nearest end (the module docstring)."""
         L = self.natural_length - self.in_stroke(x)
         return (3.0 * L * L - self.thread_length ** 2) / (4.0 * math.pi * self.turns ** 2)

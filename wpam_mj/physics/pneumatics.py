@@ -24,9 +24,10 @@ The chamber air is isothermal at T_0 (slow, thin-walled bags):
 with dV/dt = (dV/dx) v:
 Inner chamber: V_i = V(x) + V_tube, dV_i/dx = S(x).
 Outer chamber: V_o = V_bag - V(x) - A_ax x + V_tube, dV_o/dx = -(S(x) + A_ax).
-Outside the stroke 0 <= x <= x_max the volumes are those of its nearest end and no air
-moves (dV/dt = 0: the bag is full, or the braid taut; `wpam_mj.physics.geometry`);
-`air_velocity` gives the contraction velocity the air sees.
+Outside the stroke 0 <= x <= x_max the geometry is that of its nearest end
+(`wpam_mj.physics.geometry`): the volumes are held there and dV/dx = S keeps that end's
+value, the same S the tension uses, so the work the air does and the work the force does
+still agree (virtual work) for a muscle pushed a little past an end by a soft limit.
 Moving the muscle moves air, so the restriction limits its velocity: this is the paper's
 "limit velocity" (§4.2), which makes the gain fall above about 0.5 Hz.
 """
@@ -92,12 +93,6 @@ def source_pressure(m_dot: np.ndarray, p_chamber: np.ndarray, conductance: float
         short = mass_flow_array(mid, p_chamber, conductance, b) < m_dot
         lo, hi = np.where(short, mid, lo), np.where(short, hi, mid)
     return 0.5 * (lo + hi)
-
-
-def air_velocity(geometry: BraidGeometry, x: float, v: float) -> float:
-    """The contraction velocity [m/s] the chambers' air sees at x [m]: v inside the stroke,
-    0 outside it, where the volumes are held (module docstring)."""
-    return v if 0.0 <= x <= geometry.max_contraction else 0.0
 
 
 def chamber_volumes(bag_inner: float, x: float, axial_area: float, bag_volume: float,

@@ -209,11 +209,6 @@ static double mass_flow(double source_abs, double chamber_abs, double c, double 
   return -c * WPAM_RHO_0 * chamber_abs * iso6358_psi(source_abs / chamber_abs, b);
 }
 
-/* air_velocity: the air moves with the muscle inside its stroke only. */
-static double air_velocity(const Instance* k, double x, double v) {
-  return 0.0 <= x && x <= k->max_contraction ? v : 0.0;
-}
-
 /* Chamber.step: one explicit Euler step of dp/dt = (R T0 m_dot - p dV/dt) / V. */
 static double chamber_step(const Instance* k, double chamber_abs, double conductance,
                            double source_abs, double volume, double dvdx, double v) {
@@ -621,31 +616,29 @@ static uintptr_t find_owned(const mjData* d, int instance) {
   return 0;
 }
 
-/* A new Instance owned by (d, instance) holding *k; 0 when memory runs out. */
+/* A new Instance owned by (d, instance) holding *k: a freed slot, or one appended (its
+   chunk allocated first, then published by nslot); 0 when memory runs out. */
 static uintptr_t new_slot(const mjData* d, int instance, const Instance* k) {
   uintptr_t h, n;
-  Instance* free_slot = NULL;
+  Instance* fresh;
   pthread_mutex_lock(&table_lock);
   n = (uintptr_t)atomic_load(&nslot);
-  for (h = 1; h <= n && !free_slot; h++)
-    if (!slot(h)->in_use) free_slot = slot(h);
-  if (!free_slot) {
-    if (n % CHUNK_SLOTS == 0 && n / CHUNK_SLOTS < MAX_CHUNKS)
-      chunks[n / CHUNK_SLOTS] = calloc(CHUNK_SLOTS, sizeof(Instance));
-    if (n / CHUNK_SLOTS >= MAX_CHUNKS || !chunks[n / CHUNK_SLOTS]) {
+  for (h = 1; h <= n && slot(h)->in_use; h++) continue;
+  if (h > n) {
+    uintptr_t chunk = n / CHUNK_SLOTS;
+    if (chunk < MAX_CHUNKS && !chunks[chunk])
+      chunks[chunk] = calloc(CHUNK_SLOTS, sizeof(Instance));
+    if (chunk >= MAX_CHUNKS || !chunks[chunk]) {
       pthread_mutex_unlock(&table_lock);
       return 0;
     }
-    h = n + 1;
-    free_slot = &chunks[n / CHUNK_SLOTS][n % CHUNK_SLOTS];
     atomic_store(&nslot, (int)h);
-  } else {
-    h--;
   }
-  *free_slot = *k;
-  free_slot->owner = d;
-  free_slot->instance = instance;
-  free_slot->in_use = 1;
+  fresh = slot(h);
+  *fresh = *k;
+  fresh->owner = d;
+  fresh->instance = instance;
+  fresh->in_use = 1;
   pthread_mutex_unlock(&table_lock);
   return h;
 }
@@ -889,7 +882,7 @@ static void wpam_compute(const mjModel* m, mjData* d, int instance, int capabili
 static void wpam_advance(const mjModel* m, mjData* d, int instance) {
   double* s = d->plugin_state + m->plugin_stateadr[instance];
   Instance* k = instance_of(m, d, instance, s);
-  double atmosphere, x, v, set_i, set_o, area, vol;
+  double atmosphere, x, set_i, set_o, area, vol, v;
   int head;
   if (!k || stopped(s)) return;
   atmosphere = k->p[P_PNEUMATICS_ATMOSPHERE];
@@ -905,7 +898,7 @@ static void wpam_advance(const mjModel* m, mjData* d, int instance) {
   set_i = regulator_update(k, &s[S_PI_REG], queue_i(s), head, s[S_PI_CMD]);
   set_o = regulator_update(k, &s[S_PO_REG], queue_o(k, s), head, s[S_PO_CMD]);
   if (k->delay_steps) s[S_HEAD] = (head + 1) % k->delay_steps;
-  v = air_velocity(k, s[S_X], s[S_VELOCITY]);
+  v = s[S_VELOCITY];
   x = geom_in_stroke(k, s[S_X]);
   area = geom_area(k, x);
   vol = geom_volume(k, x);

@@ -14,7 +14,7 @@ import math
 
 from wpam_mj.simulation.loop_contract import RunConstants, SimulationDiverged
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.pneumatics import Chamber, Regulator, air_velocity, chamber_volumes
+from wpam_mj.physics.pneumatics import Chamber, Regulator, chamber_volumes
 
 
 class Plant:
@@ -59,14 +59,12 @@ class Plant:
                 self.muscle.friction(x, pi, po))
 
     def step(self, x: float, v: float, pi_cmd: float, po_cmd: float) -> None:
-        """Advance the regulators, then the chambers (volumes and dV/dx at x [m], held to
-        the stroke, velocity v [m/s], none outside it), by one step. Raises
-        SimulationDiverged."""
+        """Advance the regulators, then the chambers (volumes and dV/dx at x [m] held to
+        the stroke, velocity v [m/s]), by one step. Raises SimulationDiverged."""
         k, muscle, geom = self.k, self.muscle, self.muscle.geometry
         set_i = self.regulator_i.update(pi_cmd)
         set_o = self.regulator_o.update(po_cmd)
         pa = k.atmosphere
-        v = air_velocity(geom, x, v)
         x = geom.in_stroke(x)
         area = geom.area(x)
         vol = geom.volume(x)
