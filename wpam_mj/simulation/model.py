@@ -126,6 +126,8 @@ def build_model(params: Params, load: float, dt: float = 1e-3, *,
                 xml: str | Path = MODEL_XML) -> mujoco.MjModel:
     """The rig compiled as the Python engine sees it (plain motors; `MuscleIndex` finds
     the muscle): for readers of its mechanics (the linear model, drawing) and the
-    bare-step benchmark."""
+    bare-step benchmark. Compiled at a step the chambers can take (the rule table refuses
+    a longer one), as only its mechanics are read."""
+    dt = min(dt, pneumatics.stable_dt(params)[0])
     model, _ = engine.python_model(rig_spec(params, load, dt, xml=xml))
     return model
