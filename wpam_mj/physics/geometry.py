@@ -70,6 +70,8 @@ class BraidGeometry:
         """x [m] held to the stroke [0, max_contraction] (the module docstring)."""
         if isinstance(x, np.ndarray):
             return np.minimum(np.maximum(x, 0.0), self.max_contraction)
+        if 0.0 <= x <= self.max_contraction:  # the usual case, the same number
+            return x
         return min(max(x, 0.0), self.max_contraction)
 
     def length(self, x: float) -> float:

@@ -137,6 +137,9 @@ class PythonMuscle:
         self.muscle = MuscleModel.from_params(self.params)
         self.feedback = plugin.control_mode(config.control).feedback
         self.friction_row = 0  # where the tendon's friction row was last step
+        # each channel's ctrlrange where it is limited (read_commands clamps to it)
+        self.ctrl_limits = [tuple(map(float, model.actuator_ctrlrange[a]))
+                            if model.actuator_ctrllimited[a] else None for a in channels]
         self.refused = False  # the model's options changed after it was made (warned)
         self.reset()
 
@@ -156,6 +159,8 @@ class PythonMuscle:
     @property
     def status(self) -> str:
         """Why the muscle's state left its range, in one line ("" while it has not)."""
+        if not self.status_bits:
+            return ""
         p_i, p_o = (c.pressure for c in (self.plant.chamber_i, self.plant.chamber_o))
         return plugin.status_message(self.status_bits, self.record["x"], p_i, p_o)
 
@@ -164,17 +169,16 @@ class PythonMuscle:
         """A muscle whose state left its range, or whose model changed, steps no more."""
         return bool(self.status_bits & (plugin.STATUS_PRESSURE | plugin.STATUS_MODEL))
 
-    def _inputs(self, model: mujoco.MjModel, ctrl: np.ndarray) -> tuple[float, float, float]:
+    def _inputs(self, ctrl: np.ndarray) -> tuple[float, float, float]:
         """(x_ref, Pi command, Po command or feedforward) from the input channels (the
         plugin's read_commands): each clamped to its ctrlrange where limited, a
         non-finite one replaced by the channel's last finite value, x_ref held to the
         stroke."""
         values = []
-        for i, a in enumerate(self.channels):
+        for i, (a, limits) in enumerate(zip(self.channels, self.ctrl_limits)):
             c = float(ctrl[a])
-            if model.actuator_ctrllimited[a]:
-                lo, hi = model.actuator_ctrlrange[a]
-                c = min(max(c, float(lo)), float(hi))
+            if limits is not None:
+                c = min(max(c, limits[0]), limits[1])
             if math.isfinite(c):
                 self.inputs[i] = c
             values.append(self.inputs[i])
@@ -192,7 +196,8 @@ class PythonMuscle:
     def _options_changed(self, model: mujoco.MjModel) -> bool:
         """The plugin's refusal of a timestep or integrator changed after compile: status,
         and one warning line."""
-        if model.opt.timestep == self.dt and model.opt.integrator == self.integrator:
+        opt = model.opt
+        if opt.timestep == self.dt and opt.integrator == self.integrator:
             self.refused = False
             return False
         if not self.refused:
@@ -215,7 +220,7 @@ class PythonMuscle:
             return
         x = self.config.contraction0 + (self.length0 - float(data.ten_length[self.tendon]))
         v = -float(data.ten_velocity[self.tendon])
-        x_ref, pi_cmd, po_in = self._inputs(model, data.ctrl)
+        x_ref, pi_cmd, po_in = self._inputs(data.ctrl)
         po_cmd, ctl_state = self.controller.evaluate(x, x_ref, po_in)
         if self.rest_pending:
             self.plant.rest(pi_cmd, po_cmd)
