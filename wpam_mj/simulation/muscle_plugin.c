@@ -657,52 +657,65 @@ static void refuse(Instance* k, double* s, const char* err) {
   set_status(s, WPAM_STATUS_MODEL);
 }
 
-/* d's Instance of `instance`, current for model m and its options; NULL (status set, a
-   warning given) when the muscle cannot step on them: its time step or integrator
-   changed after compile, or another model of another state layout. */
-static Instance* instance_of(const mjModel* m, mjData* d, int instance, double* s) {
+/* d's own Instance of `instance`. A pickled copy holds another data's handle: it finds the
+   Instance its own init made, or makes one. NULL (status set) if it cannot. */
+static Instance* own_instance(const mjModel* m, mjData* d, int instance, double* s) {
   Instance* k = slot(d->plugin_data[instance]);
+  Instance fresh;
   char err[600];
-  if (!owned(k, d, instance)) { /* a pickled copy: another data's handle */
-    Instance fresh;
-    uintptr_t h = find_owned(d, instance);
-    if (!h) {
-      if (derive_for_model(m, instance, &fresh, err, sizeof(err))) {
-        if (!((int)s[S_STATUS] & WPAM_STATUS_MODEL)) mju_warning("%s", err);
-        set_status(s, WPAM_STATUS_MODEL);
-        return NULL;
-      }
-      h = new_slot(d, instance, &fresh);
-      if (!h) return NULL;
-    }
-    d->plugin_data[instance] = h;
-    k = slot(h);
-  }
-  if (k->model != m || k->dt != m->opt.timestep || k->integrator != m->opt.integrator) {
-    Instance fresh;
-    if (k->model == m) { /* the same model, its options edited (MuJoCo's viewer) */
-      static const char* const INTEGRATORS[] = {WPAM_INTEGRATORS};
-      int i = m->opt.integrator;
-      snprintf(err, sizeof(err), "wpam_mj.muscle instance '%s': the %s changed after the "
-               "model compiled (timestep %.6g s, integrator %s); the muscle stops until it "
-               "is changed back or the model recompiled", instance_name(m, instance),
-               k->dt != m->opt.timestep ? "timestep" : "integrator", m->opt.timestep,
-               i >= 0 && i < (int)(sizeof(INTEGRATORS) / sizeof(INTEGRATORS[0]))
-                   ? INTEGRATORS[i] : "unknown");
-      refuse(k, s, err);
-      return NULL;
-    }
+  uintptr_t h;
+  if (owned(k, d, instance)) return k;
+  h = find_owned(d, instance);
+  if (!h) {
     if (derive_for_model(m, instance, &fresh, err, sizeof(err))) {
-      refuse(k, s, err);
+      if (!((int)s[S_STATUS] & WPAM_STATUS_MODEL)) mju_warning("%s", err);
+      set_status(s, WPAM_STATUS_MODEL);
       return NULL;
     }
-    fresh.owner = k->owner;
-    fresh.instance = k->instance;
-    fresh.in_use = 1;
-    *k = fresh; /* another model of the same layout (mujoco.batch) */
+    h = new_slot(d, instance, &fresh);
+    if (!h) return NULL;
   }
-  k->refused = 0; /* (options changed back: the muscle steps again after mj_resetData) */
-  return k;
+  d->plugin_data[instance] = h;
+  return slot(h);
+}
+
+/* Whether k is current for model m and its options: the same model with its time step or
+   integrator edited after compile (MuJoCo's viewer allows it) is refused; another model
+   of the same state layout (mujoco.batch's set_models) is derived afresh. */
+static int current_for(const mjModel* m, int instance, Instance* k, double* s) {
+  static const char* const INTEGRATORS[] = {WPAM_INTEGRATORS};
+  const int nintegrator = (int)(sizeof(INTEGRATORS) / sizeof(INTEGRATORS[0]));
+  int integrator = m->opt.integrator;
+  Instance fresh;
+  char err[600];
+  if (k->model == m && k->dt == m->opt.timestep && k->integrator == integrator) {
+    k->refused = 0; /* (changed back: the muscle steps again after mj_resetData) */
+    return 1;
+  }
+  if (k->model == m) {
+    snprintf(err, sizeof(err), "wpam_mj.muscle instance '%s': the %s changed after the model "
+             "compiled (timestep %.6g s, integrator %s); the muscle stops until it is changed "
+             "back or the model recompiled", instance_name(m, instance),
+             k->dt != m->opt.timestep ? "timestep" : "integrator", m->opt.timestep,
+             integrator >= 0 && integrator < nintegrator ? INTEGRATORS[integrator] : "unknown");
+    refuse(k, s, err);
+    return 0;
+  }
+  if (derive_for_model(m, instance, &fresh, err, sizeof(err))) {
+    refuse(k, s, err);
+    return 0;
+  }
+  fresh.owner = k->owner;
+  fresh.instance = k->instance;
+  fresh.in_use = 1;
+  *k = fresh;
+  return 1;
+}
+
+/* d's Instance of `instance`, current for model m; NULL when the muscle cannot step. */
+static Instance* instance_of(const mjModel* m, mjData* d, int instance, double* s) {
+  Instance* k = own_instance(m, d, instance, s);
+  return k && current_for(m, instance, k, s) ? k : NULL;
 }
 
 /* ---- the step ---- */
