@@ -242,6 +242,12 @@ def test_no_command_poisons_a_muscle(bad, held):
 
 # ---------------------------------------------------------------- options edited after compile
 
+@pytest.fixture(autouse=True)
+def _elsewhere(tmp_path, monkeypatch):
+    """MuJoCo appends its warnings to MUJOCO_LOG.TXT in the working folder: not the repo's."""
+    monkeypatch.chdir(tmp_path)
+
+
 def run_child(code: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-c", textwrap.dedent(code)], capture_output=True,
                           text=True, timeout=300)
