@@ -8,10 +8,11 @@ with ``mujoco.mj_loadPluginLibrary``. `load()` does this once per process; `impo
 wpam_mj` calls it, so any MJCF that names the plugin compiles after the import.
 
 Nothing is copied by hand between Python and C: `tables_header()` writes every parameter
-(``section.field`` names, units, ranges, each preset's values) from `wpam_mj.physics.params`, the
-state layout `STATE_FIELDS`, the control modes `CONTROLS` and the physical constants of
-`wpam_mj.physics.pneumatics` as C tables (floats as exact hex literals), and the library reports
-their hash, which must match.
+(``section.field`` names, units, ranges, each preset's values) from `wpam_mj.physics.params`,
+the rule table of `wpam_mj.physics.rules` (the instance's numbers, the derived quantities,
+the rules between quantities), the state layout `STATE_FIELDS` and its status bits, the
+control modes `CONTROLS` and the physical constants of `wpam_mj.physics.pneumatics` as C
+tables (floats as exact hex literals), and the library reports their hash, which must match.
 
 Set ``WPAM_MJ_NO_COMPILE=1`` to skip the build (`available()` is then False and the Python
 engine runs).
