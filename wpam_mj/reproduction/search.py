@@ -333,11 +333,9 @@ class Evaluator:
                   if p is not None and p.static_error <= TABLE2_PO_RTOL else [] for p in points]
         flat = sorted(((g, i, t) for g, ts in enumerate(groups) for i, t in enumerate(ts)),
                       key=lambda x: -x[2].cost)
-        if self.executor is None:
-            done = {(g, i): _run(t) for g, i, t in flat}
-        else:
-            futs = {(g, i): self.executor.submit(_run, t) for g, i, t in flat}
-            done = {k: f.result() for k, f in futs.items()}
+        from wpam_mj.simulation.execution import execute  # noqa: PLC0415 (the one layer)
+        done = dict(zip([(g, i) for g, i, _ in flat],
+                        execute([t for _, _, t in flat], self.executor, failed=None)))
         out = []
         for g, (u, p) in enumerate(zip(us, points)):
             res = [done[g, i] for i in range(len(groups[g]))]
