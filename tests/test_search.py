@@ -53,7 +53,7 @@ class _Targets:
 
 def _fit(params, protocol):
     """A stand-in static screen: points with F_f0 above 25 N miss the row by 50 %."""
-    return params, 0.5 if params.muscle.friction_const > 25.0 else 0.0
+    return params, protocol, 0.5 if params.muscle.friction_const > 25.0 else 0.0
 
 
 def _search(tmp_path, **kw):
@@ -123,24 +123,32 @@ def test_the_quasi_static_row_agrees_with_the_simulated_one():
 
 
 def test_the_static_fit_brings_a_scrambled_point_back_to_the_row():
-    """With friction coefficient and axial area moved to their range's ends, the fit
-    finds values inside the plausible ranges that meet the row on the quasi-static loops."""
+    """With friction coefficient, axial area and ramp top moved to their range's ends,
+    the fit finds values inside the plausible ranges that meet the row on the
+    quasi-static loops."""
     params = preset("wpam").with_values({"muscle.friction_coeff": 0.45,
                                          "muscle.axial_area": 1e-4})
-    fitted, err = search.static_fit(params, SHIPPED)
+    protocol = dataclasses.replace(SHIPPED, ramp_top=0.45e6)
+    fitted, fitted_protocol, err = search.static_fit(params, protocol)
     assert err <= paper.TABLE2_PO_RTOL
     assert 0.0 <= fitted.muscle.friction_coeff <= 0.5
     assert 0.0 <= fitted.muscle.axial_area <= 2.8e-3
-    row = quasi_static_po_row(fitted, SHIPPED)
+    assert 0.08e6 <= fitted_protocol.ramp_top <= 0.45e6
+    row = quasi_static_po_row(fitted, fitted_protocol)
     assert all(abs(row[f] / paper.TABLE2["open_po"][f] - 1.0) <= err + 1e-9
                for f in paper.LOADS_N)
 
 
 def test_coordinates_round_trip():
     base = preset("wpam")
-    protocol = dataclasses.replace(SHIPPED, ramp_top=0.2e6)
-    u = search.coordinates_of(base, protocol)
+    u = search.coordinates_of(base)
     point = search._point_task((tuple(u), base, _fit))
-    assert point.protocol == protocol
-    for d in search.SPACE[:-1]:
+    assert point.protocol == SHIPPED
+    for d in search.SPACE:
         assert point.params.value(d.name) == pytest.approx(base.value(d.name), rel=1e-12)
+
+
+def test_the_command_line_states_the_search_defaults():
+    """`wpam search --help` spells these numbers out (wpam_mj/cli/reproduction.py)."""
+    assert (search.POPSIZE, search.MAXITER, len(search.SPACE)) == (3, 8, 7)
+    assert search.planned_evaluations(search.POPSIZE, search.MAXITER) == 190

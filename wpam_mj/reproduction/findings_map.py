@@ -16,7 +16,7 @@ from typing import Sequence
 
 import numpy as np
 
-from wpam_mj.reproduction.search import FINDING_TEXT, FINDINGS, TRACK_MM, Record
+from wpam_mj.reproduction.search import FINDING_TEXT, FINDINGS, PAPER_CHECKS, TRACK_MM, Record
 
 
 def margin_matrix(records: Sequence[Record]) -> np.ndarray:
@@ -131,8 +131,9 @@ def figure(pm: np.ndarray, path: Path, title: str) -> Path:
 
 
 def convergence_csv(conv: Sequence[tuple[int, float, int]]) -> str:
-    """`search.convergence` as CSV: points scored, least cost and most findings so far."""
-    return "points_scored,best_cost,most_findings_met\n" + "".join(
+    """`search.convergence` as CSV: points scored, least cost and most of `wpam
+    reproduce`'s checks met so far."""
+    return "points_scored,best_cost,most_checks_met\n" + "".join(
         f"{i},{c!r},{h}\n" for i, c, h in conv)
 
 
@@ -151,7 +152,7 @@ def convergence_figure(runs: dict[str, Sequence[tuple[int, float, int]]], path: 
         bottom.step(i, held, where="post", label=label)
     top.set_yscale("log")
     top.set_ylabel("least cost so far (1/2 |r|^2)")
-    bottom.set_ylabel(f"most findings met (of {len(FINDINGS)})")
+    bottom.set_ylabel(f"most checks met (of {len(PAPER_CHECKS)})")
     bottom.set_xlabel("points scored")
     bottom.axhline(6, color="grey", lw=0.8, ls=":")
     bottom.set_ylim(0, len(FINDINGS) + 0.5)

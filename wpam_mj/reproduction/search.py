@@ -157,6 +157,7 @@ FINDING_TEXT = {**{name: f.short for name, f in findings.FINDINGS.items()},
                 "steps_settle": "PI steps settle: error <= Table 2's split, p-p <= 0.2 mm",
                 "po_rises_with_load": "plateau-mean Po rises with load"}
 FINDINGS = tuple(FINDING_TEXT)
+PAPER_CHECKS = tuple(findings.FINDINGS)  # the eight that `wpam reproduce` checks
 
 
 def _worst(margins) -> float:
@@ -195,7 +196,9 @@ class Record:
 
     @property
     def held(self) -> int:
-        return 0 if self.margins is None else sum(m >= 0.0 for m in self.margins.values())
+        """How many of the paper's checks (`wpam reproduce`'s, PAPER_CHECKS) hold."""
+        return 0 if self.margins is None else sum(self.margins[f] >= 0.0
+                                                  for f in PAPER_CHECKS)
 
     def as_json(self) -> dict:
         return {"u": list(self.u), "cost": self.cost, "margins": self.margins,
@@ -529,7 +532,8 @@ def point_toml(point: Point) -> str:
 def summary(timing: str, best: Record, base: Params) -> str:
     """A point of the search and its findings (plain text)."""
     return (f"{timing}\n" * bool(timing)
-            + f"cost {best.cost:.4f}, {best.held} of {len(FINDINGS)} findings met\n"
+            + f"cost {best.cost:.4f}, {best.held} of the {len(PAPER_CHECKS)} checks of "
+            "`wpam reproduce` met\n"
             + describe_point(best.u, base)
             + f"\nat a bound: {', '.join(at_bounds(best.u, base)) or 'none'}"
             + "\nmargins:\n" + "\n".join(f"  {k:<24s} {v:+.3f}"
