@@ -44,6 +44,7 @@ from wpam_mj.simulation.simulate import Run, simulate_each, simulate_run
 
 FAILURES = (SimulationDiverged, ParameterError, ArithmeticError)
 LOCAL_SLICE = 256  # our choice: tasks simulated at once here (bounds the records in memory)
+TASKS_PER_THREAD = 8  # ... and at least this many per batch thread, where there are
 
 
 class SimulationTask:
@@ -123,13 +124,23 @@ def _target(where: Workers | Executor | None) -> _Target:
 def run_chunks(chunks: Sequence[Sequence], where: Workers | Executor | None,
                finish: Callable[[int, list], None]) -> None:
     """Run each chunk of tasks as one unit and hand `finish(i, outcomes)` chunk i's
-    outcomes (`run_here`) as it is done: here one after another, on a remote executor as
-    they arrive (submitted in the order given). On any failure or interruption, what has
-    not started is cancelled."""
+    outcomes (`run_here`) as it is done: here in order, consecutive chunks simulated
+    together until every batch thread has TASKS_PER_THREAD tasks; on a remote executor
+    as they arrive (submitted in the order given). On any failure or interruption, what
+    has not started is cancelled."""
     target = _target(where)
-    if not target.remote:
+    if not target.remote:  # several chunks at once, so that every thread has runs
+        window: list[int] = []
         for i, chunk in enumerate(chunks):
-            finish(i, run_here(chunk, target.threads))
+            window.append(i)
+            if i + 1 < len(chunks) and \
+                    sum(len(chunks[j]) for j in window) < TASKS_PER_THREAD * target.threads:
+                continue
+            outcomes = run_here([t for j in window for t in chunks[j]], target.threads)
+            for j in window:
+                finish(j, outcomes[:len(chunks[j])])
+                outcomes = outcomes[len(chunks[j]):]
+            window = []
         return
     pending: dict[Future, int] = {}
     try:
