@@ -13,7 +13,8 @@ does:
   * local:  the layer on this machine's 2 cores (`open_workers(2)`: the runs on two
             `mujoco.batch` threads in this process);
   * dask:   the layer on a 2-worker `distributed.LocalCluster` (1 thread each), cluster
-            start not included.
+            start and the workers' imports of wpam_mj not included (a search pays them
+            once, not per generation).
 
 CPU time is this process's and its workers' (the pool's, once joined; the Dask workers'
 as they report it, their nannies not counted). The machine is shared: the load average
@@ -41,7 +42,7 @@ from common import Figure
 from wpam_mj.infra.pool import Cluster, TaskPool, open_workers
 from wpam_mj.physics.params import preset
 from wpam_mj.reproduction import search
-from wpam_mj.simulation import execution
+from wpam_mj.simulation import execution, plugin
 
 SEED = 20
 
@@ -113,6 +114,8 @@ def measure(n_points: int, dask: bool = True) -> list[dict]:
                                       dashboard_address=None) as cluster, \
                 open_workers(Cluster(cluster.scheduler_address)) as workers, \
                 distributed.Client(cluster.scheduler_address) as client:
+            client.run(plugin.available)  # each worker imports wpam_mj, loads the plugin
+
             def remote_cpu() -> float:
                 return sum(t[0] + t[1] for t in client.run(os.times).values())
             timed("dask", lambda: execution.execute(tasks, workers, failed=None), remote_cpu)
