@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import dataclasses
 import struct
+import sys
 
 import numpy as np
 import pytest
 
+from wpam_mj.cli import main
 from wpam_mj.experiments.paper_studies import SineTask, StepTask
 from wpam_mj.fitting import estimation
 from wpam_mj.infra.pool import Cluster, Workers, open_workers
@@ -152,3 +154,16 @@ def test_a_local_target_is_the_workers_cores():
     with open_workers(2) as workers:
         assert execution._target(workers).threads == 2
         assert not execution._target(workers.executor).remote
+
+
+@pytest.mark.parametrize("command", [["search", "--maxiter", "0", "--popsize", "1"],
+                                     ["calibrate", "--max-steps", "1"]])
+def test_search_and_calibrate_take_a_scheduler(tmp_path, monkeypatch, capsys, command):
+    """--scheduler reaches the workers both commands open (here: Dask not installed,
+    refused in one line before anything runs)."""
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import fails
+    out = tmp_path / ("o" if command[0] == "search" else "c.toml")
+    assert main([*command, "--scheduler", "tcp://127.0.0.1:1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("wpam: error: Dask scheduler tcp://127.0.0.1:1: Dask distributed is not "
+                   'installed; pip install ".[cluster]"'), err
