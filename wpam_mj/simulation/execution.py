@@ -27,13 +27,10 @@ is raised.
 
 from __future__ import annotations
 
-import sys
 from concurrent.futures import (FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor,
                                 wait)
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
-
-from tqdm import tqdm
 
 from wpam_mj.infra import termination
 from wpam_mj.infra.pool import Workers
@@ -160,7 +157,7 @@ _RAISE = object()
 
 
 def execute(tasks: Sequence, where: Workers | Executor | None = None, *,
-            failed: Any = _RAISE, progress: bool = False, desc: str = "runs") -> list:
+            failed: Any = _RAISE) -> list:
     """Every task's result, in task order, whatever `where` is (module docstring).
 
     failed: what stands for a task that failed with one of `FAILURES`: a value, or a
@@ -170,8 +167,6 @@ def execute(tasks: Sequence, where: Workers | Executor | None = None, *,
     target = _target(where)
     order = sorted(range(len(tasks)), key=lambda k: -getattr(tasks[k], "cost", 0.0))
     outcome: list = [None] * len(tasks)
-    bar = tqdm(total=len(tasks), desc=desc, unit="run", file=sys.stderr,
-               disable=not progress, leave=False)
     pooled: dict[int, Future] = {}
     try:
         if target.remote:
@@ -187,16 +182,13 @@ def execute(tasks: Sequence, where: Workers | Executor | None = None, *,
         def finish(i: int, outcomes: list) -> None:
             for k, o in zip(chunks[i], outcomes):
                 outcome[k] = o
-            bar.update(len(outcomes))
 
         run_chunks([[tasks[k] for k in c] for c in chunks], where, finish)
         for k, fut in pooled.items():
             (outcome[k],) = fut.result()
-            bar.update()
     finally:
         for fut in pooled.values():
             fut.cancel()
-        bar.close()
     out = []
     for o in outcome:
         if isinstance(o, Failed):
