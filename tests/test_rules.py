@@ -123,7 +123,7 @@ def test_the_table_covers_every_parameter_and_every_cross_rule():
      "controller.po_cap = 600000 Pa is outside the allowed range [5000, 500000] Pa (within "
      "the regulator's range, pneumatics.p_min to pneumatics.p_max)"),
     ({"contraction0": "-0.05"},
-     "contraction0 = -0.05 m is outside the allowed range [0, 0.0898"),
+     "contraction0 = -0.05 m is outside the allowed range [0, 0.0932"),
     ({"preset": "steel"}, "preset = 'steel' is not one of: wpam, rlam, mckibben"),
     ({"end_fittings": "glued"}, "end_fittings = 'glued' is not one of: free, guided"),
 ])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 from wpam_mj import paper
 from wpam_mj.cli.arguments import (float_list, json_option, loop_area_option, name_list,
@@ -14,7 +15,8 @@ from wpam_mj.control.controllers import CONTROLS, check_control
 from wpam_mj.experiments import paper_studies
 from wpam_mj.experiments.drives import SINE_AMPLITUDE_MM, SINE_MEAN_MM, SineSpec, check_po
 from wpam_mj.experiments.feasibility import load_moved
-from wpam_mj.experiments.protocol import SHIPPED, remeasure
+from wpam_mj.experiments.protocol import SHIPPED, table2_batch
+from wpam_mj.infra.pool import run_batches
 from wpam_mj.physics.params import MM, MPA, PRESETS, ParameterError
 from wpam_mj.reproduction import findings
 
@@ -147,11 +149,13 @@ def _cmd_table2(args: argparse.Namespace) -> int:
     liftable_loads(paper.LOADS_N, [run.params], "Table 2 load")
     ramp_time = paper_studies.check_ramp_time(args.ramp_time)
     out = out_dir_of(args)
-    t2 = paper_studies.table2(run.params, dt=run.dt, jobs=run.jobs_for(3 * len(paper.LOADS_N)),
-                        progress=run.progress, ramp_time=ramp_time)
     loop_area = args.loop_area or SHIPPED.loop_method
-    t2 = remeasure(t2, loop_area)
-    settings = {"ramp_time_s": ramp_time, "dt_s": run.dt, "loop_area": loop_area}
+    protocol = dataclasses.replace(SHIPPED, ramp_time=ramp_time, loop_method=loop_area)
+    (t2,) = run_batches([table2_batch(run.params, protocol, dt=run.dt)],
+                        jobs=run.jobs_for(3 * len(paper.LOADS_N)), progress=run.progress,
+                        desc="table 2")
+    settings = {"ramp_time_s": ramp_time, "ramp_top_mpa": protocol.ramp_top / MPA,
+                "dt_s": run.dt, "loop_area": loop_area}
     rid = run_id_of(args, run.params, settings)
     written = writers.write_table2_outputs(out, t2, run_id=rid)
     still = [(f"table2 open loop {lp.load:g} N, Po = {lp.po_down / MPA:g} MPa while Pi falls",

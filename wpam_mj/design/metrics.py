@@ -11,8 +11,8 @@ from wpam_mj.experiments.analysis import frequency_response, loop_area, steady_s
 from wpam_mj.experiments.drives import SineSpec, check_po, sine_plan, step_plan
 from wpam_mj.experiments.feasibility import MOVE_MIN_MM, check_liftable, load_moved
 from wpam_mj.experiments.responses import LOOP_METHOD
-from wpam_mj.experiments.paper_studies import (PLATEAU_SETTLE_S, StaticTask, plateau_segments,
-                                             table2_batch)
+from wpam_mj.experiments.paper_studies import PLATEAU_SETTLE_S, StaticTask, plateau_segments
+from wpam_mj.experiments.protocol import SHIPPED, table2_batch
 from wpam_mj.paper import STEP_HOLD_S, STEP_LEVELS_MM
 from wpam_mj.physics.params import MM, MPA, ParameterError, Params
 from wpam_mj.simulation.execution import SimulationTask
@@ -75,7 +75,7 @@ class MetricsTask(SimulationTask):
         return params_for(self.base, {k: self.inputs[k] for k in self.varied})
 
     def _table2(self, params: Params):
-        return table2_batch(params, loads=(self.inputs["load"],),
+        return table2_batch(params, SHIPPED, loads=(self.inputs["load"],),
                             po_down=self.inputs["po_down"], dt=self.dt)
 
     def _static(self, params: Params) -> StaticTask:
