@@ -149,6 +149,11 @@ def test_fits_evaluate_the_same_residuals_here_and_on_dask(cluster):
     assert _bytes(here) == _bytes(remote) == _bytes(serial)
 
 
+def test_a_target_that_is_no_executor_is_refused_in_one_line():
+    with pytest.raises(ParameterError, match=r"where = 2: expected the Workers"):
+        execution.execute(TASKS, 2)
+
+
 def test_a_local_target_is_the_workers_cores():
     assert execution._target(Workers(None, 1, "here")) == execution._Target(1, None, False)
     with open_workers(2) as workers:

@@ -111,6 +111,10 @@ class _Target:
 
 def _target(where: Workers | Executor | None) -> _Target:
     executor = where.executor if isinstance(where, Workers) else where
+    if executor is not None and not isinstance(executor, Executor):
+        raise ParameterError(f"where = {where!r}: expected the Workers of "
+                             "wpam_mj.infra.pool.open_workers, a concurrent.futures.Executor "
+                             "or None (this process)")
     if executor is None:
         return _Target(1, None, False)
     if isinstance(executor, ProcessPoolExecutor):  # local processes: this machine's cores
