@@ -60,7 +60,7 @@ def _experiment(name: str = "run", t_end: float = 2.0, n: int = 21) -> Experimen
 ], ids=["sweep", "render"])
 def test_a_frequency_asking_for_years_of_simulation_is_refused(here, capsys, argv):
     err = _refused(capsys, *argv, "--out", "o" if argv[0] == "sweep" else "o/v.mp4")
-    assert "1e-06 Hz" in err and "at most 10000 s" in err and "0.0005 Hz" in err
+    assert "1e-06 Hz" in err and "at most 10000 s" in err and "0.0007 Hz" in err  # 7 cycles
     assert not (here / "o").exists()
 
 
