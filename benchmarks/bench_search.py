@@ -28,13 +28,10 @@ Run: python benchmarks/bench_search.py [--points N] (default 3: about 20 CPU-s a
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import resource
-import struct
 import time
 
-import numpy as np
 
 from scipy.stats import qmc
 
@@ -42,7 +39,8 @@ from common import Figure
 from wpam_mj.infra.pool import Cluster, TaskPool, open_workers
 from wpam_mj.physics.params import preset
 from wpam_mj.reproduction import search
-from wpam_mj.simulation import execution, plugin
+from wpam_mj.simulation import execution
+from wpam_mj.simulation.execution import result_bytes, plugin
 
 SEED = 20
 
@@ -119,27 +117,10 @@ def measure(n_points: int, dask: bool = True) -> list[dict]:
             def remote_cpu() -> float:
                 return sum(t[0] + t[1] for t in client.run(os.times).values())
             timed("dask", lambda: execution.execute(tasks, workers, failed=None), remote_cpu)
-    same = len({_bytes(out) for out in outcomes.values()}) == 1
+    same = len({result_bytes(out) for out in outcomes.values()}) == 1
     for r in rows:
         r.update(points=len(points), runs=len(tasks), identical=same)
     return rows
-
-
-def _bytes(obj) -> bytes:
-    """Every number of `obj` (responses: dataclasses of arrays, in containers) as bytes,
-    in order (pickle's own bytes depend on which equal strings are one object)."""
-    if dataclasses.is_dataclass(obj):
-        return type(obj).__name__.encode() + b"".join(
-            _bytes(getattr(obj, f.name)) for f in dataclasses.fields(obj))
-    if isinstance(obj, np.ndarray):
-        return str(obj.dtype).encode() + obj.tobytes()
-    if isinstance(obj, (list, tuple)):
-        return b"[" + b",".join(_bytes(v) for v in obj) + b"]"
-    if isinstance(obj, dict):
-        return b"{" + b",".join(_bytes(k) + b":" + _bytes(v) for k, v in obj.items()) + b"}"
-    if isinstance(obj, float):
-        return struct.pack("<d", obj)
-    return repr(obj).encode()
 
 
 def figures(n_points: int = 2) -> list[Figure]:

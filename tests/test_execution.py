@@ -4,7 +4,6 @@ run one task at a time, on batch threads here, on local processes or on a Dask c
 from __future__ import annotations
 
 import dataclasses
-import struct
 import sys
 
 import numpy as np
@@ -16,6 +15,7 @@ from wpam_mj.fitting import estimation
 from wpam_mj.infra.pool import Cluster, Workers, open_workers
 from wpam_mj.physics.params import ParameterError, preset
 from wpam_mj.simulation import execution
+from wpam_mj.simulation.execution import result_bytes
 from wpam_mj.simulation.simulate import SimulationDiverged, simulate_each, simulate_run
 
 P = preset("wpam")
@@ -34,24 +34,6 @@ def _serial(tasks) -> list:
         except execution.FAILURES as err:
             out.append(str(err))
     return out
-
-
-def _bytes(obj) -> bytes:
-    """Every number of `obj` (results, dataclasses of arrays, containers) as bytes, in
-    order: equal bytes are bit-identical results (pickle's own bytes depend on which
-    equal strings happen to be one object)."""
-    if dataclasses.is_dataclass(obj):
-        return type(obj).__name__.encode() + b"".join(
-            _bytes(getattr(obj, f.name)) for f in dataclasses.fields(obj))
-    if isinstance(obj, np.ndarray):
-        return str(obj.dtype).encode() + obj.tobytes()
-    if isinstance(obj, (list, tuple)):
-        return b"[" + b",".join(_bytes(v) for v in obj) + b"]"
-    if isinstance(obj, dict):
-        return b"{" + b",".join(_bytes(k) + b":" + _bytes(v) for k, v in obj.items()) + b"}"
-    if isinstance(obj, float):
-        return struct.pack("<d", obj)
-    return repr(obj).encode()
 
 
 @pytest.fixture(scope="module")
@@ -77,10 +59,10 @@ class _Plain:
 
 
 def test_batch_threads_and_local_processes_give_the_serial_results_bit_for_bit():
-    serial = _bytes(_serial(TASKS))
-    assert _bytes(execution.execute(TASKS, None, failed=str)) == serial
+    serial = result_bytes(_serial(TASKS))
+    assert result_bytes(execution.execute(TASKS, None, failed=str)) == serial
     with open_workers(2) as workers:  # two cores: batch threads here, plain tasks on the pool
-        assert _bytes(execution.execute(TASKS, workers, failed=str)) == serial
+        assert result_bytes(execution.execute(TASKS, workers, failed=str)) == serial
         assert execution.execute([_Plain(2.0), *TASKS[:1], _Plain(-1.0)], workers,
                                  failed=None)[::2] == [2.0, None]
 
@@ -91,7 +73,8 @@ def test_a_local_run_and_a_two_worker_dask_cluster_agree_bit_for_bit(cluster):
         remote = execution.execute(TASKS, workers, failed=str)
         bare = execution.execute(TASKS, workers.executor, failed=str)  # as `executor_for`
     local = execution.execute(TASKS, None, failed=str)
-    assert _bytes(remote) == _bytes(bare) == _bytes(local) == _bytes(_serial(TASKS))
+    assert (result_bytes(remote) == result_bytes(bare) == result_bytes(local)
+            == result_bytes(_serial(TASKS)))
     assert "cannot lift" in remote[2]
 
 
@@ -146,7 +129,7 @@ def test_fits_evaluate_the_same_residuals_here_and_on_dask(cluster):
         assert estimation.evaluate(_Steps(1900.0), trials, workers.executor) == [None, None]
     serial = [np.asarray(_Steps().residuals(p, [t.run() for t in _Steps().tasks(p)]))
               for p in trials]
-    assert _bytes(here) == _bytes(remote) == _bytes(serial)
+    assert result_bytes(here) == result_bytes(remote) == result_bytes(serial)
 
 
 def test_a_target_that_is_no_executor_is_refused_in_one_line():

@@ -27,10 +27,14 @@ is raised.
 
 from __future__ import annotations
 
+import dataclasses
+import struct
 from concurrent.futures import (FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor,
                                 wait)
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
+
+import numpy as np
 
 from wpam_mj.infra import termination
 from wpam_mj.infra.pool import Workers
@@ -201,3 +205,22 @@ def execute(tasks: Sequence, where: Workers | Executor | None = None, *,
             o = failed(o.error) if callable(failed) else failed
         out.append(o)
     return out
+
+
+def result_bytes(obj) -> bytes:
+    """Every number of `obj` (results: dataclasses of arrays, in containers) as bytes, in
+    order: equal bytes are bit-identical results, whatever the target ran them (pickle's
+    own bytes depend on which equal strings happen to be one object)."""
+    if dataclasses.is_dataclass(obj):
+        return type(obj).__name__.encode() + b"".join(
+            result_bytes(getattr(obj, f.name)) for f in dataclasses.fields(obj))
+    if isinstance(obj, np.ndarray):
+        return str(obj.dtype).encode() + obj.tobytes()
+    if isinstance(obj, (list, tuple)):
+        return b"[" + b",".join(result_bytes(v) for v in obj) + b"]"
+    if isinstance(obj, dict):
+        return b"{" + b",".join(result_bytes(k) + b":" + result_bytes(v)
+                                for k, v in obj.items()) + b"}"
+    if isinstance(obj, float):
+        return struct.pack("<d", obj)
+    return repr(obj).encode()
