@@ -177,7 +177,7 @@ def test_staircase_targets_go_up_and_down_and_the_tracking_reward_is_linear() ->
         ts = env.step([PARAMS.pneumatics.p_min])
         targets.append(ts.observation["target_m"][0])
         error = ts.observation["x_m"][0] - targets[-1]
-        rewards.append((ts.reward, max(0.0, 1 - abs(error) / (5 * MM))))
+        rewards.append((ts.reward, max(0.0, 1 - abs(error) / (1 * MM))))
     levels = np.unique(targets)
     # 2.5 s per level, the new one from t = 2.5 s on; the last observation, at 10 s, the 5th
     assert len(levels) == 5 and len(np.unique(targets[:249])) == 1

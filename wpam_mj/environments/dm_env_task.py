@@ -31,6 +31,12 @@ Actions (`BoundedArray`, float64, [Pa]; out-of-range values are clipped):
                   is fed the episode's whole target path at its start.
     action="both" shape (2,): (Pi command in [p_min, p_max], Po command in [p_min, po_cap]);
                   Po keeps the bag's 0.08 MPa durability cap (paper §4.2).
+    action="residual" shape (1,): a Po correction in [-po_cap, po_cap] added to the paper's
+                  PI on Po, which runs inside the environment once per control step
+                  (`PIControl` at the control step, started bumpless as `simulate` starts
+                  it; the same law as the reference policy "pi" of
+                  `wpam_mj.environments.policies`); the sum is clipped to [p_min, po_cap].
+                  A zero action is that PI (docs/learning.md: why a residual).
 Targets (`reference`):
     "step"  x_r constant over the episode, reached from rest at x = 0 (paper §4.1);
     "sine"  x_r(t) = 25 mm - 25 mm cos(2 pi f t) (paper §4.2, `experiments.SineSpec`),
@@ -41,7 +47,7 @@ Targets (`reference`):
             follows x_r at the start of each control step (sine and staircase).
 Reward (`reward=`): "tolerance" (default), `dm_control.utils.rewards.tolerance(x - x_r)`:
 1 within +-0.5 mm of the target, Gaussian fall-off to 0.1 at 2 mm outside that band;
-"tracking", max(0, 1 - |x - x_r| / `TRACKING_SCALE`) (docs/learning.md: why).
+"tracking", max(0, 1 - |x - x_r| / `TRACKING_SCALE`), 1 mm (docs/learning.md: why).
 Discount 1; episodes end at `time_limit` [s]. A load the muscle cannot lift to the
 highest target at the regulator maximum is refused, naming the largest it can
 (`feasibility.check_liftable`). At each reset the muscle hangs at rest at x = 0 with
@@ -65,7 +71,7 @@ import numpy as np
 from dm_env import specs
 
 from wpam_mj.visualisation import gl
-from wpam_mj.control.controllers import CONTROLLERS, check_control
+from wpam_mj.control.controllers import CONTROLLERS, PIControl, check_control
 from wpam_mj.experiments.drives import SineSpec
 from wpam_mj.experiments.feasibility import check_liftable
 from wpam_mj.physics.geometry import BraidGeometry
@@ -83,7 +89,7 @@ with gl.quiet_display_probe():  # dm_control probes GLFW on import; we never ren
     from dm_control.rl import control
     from dm_control.utils import rewards
 
-ACTIONS = ("po", "both")
+ACTIONS = ("po", "both", "residual")
 REFERENCES = ("step", "sine", "staircase")
 REWARDS = ("tolerance", "tracking")
 STAIR_HOLD = 2.5  # s per staircase level: our choice, long enough for a PI to act
@@ -92,7 +98,7 @@ TARGET_RANGE = (0.0, 50 * MM)  # m: the paper's step experiment spans 0-50 mm (�
 LOAD_RANGE = (50.0, 150.0)  # N: the paper's loads (§4)
 REWARD_BOUND = 0.5 * MM  # m: reward 1 inside +-bound
 REWARD_MARGIN = 2 * MM  # m: reward 0.1 this far outside the bound
-TRACKING_SCALE = 5 * MM  # m: the "tracking" reward falls linearly to 0 at this error
+TRACKING_SCALE = 1 * MM  # m: the "tracking" reward falls linearly to 0 at this error
 TIME_LIMIT_RANGE = (1e-3, 3600.0)  # s
 CONTROL_TIMESTEP_RANGE = (1e-5, 1.0)  # s
 
@@ -203,7 +209,8 @@ class TrackingTask(control.Task):
                  sine_freq: float | None = None,
                  sine_freq_range: tuple[float, float] = SINE_FREQ_RANGE,
                  randomize: ParameterRanges | None = None, reward: str = "tolerance",
-                 time_limit: float = 10.0, controller: str = "pi", dt: float = 1e-3) -> None:
+                 time_limit: float = 10.0, controller: str = "pi", dt: float = 1e-3,
+                 control_timestep: float = 0.01) -> None:
         if action not in ACTIONS:
             raise ParameterError(f"action = {action!r}; valid actions: {', '.join(ACTIONS)}")
         if reference not in REFERENCES:
@@ -249,9 +256,16 @@ class TrackingTask(control.Task):
         self._pi_ff = 0.0
         self._next: tuple[float | None, float | None] = (None, None)
         pn, c = params.pneumatics, params.controller
+        # the paper's PI on Po at the control step, under action="residual"
+        self._control_timestep = control_timestep
+        self._pi: PIControl | None = None  # made for each episode's parameters
+        self._po_lo, self._po_hi = pn.p_min, c.po_cap  # the Po command's range [Pa]
         if action == "po":
             self._lo, self._hi = np.array([pn.p_min]), np.array([c.po_cap])
             self._name = "po_cmd_pa"
+        elif action == "residual":
+            self._lo, self._hi = np.array([-c.po_cap]), np.array([c.po_cap])
+            self._name = "po_residual_pa"
         else:
             self._lo, self._hi = np.array([pn.p_min, pn.p_min]), np.array([pn.p_max, c.po_cap])
             self._name = "pi_cmd_pa,po_cmd_pa"
@@ -303,11 +317,13 @@ class TrackingTask(control.Task):
             self._levels = self._random.uniform(*self._target_range, size=self._n_levels)
         if self._controller.needs_target_ahead:
             t = np.arange(round(self._time_limit / self._dt) + 1) * self._dt
-            x_ref = np.array([self.target_at(s) for s in t])
+            x_ref = self.targets_at(t)
             self._drive = self._controller.feedforward(self._params, physics.load(), x_ref,
                                                        self._dt)
         else:
             self._pi_ff = self._feedforward(self.target_at(0.0), physics.load())
+        if self._action == "residual":
+            self._pi = PIControl.for_run(self._params, self._control_timestep)
 
     def _feedforward(self, target: float, load: float) -> float:
         """The controller's Pi [Pa] holding `target` [m] under `load` [N]."""
@@ -316,10 +332,17 @@ class TrackingTask(control.Task):
 
     def target_at(self, t: float) -> float:
         """Target contraction x_r [m] at episode time `t` [s]."""
+        return float(self.targets_at(np.array([t]))[0])
+
+    def targets_at(self, t: np.ndarray) -> np.ndarray:
+        """Target contractions x_r [m] at episode times `t` [s] (an array)."""
         if self._reference == "staircase":
-            k = int(t / STAIR_HOLD + 1e-9)  # t sums physics steps: 2.4999999 s is 2.5 s
-            return float(self._levels[min(k, self._n_levels - 1)])
-        return self.target if self._sine is None else float(self._sine.target(t))
+            # t sums physics steps: 2.4999999 s is 2.5 s
+            k = (t / STAIR_HOLD + 1e-9).astype(np.int64)
+            return self._levels[np.minimum(k, self._n_levels - 1)]
+        if self._sine is None:
+            return np.full(len(t), self.target)
+        return self._sine.target(t)
 
     def action_spec(self, physics: MusclePhysics) -> specs.BoundedArray:
         return specs.BoundedArray(shape=self._lo.shape, dtype=np.float64, minimum=self._lo,
@@ -331,17 +354,33 @@ class TrackingTask(control.Task):
             raise ParameterError(f"action = {action!r} must be {self._lo.size} finite "
                                  f"number(s) [Pa] ({self._name})")
         a = np.clip(a, self._lo, self._hi)
-        if self._drive is not None:  # the episode's drive, at this physics step
-            k = min(round(physics.time() / self._dt), len(self._drive[0]) - 1)
-            po = a[0] + self._drive[1][k] if self._controller.adds_drive_po else a[0]
-            physics.set_commands(self._drive[0][k], min(max(po, self._lo[0]), self._hi[0]))
-            return
-        if self._action == "po" and self._reference != "step":
-            self._pi_ff = self._feedforward(self.target_at(physics.time()), physics.load())
-        if self._action == "po":
-            physics.set_commands(self._pi_ff, a[0])
-        else:
+        if self._action == "both":
             physics.set_commands(a[0], a[1])
+            return
+        pi_cmd, po_drive = self.feedforward_at(np.array([physics.time()]), physics.load())
+        po = a[0]
+        if self._pi is not None:  # action="residual": the PI's Po plus the agent's
+            po = self._pi.update(physics.contraction(), self.target_at(physics.time())) + po
+        physics.set_commands(pi_cmd[0], min(max(po + po_drive[0], self._po_lo), self._po_hi))
+
+    def feedforward_at(self, t: np.ndarray, load: float) -> tuple[np.ndarray, np.ndarray]:
+        """(Pi command, Po added to the agent's) [Pa] at the start of control steps at
+        episode times `t` [s] under action "po" or "residual": what `before_step` commands
+        around the agent; `wpam_mj.environments.vector_env` takes a whole episode's at once."""
+        if self._drive is not None:  # the episode's drive, at these physics steps
+            k = np.minimum(np.rint(t / self._dt).astype(np.int64), len(self._drive[0]) - 1)
+            po = self._drive[1][k] if self._controller.adds_drive_po else np.zeros(len(t))
+            return self._drive[0][k], po
+        if self._reference == "step":
+            return np.full(len(t), self._pi_ff), np.zeros(len(t))
+        return (self._controller.feedforward(self._params, load, self.targets_at(t),
+                                             self._dt)[0],
+                np.zeros(len(t)))
+
+    @property
+    def pi_controller(self) -> PIControl | None:
+        """The PI that the agent's action corrects (action="residual"), else None."""
+        return self._pi
 
     def observation_spec(self, physics: MusclePhysics) -> collections.OrderedDict:
         if self._flat:  # as control.flatten_observation: the values in OBSERVATIONS order
@@ -361,11 +400,30 @@ class TrackingTask(control.Task):
 
     def get_reward(self, physics: MusclePhysics) -> float:
         error = physics.contraction() - self.target_at(physics.time())
+        return float(self.rewards(np.array([error]))[0])
+
+    def rewards(self, error: np.ndarray) -> np.ndarray:
+        """Rewards of tracking errors x - x_r [m] (an array; the module docstring)."""
         if self._reward == "tracking":
-            return max(0.0, 1.0 - abs(error) / TRACKING_SCALE)
-        return float(rewards.tolerance(error, bounds=(-REWARD_BOUND, REWARD_BOUND),
-                                       margin=REWARD_MARGIN, sigmoid="gaussian",
-                                       value_at_margin=0.1))
+            return np.maximum(0.0, 1.0 - np.abs(error) / TRACKING_SCALE)
+        return rewards.tolerance(error, bounds=(-REWARD_BOUND, REWARD_BOUND),
+                                 margin=REWARD_MARGIN, sigmoid="gaussian",
+                                 value_at_margin=0.1)
+
+    @property
+    def action(self) -> str:
+        """The action kind, one of `ACTIONS`."""
+        return self._action
+
+    @property
+    def action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(low, high) of the action [Pa], which `before_step` clips to."""
+        return self._lo, self._hi
+
+    @property
+    def po_range(self) -> tuple[float, float]:
+        """(low, high) [Pa] of the Po command under action "po" or "residual"."""
+        return self._po_lo, self._po_hi
 
     def get_termination(self, physics: MusclePhysics) -> None:
         return None  # episodes end at the time limit only
@@ -385,7 +443,8 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
 
     Args:
       params: muscle parameters (default: the calibrated ``wpam`` preset).
-      action: "po" (Po command) or "both" (Pi and Po commands), see the module docstring.
+      action: "po" (Po command), "both" (Pi and Po commands) or "residual" (a correction
+        to the paper's PI on Po), see the module docstring.
       time_limit: episode length [s].
       control_timestep: time between actions [s], a whole multiple of `dt`.
       dt: physics step [s].
@@ -422,7 +481,7 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
                         flat_observation=flat_observation, reference=reference,
                         sine_freq=sine_freq, sine_freq_range=sine_freq_range,
                         randomize=randomize, reward=reward, time_limit=time_limit,
-                        controller=controller, dt=dt)
+                        controller=controller, dt=dt, control_timestep=control_timestep)
     return control.Environment(physics, task, time_limit=time_limit, n_sub_steps=n_sub,
                                flat_observation=flat_observation)
 

@@ -24,6 +24,8 @@ Observation: Box float64 of shape (6,), SI units, in
 Action: Box float64 [Pa], clipped to its bounds:
     action="po"   (1,): Po command in [p_min, po_cap]; Pi is the equilibrium feedforward
     action="both" (2,): Pi command in [p_min, p_max], Po command in [p_min, po_cap]
+    action="residual" (1,): Po correction in [-po_cap, po_cap] to the paper's PI, which
+                  runs in the environment at the control step (`dm_env_task`)
 Normalised spaces (normalize=True; the learning variants): float32 everywhere.
     Action: Box [-1, 1], each command as a fraction of its upper bound (Po: a * po_cap),
     clipped to its SI bounds, so a <= p_min / bound (Po: 0.0625) is the regulator minimum.
@@ -144,7 +146,11 @@ class Scaling:
 
     def observation(self, obs_si: np.ndarray) -> np.ndarray:
         """SI observation (6,) -> normalised (7,) float32 in [-1, 1]."""
-        full = np.append(obs_si, obs_si[0] - obs_si[4])
+        return self.observations(obs_si[np.newaxis])[0]
+
+    def observations(self, obs_si: np.ndarray) -> np.ndarray:
+        """SI observations (N, 6) -> normalised (N, 7) float32 in [-1, 1]."""
+        full = np.column_stack((obs_si, obs_si[:, 0] - obs_si[:, 4]))
         return np.clip((full - self._centre) / self._half, -1.0, 1.0).astype(np.float32)
 
 
@@ -153,7 +159,8 @@ class WPAMEnv(Env):
 
     Args:
       params: muscle parameters, or a preset name (default: the calibrated ``wpam``).
-      action: "po" (Po command) or "both" (Pi and Po commands).
+      action: "po" (Po command), "both" (Pi and Po commands) or "residual" (a Po
+        correction to the paper's PI).
       reference: "step" (constant target), "sine" (25 mm about 25 mm at f) or
         "staircase" (a new random level every `dm_env_task.STAIR_HOLD` s, up or down).
       reward: "tolerance" or "tracking" (module docstring).
@@ -205,6 +212,9 @@ class WPAMEnv(Env):
                              randomize=randomize, reward=reward, controller=controller)
         self._params = params
         self.episode_steps = math.ceil(time_limit / self._env.control_timestep() - 1e-9)
+        self.frame_skip = int(frame_skip)
+        # dm_control ends an episode after this many steps (its step limit, rounded up)
+        self.step_limit = math.ceil(time_limit / (self.physics.timestep() * self.frame_skip))
         self.render_mode = render_mode
         self._render_size = render_size
         self._frames = None  # wpam_mj.visualisation.scene.StateFrames, made on the first render
