@@ -256,10 +256,10 @@ def test_info_carries_error_commands_and_success() -> None:
 
 
 def test_constant_po_scores_far_below_the_paper_pi() -> None:
-    """On the learning task holding Po at 5 kPa (the Pi feedforward alone) earns under half
-    of what the paper's PI earns (measured 0.41 of it; docs/learning.md), mean of 10 seeds."""
+    """On the learning task holding Po at 5 kPa (the Pi feedforward alone) earns under 30 %
+    of what the paper's PI earns (docs/learning.md), mean of 10 seeds."""
     scores = {p: mean_return("wpam_mj/WPAMTrack-v0", p, range(10)) for p in ("constant", "pi")}
-    assert scores["constant"] < 0.5 * scores["pi"], scores
+    assert scores["constant"] < 0.3 * scores["pi"], scores
 
 
 def test_make_accepts_randomize_and_draws_a_plant_per_episode(tmp_path) -> None:
@@ -274,26 +274,6 @@ def test_make_accepts_randomize_and_draws_a_plant_per_episode(tmp_path) -> None:
     relative = gymnasium.make("wpam_mj/WPAMTrackRandomized-v0", params=PARAMS)
     relative.reset(seed=0)
     assert relative.unwrapped.physics.params != PARAMS
-
-
-def test_vector_entry_point_equals_n_single_envs() -> None:
-    """make_vec's native vector env against SyncVectorEnv of the same envs: the same
-    observations, rewards, ends and infos over autoresets."""
-    kwargs = {"params": PARAMS, "time_limit": 0.2}
-    native = gymnasium.make_vec("wpam_mj/WPAMTrack-v0", num_envs=3, **kwargs)
-    sync = gymnasium.make_vec("wpam_mj/WPAMTrack-v0", num_envs=3, vectorization_mode="sync",
-                              **kwargs)
-    assert type(native).__name__ == "WPAMVectorEnv"
-    np.testing.assert_array_equal(native.reset(seed=4)[0], sync.reset(seed=4)[0])
-    rng = np.random.default_rng(0)
-    for _ in range(45):  # two autoresets
-        actions = rng.uniform(-1, 1, (3, 1)).astype(np.float32)
-        a, b = native.step(actions), sync.step(actions)
-        for x, y in zip(a[:4], b[:4]):
-            np.testing.assert_array_equal(x, y)
-        assert a[4].keys() == b[4].keys()
-        for key in a[4]:
-            np.testing.assert_array_equal(a[4][key], b[4][key])
 
 
 def test_reset_options_fix_one_episode_and_refuse_the_unknown() -> None:

@@ -99,6 +99,7 @@ class WPAMVectorEnv(VectorEnv):
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
 
     def __init__(self, num_envs: int = 1, *, engine: str = "auto", nthread: int | None = None,
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
                  max_episode_steps: int | None = None, **kwargs) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) \
                 or num_envs < 1:
@@ -108,6 +109,12 @@ class WPAMVectorEnv(VectorEnv):
         if nthread is not None and (isinstance(nthread, bool) or not isinstance(
                 nthread, (int, np.integer)) or nthread < 1):
             raise ParameterError(f"nthread = {nthread!r} must be an integer >= 1")
+        modes = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
+        if autoreset_mode not in modes + tuple(m.value for m in modes):
+            raise ParameterError(f"autoreset_mode = {autoreset_mode!r}; valid: "
+                                 + ", ".join(m.value for m in modes))
+        self.autoreset_mode = AutoresetMode(autoreset_mode)
+        self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
         if engine == "batch" and not plugin.available():
             raise ParameterError(f"engine = 'batch' needs the compiled plugin, which is "
                                  f"unavailable ({plugin.unavailable_reason()}); use "
@@ -149,17 +156,49 @@ class WPAMVectorEnv(VectorEnv):
             o, info = env.reset(seed=s, options=options)
             obs.append(o)
             infos = self._add_info(infos, info, i)
+        obs = np.stack(obs)
         if self._batch is not None:
             self._batch.restart(np.arange(self.num_envs))
+            self._batch.obs[:] = obs
         self._autoreset[:] = False
-        return np.stack(obs), infos
+        return obs, infos
 
     def step(self, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
         if self._batch is None:
-            return self._step_serial(np.asarray(actions))
-        obs, rewards, terminated, truncated, infos = self._batch.step(actions, self._autoreset)
-        self._autoreset = terminated | truncated
+            obs, rewards, terminated, truncated, infos = self._step_serial(np.asarray(actions))
+        else:
+            obs, rewards, terminated, truncated, infos = self._batch.step(actions,
+                                                                          self._autoreset)
+        ended = terminated | truncated
+        if self.autoreset_mode == AutoresetMode.SAME_STEP and ended.any():
+            obs, infos = self._reset_ended(np.flatnonzero(ended), obs, infos)
+            ended[:] = False
+        self._autoreset = ended
         return obs, rewards, terminated, truncated, infos
+
+    def _reset_ended(self, ids: np.ndarray, obs: np.ndarray, infos: dict):
+        """Same-step autoreset (as SyncVectorEnv's): the episodes `ids` ended at this step
+        start again now; their last observation and info go to infos["final_obs"] and
+        infos["final_info"]."""
+        final: dict = {}
+        for i in ids:
+            info_i = {key: infos[key][i] for key in infos
+                      if not key.startswith("_") and infos[f"_{key}"][i]}
+            final = self._add_info(final, {"final_obs": obs[i].copy(), "final_info": info_i},
+                                   int(i))
+        obs = obs.copy()
+        for i in ids:
+            obs[i], reset_info = self.envs[i].reset()
+            for key in [k for k in infos if not k.startswith("_")]:
+                if key not in reset_info:
+                    infos[f"_{key}"] = infos[f"_{key}"].copy()
+                    infos[f"_{key}"][i] = False
+            for key, value in reset_info.items():
+                infos[key][i] = value
+        if self._batch is not None:
+            self._batch.restart(ids)
+            self._batch.obs[ids] = obs[ids]
+        return obs, {**infos, **final}
 
     def _step_serial(self, actions: np.ndarray):
         n = self.num_envs
