@@ -105,7 +105,69 @@ CONTROL_TIMESTEP_RANGE = (1e-5, 1.0)  # s
 OBSERVATIONS = ("x_m", "velocity_m_s", "pi_pa", "po_pa", "target_m", "load_n")
 
 
-class MusclePhysics(engine.Physics):
+class _MuscleReadings:
+    """What the task reads and sets on the hung muscle, for `MusclePhysics` (dm_control)
+    and `RigPhysics` (plain MuJoCo) alike: both hold a `LiveRig` and its MjData."""
+
+    params: Params
+    rig: LiveRig
+
+    def _raw(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        raise NotImplementedError
+
+    def _setup(self, params: Params, rig: LiveRig) -> None:
+        self.params = params
+        self.rig = rig
+        self._load_body = rig.model.body("load").id
+        self.pi_cmd = self.po_cmd = 0.0
+        self.diverged: str | None = None
+
+    def set_load(self, load: float) -> None:
+        """Hang `load` [N]: the load body's mass becomes load / g, and the constants MuJoCo
+        derives from masses (the constraints' inverse weights) follow, so the model is the
+        one built for this load whatever load it held before."""
+        model, data = self._raw()
+        model.body_mass[self._load_body] = check_load(load) / STANDARD_GRAVITY
+        mujoco.mj_setConst(model, data)
+
+    def load(self) -> float:
+        """Hanging load [N]."""
+        return float(self._raw()[0].body_mass[self._load_body]) * STANDARD_GRAVITY
+
+    def set_commands(self, pi_cmd: float, po_cmd: float) -> None:
+        """Regulator commands [Pa] (gauge) applied from the next physics step on."""
+        self.pi_cmd, self.po_cmd = float(pi_cmd), float(po_cmd)
+
+    def contraction(self) -> float:
+        """x [m]."""
+        return self.rig.contraction(self._raw()[1])
+
+    def velocity(self) -> float:
+        """dx/dt [m/s]."""
+        return self.rig.velocity(self._raw()[1])
+
+    def pressures(self) -> tuple[float, float]:
+        """Chamber gauge pressures (Pi, Po) [Pa]."""
+        return self.rig.pressures(self._raw()[1])
+
+    def _refuse_if_diverged(self) -> None:
+        if self.diverged is not None:  # the state is meaningless until reset
+            raise control.PhysicsError(f"the muscle diverged ({self.diverged}); call reset() "
+                                       "before stepping again")
+
+    def _step_rig(self, nstep: int) -> None:
+        """`nstep` physics steps (`LiveRig.step`: the physics step of
+        `wpam_mj.simulation.simulate`), ending with `mj_step1` so that positions, sensors and
+        rendering match the new state (as dm_control's own step)."""
+        d = self._raw()[1]
+        self.rig.set_commands(d, self.pi_cmd, self.po_cmd)
+        try:
+            self.rig.step(d, nstep)
+        except SimulationDiverged as err:
+            raise control.PhysicsError(f"at t = {d.time:.4f} s: {err}") from err
+
+
+class MusclePhysics(_MuscleReadings, engine.Physics):
     """dm_control Physics of the hung muscle whose `step` is the project's physics step.
 
     The muscle is the rig's `wpam_mj.muscle` plugin (or the Python engine where it is
@@ -123,12 +185,8 @@ class MusclePhysics(engine.Physics):
         physics._setup(params, rig)
         return physics
 
-    def _setup(self, params: Params, rig: LiveRig) -> None:
-        self.params = params
-        self.rig = rig
-        self._load_body = rig.model.body("load").id
-        self.pi_cmd = self.po_cmd = 0.0
-        self.diverged: str | None = None
+    def _raw(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        return self.model.ptr, self.data.ptr
 
     def reset(self, keyframe_id=None) -> None:
         """Reset MuJoCo's state and the pneumatics (chambers vented, regulators at 0)."""
@@ -151,48 +209,83 @@ class MusclePhysics(engine.Physics):
         self._reload_from_data(wrapper.MjData(mujoco.MjData(rig.model)))
         self._setup(params, rig)
 
-    def set_load(self, load: float) -> None:
-        """Hang `load` [N]: the load body's mass becomes load / g, and the constants MuJoCo
-        derives from masses (the constraints' inverse weights) follow, so the model is the
-        one built for this load whatever load it held before."""
-        self.model.ptr.body_mass[self._load_body] = check_load(load) / STANDARD_GRAVITY
-        mujoco.mj_setConst(self.model.ptr, self.data.ptr)
-
-    def load(self) -> float:
-        """Hanging load [N]."""
-        return float(self.model.ptr.body_mass[self._load_body]) * STANDARD_GRAVITY
-
-    def set_commands(self, pi_cmd: float, po_cmd: float) -> None:
-        """Regulator commands [Pa] (gauge) applied from the next physics step on."""
-        self.pi_cmd, self.po_cmd = float(pi_cmd), float(po_cmd)
-
-    def contraction(self) -> float:
-        """x [m]."""
-        return self.rig.contraction(self.data.ptr)
-
-    def velocity(self) -> float:
-        """dx/dt [m/s]."""
-        return self.rig.velocity(self.data.ptr)
-
-    def pressures(self) -> tuple[float, float]:
-        """Chamber gauge pressures (Pi, Po) [Pa]."""
-        return self.rig.pressures(self.data.ptr)
-
     def step(self, nstep: int = 1) -> None:
-        """Advance `nstep` physics steps of the muscle and the load (`LiveRig.step`: the
-        physics step of `wpam_mj.simulation.simulate`), ending with `mj_step1` so that positions,
-        sensors and rendering match the new state (as dm_control's own step)."""
-        if self.diverged is not None:  # the state is meaningless until reset
-            raise control.PhysicsError(f"the muscle diverged ({self.diverged}); call reset() "
-                                       "before stepping again")
-        d = self.data.ptr
+        """Advance `nstep` physics steps of the muscle and the load (`_step_rig`); MuJoCo
+        warnings raise dm_control's PhysicsError."""
+        self._refuse_if_diverged()
         try:
             with self.check_invalid_state():
-                self.rig.set_commands(d, self.pi_cmd, self.po_cmd)
-                try:
-                    self.rig.step(d, nstep)
-                except SimulationDiverged as err:
-                    raise control.PhysicsError(f"at t = {d.time:.4f} s: {err}") from err
+                self._step_rig(nstep)
+        except control.PhysicsError as err:
+            self.diverged = str(err)
+            raise
+
+
+class RigPhysics(_MuscleReadings):
+    """The same physics as `MusclePhysics` on plain MuJoCo, without dm_control (which
+    does not run on mujoco 4): what the Gymnasium environment steps. `model` and `data`
+    are the MjModel and MjData; `create`, `reset`, `after_reset`, `set_params` and `step`
+    do what dm_control's Physics does in `MusclePhysics`, in the same order (its forward
+    computations with actuation disabled included), so both give the same trajectories."""
+
+    @classmethod
+    def create(cls, params: Params, dt: float = 1e-3, load: float = 100.0) -> RigPhysics:
+        """Build the MJCF model for `params`, physics step `dt` [s], `load` [N]."""
+        physics = cls()
+        physics._setup(params, LiveRig.build(params, load, check_dt(dt)))
+        return physics
+
+    def _setup(self, params: Params, rig: LiveRig) -> None:
+        super()._setup(params, rig)
+        self.model, self.data = rig.model, mujoco.MjData(rig.model)
+        self.after_reset()
+
+    def _raw(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        return self.model, self.data
+
+    def time(self) -> float:
+        """Episode time [s]."""
+        return float(self.data.time)
+
+    def timestep(self) -> float:
+        """Physics step [s]."""
+        return float(self.model.opt.timestep)
+
+    def reset(self) -> None:
+        """MuJoCo's state and the pneumatics back to rest (chambers vented)."""
+        mujoco.mj_resetData(self.model, self.data)
+        self.after_reset()
+        self.rig.reset()
+        self.pi_cmd = self.po_cmd = 0.0
+        self.diverged = None
+
+    def after_reset(self) -> None:
+        """The derived quantities of the state, with actuation disabled (dm_control's
+        `Physics.after_reset`, also run by its reset and on new data)."""
+        flags = self.model.opt.disableflags
+        self.model.opt.disableflags = flags | mujoco.mjtDisableBit.mjDSBL_ACTUATION
+        try:
+            mujoco.mj_forward(self.model, self.data)
+        finally:
+            self.model.opt.disableflags = flags
+
+    def set_params(self, params: Params) -> None:
+        """Use `params` from now on (domain randomisation): a model rebuilt for them with
+        the same load and time step, from rest."""
+        self._setup(params, LiveRig.build(params, self.load(), self.timestep()))
+
+    def step(self, nstep: int = 1) -> None:
+        """`nstep` physics steps (`_step_rig`); a MuJoCo warning raised meanwhile raises
+        dm_control's PhysicsError, as `MusclePhysics.step`."""
+        self._refuse_if_diverged()
+        warnings = np.array([w.number for w in self.data.warning])
+        try:
+            self._step_rig(nstep)
+            raised = np.array([w.number for w in self.data.warning]) > warnings
+            if raised.any():
+                names = [n for n, r in zip(mujoco.mjtWarning.__members__, raised) if r]
+                raise control.PhysicsError("Physics state is invalid. Warning(s) raised: "
+                                           + ", ".join(names))
         except control.PhysicsError as err:
             self.diverged = str(err)
             raise
@@ -468,6 +561,22 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
       controller: a control mode (`wpam_mj.control.controllers.CONTROLS`) whose feedforward
         shapes the commands around the agent's Po (action="po"; see the module docstring).
     """
+    check_dm_control()
+    physics, task, time_limit, n_sub = build(
+        MusclePhysics, params, action=action, time_limit=time_limit,
+        control_timestep=control_timestep, dt=dt, seed=seed, target=target, load=load,
+        target_range=target_range, load_range=load_range, flat_observation=flat_observation,
+        reference=reference, sine_freq=sine_freq, sine_freq_range=sine_freq_range,
+        randomize=randomize, reward=reward, controller=controller)
+    return control.Environment(physics, task, time_limit=time_limit, n_sub_steps=n_sub,
+                               flat_observation=flat_observation)
+
+
+def build(physics_class: type[MusclePhysics] | type[RigPhysics], params: Params | None,
+          *, time_limit: float, control_timestep: float, dt: float, seed: int | None,
+          randomize, **task_kwargs) -> tuple:
+    """`make_env`'s arguments validated: (physics of `physics_class`, its `TrackingTask`,
+    time limit [s], physics steps per control step)."""
     params = preset() if params is None else params
     randomize = ranges_of(randomize, params)
     time_limit = check_range("time_limit", time_limit, *TIME_LIMIT_RANGE, "s")
@@ -475,15 +584,23 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
                                    *CONTROL_TIMESTEP_RANGE, "s")
     dt = check_dt(dt)
     n_sub = check_whole_steps("control_timestep", control_timestep, dt)
-    physics = MusclePhysics.create(params, dt)
-    task = TrackingTask(params, action=action, target=target, load=load,
-                        target_range=target_range, load_range=load_range, random=seed,
-                        flat_observation=flat_observation, reference=reference,
-                        sine_freq=sine_freq, sine_freq_range=sine_freq_range,
-                        randomize=randomize, reward=reward, time_limit=time_limit,
-                        controller=controller, dt=dt, control_timestep=control_timestep)
-    return control.Environment(physics, task, time_limit=time_limit, n_sub_steps=n_sub,
-                               flat_observation=flat_observation)
+    physics = physics_class.create(params, dt)
+    task = TrackingTask(params, random=seed, randomize=randomize, time_limit=time_limit,
+                        dt=dt, control_timestep=control_timestep, **task_kwargs)
+    return physics, task, time_limit, n_sub
+
+
+# The mujoco versions dm-control runs on: 1.0.50, its newest, fails on mujoco 4 (every
+# Physics construction: MjModel has no attribute 'flex_vertedge').
+DM_CONTROL_MUJOCO = ">= 3.17, < 4"
+
+
+def check_dm_control() -> None:
+    """Refuse, in one line, a mujoco that dm_control does not run on."""
+    if int(mujoco.__version__.split(".")[0]) >= 4:
+        raise RuntimeError(f"the dm_control environment needs mujoco {DM_CONTROL_MUJOCO} "
+                           f"(dm-control fails on mujoco {mujoco.__version__}); the default "
+                           "install has it, and the Gymnasium ids run on both")
 
 
 SEED_RANGE = (0, 2**32 - 1)  # numpy.random.RandomState's seed range

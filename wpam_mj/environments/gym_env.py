@@ -65,7 +65,7 @@ from dm_control.rl import control
 from gymnasium import Env, spaces
 
 from wpam_mj.environments.dm_env_task import (LOAD_RANGE, REWARD_BOUND, SINE_FREQ_RANGE,
-                                              TARGET_RANGE, MusclePhysics, TrackingTask, make_env)
+                                              TARGET_RANGE, RigPhysics, TrackingTask, build)
 from wpam_mj.physics.geometry import BraidGeometry
 from wpam_mj.simulation.model import check_dt
 from wpam_mj.physics.params import MM, ParameterError, Params, preset
@@ -204,23 +204,23 @@ class WPAMEnv(Env):
                                  + ", ".join(self.metadata["render_modes"]))
         if not isinstance(normalize, (bool, np.bool_)):
             raise ParameterError(f"normalize = {normalize!r} must be True or False")
-        self._env = make_env(params, action=action, time_limit=time_limit,
-                             control_timestep=int(frame_skip) * dt, dt=dt, target=target,
-                             load=load, target_range=target_range, load_range=load_range,
-                             flat_observation=True, reference=reference,
-                             sine_freq=sine_freq, sine_freq_range=sine_freq_range,
-                             randomize=randomize, reward=reward, controller=controller)
+        self._physics, self._task, time_limit, self.frame_skip = build(
+            RigPhysics, params, action=action, time_limit=time_limit,
+            control_timestep=int(frame_skip) * dt, dt=dt, seed=None, target=target, load=load,
+            target_range=target_range, load_range=load_range, flat_observation=True,
+            reference=reference, sine_freq=sine_freq, sine_freq_range=sine_freq_range,
+            randomize=randomize, reward=reward, controller=controller)
         self._params = params
-        self.episode_steps = math.ceil(time_limit / self._env.control_timestep() - 1e-9)
-        self.frame_skip = int(frame_skip)
-        # dm_control ends an episode after this many steps (its step limit, rounded up)
-        self.step_limit = math.ceil(time_limit / (self.physics.timestep() * self.frame_skip))
+        self.episode_steps = math.ceil(time_limit / self.control_timestep - 1e-9)
+        # episodes end after this many steps (dm_control's step limit, rounded up)
+        self.step_limit = math.ceil(time_limit / self.control_timestep)
+        self._steps = 0
         self.render_mode = render_mode
         self._render_size = render_size
         self._frames = None  # wpam_mj.visualisation.scene.StateFrames, made on the first render
-        self.metadata = {**self.metadata, "render_fps": 1.0 / self._env.control_timestep()}
+        self.metadata = {**self.metadata, "render_fps": 1.0 / self.control_timestep}
 
-        spec = self._env.action_spec()
+        spec = self._task.action_spec(self._physics)
         lo, hi = (load, load) if load is not None else load_range
         loads = (lo * (1 - 1e-9), hi * (1 + 1e-9))  # observed as mass * g: allow its rounding
         self.scaling = Scaling(params, spec.minimum, spec.maximum, loads) if normalize \
@@ -241,19 +241,19 @@ class WPAMEnv(Env):
                            dtype=np.float64))
 
     @property
-    def physics(self) -> MusclePhysics:
-        """The MuJoCo physics and pneumatic state (shared with the dm_control env)."""
-        return self._env.physics
+    def physics(self) -> RigPhysics:
+        """The MuJoCo physics and pneumatic state (the dm_control env's, without it)."""
+        return self._physics
 
     @property
     def control_timestep(self) -> float:
         """Time between actions [s] (frame_skip * dt)."""
-        return self._env.control_timestep()
+        return self._physics.timestep() * self.frame_skip
 
     @property
     def task(self) -> TrackingTask:
         """The tracking task: targets, loads, reward, observations."""
-        return self._env.task
+        return self._task
 
     def reset(self, *, seed: int | None = None,
               options: dict | None = None) -> tuple[np.ndarray, dict]:
@@ -262,8 +262,13 @@ class WPAMEnv(Env):
         if seed is not None:
             self.task.random.seed(seed)
         self.task.fix_next_episode(**fixed)
-        timestep = self._env.reset()
-        self._obs = self._observation(timestep)
+        # as dm_control's Environment.reset: the physics at rest, the task's episode, then
+        # the derived quantities of that state
+        self._steps = 0
+        self._physics.reset()
+        self.task.initialize_episode(self._physics)
+        self._physics.after_reset()
+        self._obs = self._observation()
         self._ended = None
         if self._frames is not None:
             self._frames.set_load(self.physics.load())
@@ -273,16 +278,19 @@ class WPAMEnv(Env):
         if self._ended is not None:
             raise RuntimeError(f"cannot step: {self._ended}; call reset() first")
         command = action if self.scaling is None else self.scaling.action(action)
-        try:
-            timestep = self._env.step(command)
+        try:  # as dm_control's Environment.step
+            self.task.before_step(command, self._physics)
+            self._physics.step(self.frame_skip)
         except control.PhysicsError as err:
             self._ended = f"the episode ended, the state diverged ({err})"
             return self._obs.copy(), 0.0, True, False, {**self._info(), "diverged": str(err)}
-        self._obs = self._observation(timestep)
-        truncated = timestep.last()
+        reward = self.task.get_reward(self._physics)
+        self._obs = self._observation()
+        self._steps += 1
+        truncated = self._steps >= self.step_limit
         if truncated:
             self._ended = "the episode ended at its time limit"
-        return self._obs.copy(), float(timestep.reward), False, truncated, self._info()
+        return self._obs.copy(), reward, False, truncated, self._info()
 
     def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":
@@ -300,8 +308,8 @@ class WPAMEnv(Env):
             self._frames.close()
             self._frames = None
 
-    def _observation(self, timestep) -> np.ndarray:
-        obs = np.asarray(timestep.observation[control.FLAT_OBSERVATION_KEY], dtype=np.float64)
+    def _observation(self) -> np.ndarray:
+        obs = np.concatenate(list(self.task.get_observation(self._physics).values()))
         return obs if self.scaling is None else self.scaling.observation(obs)
 
     def _info(self) -> dict:

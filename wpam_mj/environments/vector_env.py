@@ -140,7 +140,7 @@ class WPAMVectorEnv(VectorEnv):
     def batch_data(self, i: int) -> mujoco.MjData:
         """Environment i's current MuJoCo state as an MjData (mj_forward not run)."""
         if self._batch is None:
-            return self.envs[i].physics.data.ptr
+            return self.envs[i].physics.data
         return self._batch.sim.get_data(i)
 
     def reset(self, *, seed: int | Sequence[int | None] | None = None,
@@ -232,7 +232,7 @@ class _BatchedEpisodes:
         n = len(envs)
         env = envs[0]
         self.rig = env.physics.rig
-        self.sim = mjbatch.Batch(env.physics.model.ptr, n, nthread=nthread)
+        self.sim = mjbatch.Batch(env.physics.model, n, nthread=nthread)
         self.rows = np.arange(n)
         self.action = env.task.action
         self.scaling = env.scaling
@@ -266,7 +266,7 @@ class _BatchedEpisodes:
         for i in ids:
             env = self.envs[i]
             physics, task = env.physics, env.task
-            mujoco.mj_getState(physics.model.ptr, physics.data.ptr, self.sim.state[i], _STATE)
+            mujoco.mj_getState(physics.model, physics.data, self.sim.state[i], _STATE)
             self.sim.warning[i] = 0  # warnings are no part of the state: as a reset data
             self.k[i] = 0
             self.length0[i] = physics.rig.length0
@@ -279,7 +279,7 @@ class _BatchedEpisodes:
                                                                    self.load[i])
             if self.pid is not None:
                 self.pid.load(i, task.pi_controller)
-        models = [env.physics.model.ptr for env in self.envs]
+        models = [env.physics.model for env in self.envs]
         if any(m.npluginstate != models[0].npluginstate for m in models):
             raise ParameterError("engine='batch' needs one plugin state size for every "
                                  "environment (a randomized dead time changes it); use "
