@@ -15,7 +15,8 @@ from gymnasium.utils.env_checker import check_env  # noqa: E402
 import wpam_mj  # noqa: E402
 from wpam_mj import paper  # noqa: E402
 from wpam_mj.control.controllers import PIControl  # noqa: E402
-from wpam_mj.environments.dm_env_task import OBSERVATIONS, make_env  # noqa: E402
+from wpam_mj.environments.dm_env_task import (OBSERVATIONS, dm_control_runs,  # noqa: E402
+                                              make_env)
 from wpam_mj.environments.gym_env import ENV_ID, WPAMEnv  # noqa: E402
 from wpam_mj.physics.params import MM, MPA, ParameterError  # noqa: E402
 from wpam_mj.environments.policies import mean_return  # noqa: E402
@@ -68,6 +69,7 @@ def test_frame_skip_sets_the_control_step(frame_skip, dt) -> None:
     assert env.metadata["render_fps"] == pytest.approx(1 / (frame_skip * dt))
 
 
+@pytest.mark.skipif(not dm_control_runs(), reason="dm_control does not run on this mujoco")
 @pytest.mark.parametrize("reference, action", [("step", "po"), ("sine", "po"),
                                                ("step", "both")])
 def test_same_trajectory_as_dm_control(reference, action) -> None:
@@ -302,3 +304,18 @@ def test_vector_env_refuses_a_time_limit_its_max_episode_steps_would_cut() -> No
         gymnasium.make_vec(ENV_ID, num_envs=2, params=PARAMS, time_limit=20.0)
     gymnasium.make_vec(ENV_ID, num_envs=2, params=PARAMS, time_limit=20.0,
                        max_episode_steps=2000)
+
+
+def test_the_dm_control_env_refuses_mujoco_4_naming_the_versions_that_work(
+        monkeypatch) -> None:
+    """dm-control 1.0.50 fails on mujoco 4 (MjModel has no flex_vertedge): make_env says
+    so in one line, while the Gymnasium environment runs without dm_control's Physics."""
+    import mujoco  # noqa: PLC0415
+
+    monkeypatch.setattr(mujoco, "__version__", "4.0.0")
+    with pytest.raises(RuntimeError, match=r"^the dm_control environment needs mujoco "
+                       r">= 3.17, < 4 \(dm-control fails on mujoco 4.0.0\)[^\n]*$"):
+        make_env(PARAMS)
+    env = gymnasium.make("wpam_mj/WPAMTrack-v0", params=PARAMS)
+    env.reset(seed=0)
+    env.step(env.action_space.sample())

@@ -595,9 +595,14 @@ def build(physics_class: type[MusclePhysics] | type[RigPhysics], params: Params 
 DM_CONTROL_MUJOCO = ">= 3.17, < 4"
 
 
+def dm_control_runs() -> bool:
+    """Whether dm_control runs on the installed mujoco (`DM_CONTROL_MUJOCO`)."""
+    return int(mujoco.__version__.split(".")[0]) < 4
+
+
 def check_dm_control() -> None:
     """Refuse, in one line, a mujoco that dm_control does not run on."""
-    if int(mujoco.__version__.split(".")[0]) >= 4:
+    if not dm_control_runs():
         raise RuntimeError(f"the dm_control environment needs mujoco {DM_CONTROL_MUJOCO} "
                            f"(dm-control fails on mujoco {mujoco.__version__}); the default "
                            "install has it, and the Gymnasium ids run on both")
