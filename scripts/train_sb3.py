@@ -242,7 +242,8 @@ def main() -> None:
     (args.out / "scores.json").write_text(json.dumps(
         {"settings": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
          "episode_steps": EPISODE_STEPS, "test_seeds": test, "validation_seeds": validation,
-         "scores": scores, "pi_validation": pi_validation, "steps": model.num_timesteps, "train_wall_s": wall,
+         "scores": scores, "pi_validation": pi_validation, "steps": model.num_timesteps,
+         "train_wall_s": wall,
          "train_steps_per_s": model.num_timesteps / wall,
          "load_average_end": os.getloadavg()[0], "curve": curve}, indent=1) + "\n")
     model.save(args.out / "last.zip")
