@@ -133,7 +133,8 @@ def make_model(args, venv):
                    verbose=0, policy_kwargs=policy_kwargs, device="cpu")
     return SAC("MlpPolicy", venv, learning_rate=args.learning_rate, gamma=args.gamma,
                batch_size=args.batch_size, buffer_size=args.steps, learning_starts=10_000,
-               train_freq=1, gradient_steps=args.gradient_steps, seed=args.seed, verbose=0,
+               train_freq=1, gradient_steps=args.gradient_steps, use_sde=args.sde,
+               sde_sample_freq=args.sde_sample_freq, seed=args.seed, verbose=0,
                policy_kwargs=policy_kwargs, device="cpu")
 
 

@@ -150,7 +150,11 @@ class Scaling:
 
     def observations(self, obs_si: np.ndarray) -> np.ndarray:
         """SI observations (N, 6) -> normalised (N, 7) float32 in [-1, 1]."""
-        full = np.column_stack((obs_si, obs_si[:, 0] - obs_si[:, 4]))
+        return self.normalised(np.column_stack((obs_si, obs_si[:, 0] - obs_si[:, 4])))
+
+    def normalised(self, full: np.ndarray) -> np.ndarray:
+        """SI observations with the tracking error x - x_r appended, (N, 7) -> normalised
+        float32 in [-1, 1]."""
         return np.clip((full - self._centre) / self._half, -1.0, 1.0).astype(np.float32)
 
 

@@ -320,12 +320,15 @@ class _BatchedEpisodes:
         x = self.length0[rows] - self.ten_length[rows, tendon]
         state = self.plugin_state[rows]
         target = self.targets[at, k]
-        obs_si = np.column_stack((x, -self.ten_velocity[rows, tendon],
-                                  state[:, self.p_i] - self.atmosphere[rows],
-                                  state[:, self.p_o] - self.atmosphere[rows],
-                                  target, self.load[rows]))
-        obs = obs_si if self.scaling is None else self.scaling.observations(obs_si)
         error = x - target
+        # the SI observation (OBSERVATIONS order) and the tracking error
+        full = np.empty((len(x), 7))
+        full[:, 0], full[:, 4], full[:, 5], full[:, 6] = x, target, self.load[rows], error
+        np.negative(self.ten_velocity[rows, tendon], out=full[:, 1])
+        atmosphere = self.atmosphere[rows]
+        np.subtract(state[:, self.p_i], atmosphere, out=full[:, 2])
+        np.subtract(state[:, self.p_o], atmosphere, out=full[:, 3])
+        obs = full[:, :6] if self.scaling is None else self.scaling.normalised(full)
         self.x[rows] = x
         rewards, terminated = np.zeros(n), np.zeros(n, dtype=bool)
         truncated = np.zeros(n, dtype=bool)
@@ -338,11 +341,10 @@ class _BatchedEpisodes:
         every.flags.writeable = False  # one mask for every key: each environment has each
         infos = {}
         for key in INFO_KEYS:
-            if len(resetting):
-                values = np.empty(n, dtype=bool if key == "is_success" else np.float64)
+            values = info[key]  # each a new array but time_s, a view of the state
+            if len(resetting) or key == "time_s":
+                values = np.empty(n, dtype=values.dtype)
                 values[rows] = info[key]
-            else:
-                values = np.array(info[key])
             infos[key], infos[f"_{key}"] = values, every
         if diverged:  # rare: terminated, reward 0, the last valid observation kept
             j = np.array(list(diverged))
@@ -372,9 +374,9 @@ class _BatchedEpisodes:
             for i in err.ids:
                 diverged[int(np.flatnonzero(at == i)[0])] = self.sim.error(int(i))
         failed = self.plugin_state[rows, self.status] != 0
-        warned = self.sim.warning[rows, :, _WARNING_NUMBER].any(axis=1)
-        if failed.any() or warned.any():
-            for j in np.flatnonzero(failed | warned):
+        warnings = self.sim.warning[rows, :, _WARNING_NUMBER]
+        if failed.any() or warnings.any():
+            for j in np.flatnonzero(failed | warnings.any(axis=1)):
                 diverged.setdefault(int(j), "the muscle's state left its range" if failed[j]
                                     else "MuJoCo warned of an invalid physics state")
         return dict(sorted(diverged.items()))
