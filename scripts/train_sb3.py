@@ -36,6 +36,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 import wpam_mj  # noqa: F401 (registers the ids)
 from wpam_mj.environments.policies import POLICIES, mean_return
 from wpam_mj.environments.registry import EPISODE_STEPS
+from wpam_mj.environments.vector_env import default_threads
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -132,9 +133,11 @@ def make_model(args, venv):
                    use_sde=args.sde, sde_sample_freq=args.sde_sample_freq, seed=args.seed,
                    verbose=0, policy_kwargs=policy_kwargs, device="cpu")
     return SAC("MlpPolicy", venv, learning_rate=args.learning_rate, gamma=args.gamma,
-               batch_size=args.batch_size, buffer_size=args.steps, learning_starts=10_000,
-               train_freq=1, gradient_steps=args.gradient_steps, use_sde=args.sde,
-               sde_sample_freq=args.sde_sample_freq, seed=args.seed, verbose=0,
+               batch_size=args.batch_size, buffer_size=args.steps,
+               learning_starts=args.learning_starts, train_freq=1,
+               gradient_steps=args.gradient_steps, use_sde=args.sde,
+               sde_sample_freq=args.sde_sample_freq, use_sde_at_warmup=args.sde,
+               seed=args.seed, verbose=0,
                policy_kwargs=policy_kwargs, device="cpu")
 
 
@@ -147,7 +150,7 @@ def parse_args() -> argparse.Namespace:
                    help="environment steps to train, exactly (default: 60 PPO rollouts "
                         "of 16 x 4096)")
     p.add_argument("--n-envs", type=int, default=16, help="environments stepped together")
-    p.add_argument("--nthread", type=int, default=min(2, len(os.sched_getaffinity(0))),
+    p.add_argument("--nthread", type=int, default=min(2, default_threads(16)),
                    help="mujoco.batch threads (default: 2, or the CPUs available)")
     p.add_argument("--seed", type=int, default=0, help="seed of the agent and the "
                    "training environments (env i: seed + i)")
@@ -168,6 +171,10 @@ def parse_args() -> argparse.Namespace:
                         "exploring the Po correction by about +-11 kPa)")
     p.add_argument("--gradient-steps", type=int, default=1,
                    help="SAC: gradient steps per vector step")
+    p.add_argument("--learning-starts", type=int, default=10_000,
+                   help="SAC: steps before the first update, acting with the initial "
+                        "policy (its gSDE noise about a zero correction: the PI) rather "
+                        "than uniformly random corrections when --sde")
     p.add_argument("--eval-every", type=int, default=131_072,
                    help="score the policy on the validation seeds every this many steps")
     p.add_argument("--curve-seeds", type=int, default=8, help="validation seeds 1000..")

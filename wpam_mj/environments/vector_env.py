@@ -50,7 +50,9 @@ _WARNING_NUMBER = 1  # mjWarningStat: (lastinfo, number)
 
 def default_threads(num_envs: int) -> int:
     """Batch threads by default: one per CPU this process may run on, at most num_envs."""
-    return max(1, min(num_envs, len(os.sched_getaffinity(0))))
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") \
+        else os.cpu_count() or 1
+    return max(1, min(num_envs, cpus))
 
 
 class PIArrays:
