@@ -22,8 +22,7 @@ tests/test_vector_env.py). Two engines step the physics:
   "serial" each environment's `WPAMEnv.step` in turn (the reference, and the engine
            where the compiled plugin is unavailable).
 "auto" takes "batch" when the plugin is available. During a batched episode the
-environments' own MuJoCo data is not advanced (`envs.envs[i]` keeps its reset state);
-`batch_data(i)` returns environment i's current state as an MjData.
+environments' own MuJoCo data is not advanced: `envs.envs[i]` keeps its reset state.
 """
 
 from __future__ import annotations
@@ -133,17 +132,6 @@ class WPAMVectorEnv(VectorEnv):
             engine == "auto" and plugin.available()) else "serial"
         self._batch = _BatchedEpisodes(self.envs, nthread or default_threads(num_envs)) \
             if self.engine == "batch" else None
-
-    @property
-    def nthread(self) -> int:
-        """Batch threads (1 for the serial engine)."""
-        return 1 if self._batch is None else self._batch.sim.nthread
-
-    def batch_data(self, i: int) -> mujoco.MjData:
-        """Environment i's current MuJoCo state as an MjData (mj_forward not run)."""
-        if self._batch is None:
-            return self.envs[i].physics.data
-        return self._batch.sim.get_data(i)
 
     def reset(self, *, seed: int | Sequence[int | None] | None = None,
               options: dict | None = None) -> tuple[np.ndarray, dict]:
