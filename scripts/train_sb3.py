@@ -182,9 +182,12 @@ def parse_args() -> argparse.Namespace:
     p.add_argument("--out", type=Path, default=Path("out/train"))
     args = p.parse_args()
     per_update = args.n_envs * (args.n_steps if args.algo == "ppo" else 1)
-    if args.steps <= 0 or args.steps % per_update:
-        p.error(f"--steps {args.steps} must be a positive multiple of {per_update} "
-                f"({'n-envs x n-steps, one PPO rollout' if args.algo == 'ppo' else 'n-envs'})")
+    unit = "n-envs x n-steps, one PPO rollout" if args.algo == "ppo" else "n-envs"
+    for name in ("steps", "eval_every"):
+        value = getattr(args, name)
+        if value <= 0 or value % per_update:
+            p.error(f"--{name.replace('_', '-')} {value} must be a positive multiple of "
+                    f"{per_update} ({unit})")
     return args
 
 
@@ -215,8 +218,7 @@ def main() -> None:
     best, evaluating, start = -np.inf, 0.0, time.perf_counter()
     done = 0
     while done < args.steps:
-        chunk = min(args.eval_every, args.steps - done)
-        chunk -= chunk % (args.n_envs * (args.n_steps if args.algo == "ppo" else 1))
+        chunk = min(args.eval_every, args.steps - done)  # whole rollouts (parse_args)
         model.learn(total_timesteps=chunk, reset_num_timesteps=False)
         done = model.num_timesteps
         t0 = time.perf_counter()
