@@ -1,9 +1,10 @@
 """The global search of the credible box, as `wpam search` (a thin wrapper for background runs).
 
-    nice -n 10 python scripts/global_search.py --out out/search --maxiter 5 [--resume]
+    nice -n 10 python scripts/global_search.py --out out/search --seed 20 [--resume]
 
 Journals every point to OUT/journal.jsonl (resumable), prints progress with the time
-left, and writes OUT/best.toml, best.txt, feasibility.md and feasibility.png.
+left, and writes OUT/best.toml, best.txt, convergence.csv, convergence.png,
+feasibility.md and feasibility.png.
 """
 
 from __future__ import annotations
@@ -18,8 +19,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, default=Path("out") / "search")
     ap.add_argument("--seed", type=int, default=20)
-    ap.add_argument("--popsize", type=int, default=2)
-    ap.add_argument("--maxiter", type=int, default=3)
+    ap.add_argument("--popsize", type=int, default=search.POPSIZE)
+    ap.add_argument("--maxiter", type=int, default=search.MAXITER)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--resume", action="store_true")
     a = ap.parse_args()

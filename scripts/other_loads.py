@@ -1,7 +1,7 @@
 """The paper's figures at loads between and beyond its own: is the fit physical
 away from 50/100/150 N?
 
-At 50, 75, 100, 125, 150 and 200 N, on the shipped parameters and protocol (or
+At 25, 50, 75, 100, 125, 150 and 200 N, on the shipped parameters and protocol (or
 --config FILE and the protocol options of `wpam reproduce`'s defaults): Table 2's rows,
 the PI staircase (worst settled plateau error and x peak-to-peak, plateau-mean Pi and
 Po), and the PI frequency response (gain, lag, regulator Po max). Then the trends a
@@ -30,7 +30,7 @@ from wpam_mj.experiments.protocol import LOOP_METHODS, SHIPPED, table2_batch
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.experiments.paper_studies import PLATEAU_SETTLE_S, sweep_batch
 
-LOADS_N = (50.0, 75.0, 100.0, 125.0, 150.0, 200.0)
+LOADS_N = (25.0, 50.0, 75.0, 100.0, 125.0, 150.0, 200.0)
 LAG_FREQ_HZ = 0.1
 
 

@@ -48,6 +48,28 @@ def test_concurrent_runs_into_one_folder_each_list_their_own_files(tmp_path):
         statuses.append(manifest.check_files(tmp_path / "same" / f"manifest-{run}.json"))
     complete = [s for s in statuses if set(s.values()) == {"ok"}]
     assert len(complete) == 1, statuses  # the run that finished last
+    for run, status in zip(runs, statuses):  # the others say which run rewrote their files
+        listed = manifest.read_manifest(tmp_path / "same" / f"manifest-{run}.json")["files"]
+        assert all((listed[n].get("overwritten_by") in runs) == (s == "changed")
+                   for n, s in status.items()), (run, status)
+
+
+def test_a_run_that_rewrites_another_runs_files_marks_its_manifest(tmp_path, capsys):
+    """Before: the first run's manifest kept vouching for files the second had rewritten."""
+    out = tmp_path / "same"
+    ids = []
+    for dt in ("0.005", "0.0025", "0.0025"):  # the third reruns the second: nothing to mark
+        assert main(["step", "--load", "100", "--dt", dt, "--jobs", "1", "--json",
+                     "--out", str(out)]) == 0
+        captured = capsys.readouterr()
+        ids.append(json.loads(captured.out)["run_id"])
+        notes = [line for line in captured.err.splitlines() if "rewrote" in line]
+        assert notes == ([f"note: this run rewrote files that manifest-{ids[0]}.json listed "
+                          "(marked there as overwritten by this run)"] if len(ids) == 2 else [])
+    first = manifest.read_manifest(out / f"manifest-{ids[0]}.json")["files"]
+    assert {e.get("overwritten_by") for e in first.values()} == {ids[1]}
+    assert set(manifest.check_files(out / f"manifest-{ids[0]}.json").values()) == {"changed"}
+    assert set(manifest.check_files(out / f"manifest-{ids[1]}.json").values()) == {"ok"}
 
 
 def test_a_second_claim_of_a_folder_waits_for_the_first(tmp_path):

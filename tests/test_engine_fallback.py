@@ -35,4 +35,4 @@ def test_without_the_plugin_the_python_engine_runs_and_plain_compiles_refuse():
                           text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "refused"
-    assert "run such a model on the Python engine" in proc.stderr
+    assert "load it on the Python engine instead: model, muscles = " in proc.stderr

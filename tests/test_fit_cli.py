@@ -106,3 +106,40 @@ def test_env_draws_parameters_from_the_ranges_each_episode(tmp_path):
     plain = make_env(seed=3, time_limit=0.05)
     plain.reset()
     assert plain.physics.params == preset()
+
+
+def test_fit_refuses_a_free_list_naming_no_parameter(synthetic, tmp_path, capsys):
+    """Before: `--free ,` fitted the default set, silently."""
+    code, _, err = _run(capsys, "fit", "--data", synthetic, "--free", ",", "--out",
+                        tmp_path / "p.toml")
+    _one_line(code, err)
+    assert "--free: ',' names no parameter" in err
+
+
+@pytest.mark.parametrize("bounds, words", [
+    ("muscle.friction_const=40.01:2000000", "muscle.friction_const=40.01:2000000: "
+     "muscle.friction_const = 2000000.0 N is outside the allowed range [0, 500] N"),
+    ("muscle.friction_coeff=-1:0.3", "muscle.friction_coeff=-1:0.3: muscle.friction_coeff "
+     "= -1.0 1 is outside the allowed range [0, 1]"),
+])
+def test_fit_names_the_bound_given_and_the_allowed_range(synthetic, tmp_path, capsys, bounds,
+                                                         words):
+    """Before: 40.01:2000000 failed naming the search's start, 1000020.005; -1:0.3 ran."""
+    name = bounds.partition("=")[0]
+    code, _, err = _run(capsys, "fit", "--data", synthetic, "--free", name, "--bounds",
+                        bounds, "--out", tmp_path / "p.toml")
+    _one_line(code, err)
+    assert f"--bounds {words}" in err
+
+
+def test_fit_names_a_file_too_short_to_replay_and_why(tmp_path, capsys):
+    """Before: "the simulation fails at the start values; check the start parameters and
+    the data" (neither the file nor the cause)."""
+    rows = ["time_s,load_n,pi_mpa,po_mpa,x_mm"] + [f"{0.0001 * i:g},100,0.1,0,1"
+                                                   for i in range(12)]
+    path = tmp_path / "brief.csv"
+    path.write_text("\n".join(rows) + "\n")
+    code, _, err = _run(capsys, "fit", "--data", path, "--free", "muscle.friction_coeff",
+                        "--out", tmp_path / "p.toml")
+    _one_line(code, err)
+    assert f"{path}: its record spans 0.0011 s, less than one step of its replay" in err

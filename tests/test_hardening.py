@@ -390,7 +390,7 @@ def test_manifest_refuses_files_outside_its_folder(tmp_path) -> None:
 
 _KILLED_WRITER = textwrap.dedent("""
     import os, signal, sys
-    from wpam_mj.simulation.results import write_atomic
+    from wpam_mj.infra.files import write_atomic
     def write(p):
         p.write_bytes(b"partial")
         os.kill(os.getpid(), signal.SIGKILL)

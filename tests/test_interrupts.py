@@ -8,6 +8,7 @@ ten passes in a row with the machine busy)."""
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -178,6 +179,44 @@ def test_leaving_a_pool_on_an_exception_stops_its_workers_at_once():
     assert not pool._pool._processes  # shut down
 
 
+FULL_DISK = """
+import errno, sys, time
+from wpam_mj.infra.pool import TaskPool
+from wpam_mj.infra.termination import handle_signals
+
+class Sleep:
+    cost = 2.0
+    def run(self):
+        time.sleep(30)
+
+class Large:  # a figure's records: more than a pipe's buffer once pickled
+    cost = 1.0
+    def __init__(self):
+        self.payload = b"x" * 4_000_000
+    def run(self):
+        return len(self.payload)
+
+try:
+    with handle_signals(), TaskPool(2) as pool:  # as the command line runs it
+        pool.submit([Sleep(), Sleep(), *[Large() for _ in range(4)]])
+        time.sleep(0.5)  # the feeder is now blocked on the full pipe to the busy workers
+        raise OSError(errno.ENOSPC, "No space left on device")
+except OSError as err:
+    print(err, file=sys.stderr)
+    sys.exit(1)
+"""
+
+
+def test_a_pool_left_on_a_full_disk_with_large_tasks_queued_exits_at_once():
+    """wpam reproduce --jobs 2 into a full disk hung at exit: the call queue's feeder was
+    blocked writing a large task to stopped workers, and the interpreter joined it."""
+    start = time.monotonic()
+    proc = subprocess.run([sys.executable, "-c", FULL_DISK], capture_output=True, text=True,
+                          timeout=20, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert proc.returncode == 1 and proc.stderr.strip() == "[Errno 28] No space left on device"
+    assert time.monotonic() - start < 10.0
+
+
 def test_a_worker_pool_shut_down_after_a_signal_does_not_wait():
     with termination.handle_signals():
         executor = WorkerPool(2)
@@ -221,3 +260,27 @@ def test_leaving_dask_workers_on_an_exception_cancels_instead_of_waiting():
             w.executor.submit(time.sleep, 30)
             1 / 0
         assert time.monotonic() - start < 10.0  # not the task's 30 s
+
+
+def _can_mount_tmpfs() -> bool:
+    if shutil.which("unshare") is None:
+        return False
+    probe = subprocess.run(["unshare", "-rm", "sh", "-c", "mount -t tmpfs -o size=64k tmpfs /mnt"],
+                           capture_output=True, timeout=10)
+    return probe.returncode == 0
+
+
+@pytest.mark.skipif(not _can_mount_tmpfs(), reason="needs unshare -rm and a tmpfs mount")
+def test_reproduce_with_two_jobs_into_a_full_disk_exits_with_one_line(tmp_path):
+    """The issue's case on a real full disk: a 300 kB tmpfs (in a private mount namespace).
+    Before: 'No space left on device', then no exit (killed at 90 s)."""
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    script = (f"mount -t tmpfs -o size=300k tmpfs {disk} && exec {sys.executable} -m wpam_mj "
+              f"reproduce --jobs 2 --out {disk}/o")
+    start = time.monotonic()
+    proc = subprocess.run(["unshare", "-rm", "sh", "-c", script], capture_output=True,
+                          text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert proc.returncode == 1
+    assert proc.stderr == "wpam: error: [Errno 28] No space left on device\n"
+    assert time.monotonic() - start < 60

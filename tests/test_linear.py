@@ -254,7 +254,7 @@ def test_wpam_linear_writes_plot_csv_and_json(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("argv", [["linear", "--amplitudes", "30"],  # beyond 0-50 mm
-                                  ["linear", "--contraction", "90"],  # beyond the stroke
+                                  ["linear", "--contraction", "95"],  # beyond the stroke
                                   # 1000 N held at 50 mm needs Pi ~0.58 MPa > p_max
                                   ["linear", "--load", "1000", "--contraction", "50"],
                                   ["sweep", "--amplitude", "0"]])

@@ -13,6 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from wpam_mj.experiments.feasibility import max_liftable_load
+
 from wpam_mj.infra import budget
 from wpam_mj.design import metrics, study
 from wpam_mj.experiments import writers
@@ -115,7 +117,8 @@ def test_the_budget_passes_every_shipped_protocol_at_the_default_dt():
 # ------------------------------------------------------------------ 4: silent nonsense
 
 @pytest.mark.parametrize("call, match", [
-    (lambda: step_run(PARAMS, 1900.0, "pi"), r"1900 N.*cannot lift.*\[1, 746\.\d\] N"),
+    (lambda: step_run(PARAMS, 1900.0, "pi"),
+     rf"1900 N.*cannot lift.*\[1, {max_liftable_load(PARAMS):.1f}\] N"),
     (lambda: step_run(PARAMS, 100.0, "pi", levels_mm=(0, 500)), r"\[0, 500\] mm.*stroke"),
     (lambda: step_run(PARAMS, 100.0, "open", levels_mm=(-5, 10)), r"\[-5, 10\] mm"),
     (lambda: sine_run(PARAMS, 100.0, "pi", SineSpec(0.5, amplitude=0.03)), r"\[-5, 55\] mm"),
@@ -258,3 +261,20 @@ def test_a_closed_stdout_at_start_writes_the_files_and_exits_141(tmp_path):
                           text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert (proc.returncode, proc.stderr) == (141, "")
     assert {p.suffix for p in (tmp_path / "o").iterdir()} == {".csv", ".png", ".json"}
+
+
+@pytest.mark.parametrize("kp, note", [(50.0, True), (None, False)])
+def test_a_step_run_that_never_settles_says_so(here, capsys, kp, note):
+    """Before: a limit cycle of 9 mm peak to peak (73 mm with other in-range settings)
+    exited 0 with plateau means and nothing else."""
+    if kp is not None:
+        (here / "lc.toml").write_text(f"[controller]\nkp = {kp}\n")
+    config = ("--config", "lc.toml") if kp is not None else ()
+    assert main(["step", "--load", "100", "--control", "pi", *config, "--json", "--out", "o",
+                 *FAST]) == 0
+    out, err = capsys.readouterr()
+    assert json.loads(out)["plateaus_settled"] is not note
+    lines = [line for line in err.splitlines() if "never settled" in line]
+    assert len(lines) == int(note)
+    if note:
+        assert lines[0].startswith("note: step wpam 100 N pi: x never settled on its plateaus")

@@ -1,18 +1,22 @@
 """The global search on a cheap stand-in for the paper's targets: seeded and
-deterministic, journaled, resumable without rerunning, and its archive a feasibility map.
-The paper's own targets take minutes per generation: scripts/global_search.py."""
+deterministic, journaled, resumable without rerunning, and its archive a feasibility map;
+its quasi-static screen against the simulated Table 2 row. The paper's own targets take
+minutes per generation: scripts/global_search.py."""
 
 from __future__ import annotations
 
 import json
 
+import dataclasses
+
 import numpy as np
 import pytest
 
+from wpam_mj import paper
 from wpam_mj.reproduction import findings_map
 from wpam_mj.reproduction import search
 from wpam_mj.physics.params import ParameterError, preset
-from wpam_mj.experiments.protocol import Protocol
+from wpam_mj.experiments.protocol import (SHIPPED, ProtocolStaticTask, quasi_static_po_row)
 
 
 class _Task:
@@ -32,7 +36,7 @@ _Task.runs = 0
 class _Targets:
     """Two findings that conflict (a high and a low Kf) and the rest met by a low mu."""
 
-    def __init__(self, protocol: Protocol) -> None:
+    def __init__(self, protocol) -> None:
         self.protocol = protocol
 
     def tasks(self, params):
@@ -47,16 +51,28 @@ class _Targets:
         return r, margins, {"step_error_mm": {"pi": [0.1]}, "table2_po_row": [kf, mu, 0.06]}
 
 
+def _fit(params, protocol):
+    """A stand-in static screen: points with F_f0 above 25 N miss the row by 50 %."""
+    return params, protocol, 0.5 if params.muscle.friction_const > 25.0 else 0.0
+
+
 def _search(tmp_path, **kw):
     return search.search(tmp_path, popsize=1, maxiter=2, jobs=1, progress=False,
-                         targets=_Targets, **kw)
+                         targets=_Targets, fit=_fit, **kw)
+
+
+def _simulated(records):
+    return [r for r in records if not (r.figures or {}).get("static_error")]
 
 
 def test_search_is_seeded_journaled_and_resumes_without_rerunning(tmp_path):
     _Task.runs = 0
     first = _search(tmp_path / "a")
-    runs = _Task.runs
-    assert runs == 2 * first.evaluations
+    simulated = _simulated(first.records)
+    assert 0 < len(simulated) < first.evaluations  # the screen spared some points
+    assert _Task.runs == 2 * len(simulated)
+    assert all(r.cost >= search.STATIC_MISS_COST for r in first.records
+               if r not in simulated)
     lines = (tmp_path / "a" / "journal.jsonl").read_text().splitlines()
     assert len(lines) == first.evaluations and json.loads(lines[0])["margins"]
     again = _search(tmp_path / "b")
@@ -67,7 +83,10 @@ def test_search_is_seeded_journaled_and_resumes_without_rerunning(tmp_path):
     _Task.runs = 0
     resumed = _search(tmp_path / "b", resume=True)
     assert resumed.best == first.best
-    assert _Task.runs == 2 * (first.evaluations - len(lines) // 2)
+    replayed = {json.loads(line)["key"] for line in lines[:len(lines) // 2]}
+    rerun = [r for r in _simulated(first.records)
+             if search._key(r.u) not in replayed]
+    assert _Task.runs == 2 * len(rerun)
     with pytest.raises(ParameterError, match="no journal"):
         _search(tmp_path / "c", resume=True)
 
@@ -84,9 +103,52 @@ def test_the_archive_maps_which_findings_conflict(tmp_path):
     assert findings_map.figure(pm, tmp_path / "map.png", "test").stat().st_size > 1000
 
 
-def test_coordinates_round_trip_the_shipped_point():
+def test_convergence_is_the_running_best_in_scoring_order(tmp_path):
+    records = _search(tmp_path).records
+    conv = search.convergence(records)
+    assert [c[0] for c in conv] == list(range(1, len(records) + 1))
+    assert all(a[1] >= b[1] and a[2] <= b[2] for a, b in zip(conv, conv[1:]))
+    assert conv[-1][1] == min(r.cost for r in records)
+
+
+def test_the_quasi_static_row_agrees_with_the_simulated_one():
+    """The screen's premise: on the shipped slow ramps the equilibrium model's play
+    operator gives the simulated Table 2 "Po = 0.04" row within a few per cent."""
+    params = preset("wpam")
+    quasi = quasi_static_po_row(params, SHIPPED)
+    for load in paper.LOADS_N:
+        areas = [ProtocolStaticTask(params, load, po, 1e-3, SHIPPED).run().area
+                 for po in (0.0, paper.PO_DOWN_STATIC_MPA * 1e6)]
+        assert quasi[load] == pytest.approx(areas[1] / areas[0], rel=0.05), load
+
+
+def test_the_static_fit_brings_a_scrambled_point_back_to_the_row():
+    """With friction coefficient, axial area and ramp top moved to their range's ends,
+    the fit finds values inside the plausible ranges that meet the row on the
+    quasi-static loops."""
+    params = preset("wpam").with_values({"muscle.friction_coeff": 0.45,
+                                         "muscle.axial_area": 1e-4})
+    protocol = dataclasses.replace(SHIPPED, ramp_top=0.45e6)
+    fitted, fitted_protocol, err = search.static_fit(params, protocol)
+    assert err <= paper.TABLE2_PO_RTOL
+    assert 0.0 <= fitted.muscle.friction_coeff <= 0.5
+    assert 0.0 <= fitted.muscle.axial_area <= 2.8e-3
+    assert 0.08e6 <= fitted_protocol.ramp_top <= 0.45e6
+    row = quasi_static_po_row(fitted, fitted_protocol)
+    assert all(abs(row[f] / paper.TABLE2["open_po"][f] - 1.0) <= err + 1e-9
+               for f in paper.LOADS_N)
+
+
+def test_coordinates_round_trip():
     base = preset("wpam")
-    point = search.point_of(search.coordinates_of(search.Point(base, Protocol())), base)
-    assert point.params == base
-    assert point.protocol.ramp_top == 0.0 and point.protocol.loop_method == "branches"
-    assert point.protocol.ramp_time == pytest.approx(60.0)
+    u = search.coordinates_of(base)
+    point = search._point_task((tuple(u), base, _fit))
+    assert point.protocol == SHIPPED
+    for d in search.SPACE:
+        assert point.params.value(d.name) == pytest.approx(base.value(d.name), rel=1e-12)
+
+
+def test_the_command_line_states_the_search_defaults():
+    """`wpam search --help` spells these numbers out (wpam_mj/cli/reproduction.py)."""
+    assert (search.POPSIZE, search.MAXITER, len(search.SPACE)) == (3, 8, 7)
+    assert search.planned_evaluations(search.POPSIZE, search.MAXITER) == 190

@@ -3,18 +3,20 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 from wpam_mj import paper
 from wpam_mj.cli.arguments import (float_list, json_option, loop_area_option, name_list,
                                    out_dir_option, ramp_time_option)
-from wpam_mj.cli.runs import (amplitude_m, flag_still, liftable_loads, out_dir_of, output_modules,
-                              params_of, print_json, run_id_of, run_options, write_run_manifest,
-                              wrote)
+from wpam_mj.cli.runs import (amplitude_m, flag_still, flag_unsettled, liftable_loads,
+                              out_dir_of, output_modules, params_of, print_json, run_id_of,
+                              run_options, settled, write_run_manifest, wrote)
 from wpam_mj.control.controllers import CONTROLS, check_control
 from wpam_mj.experiments import paper_studies
 from wpam_mj.experiments.drives import SINE_AMPLITUDE_MM, SINE_MEAN_MM, SineSpec, check_po
 from wpam_mj.experiments.feasibility import load_moved
-from wpam_mj.experiments.protocol import SHIPPED, remeasure
+from wpam_mj.experiments.protocol import SHIPPED, table2_batch
+from wpam_mj.infra.pool import run_batches
 from wpam_mj.physics.params import MM, MPA, PRESETS, ParameterError
 from wpam_mj.reproduction import findings
 
@@ -42,7 +44,8 @@ def add_parsers(add) -> None:
                    help="hanging load [N] (default: 100)")
     p.add_argument("--control", choices=CONTROLS, default="pi",
                    help="open: Po = 0; pi/pid: feedback on Po (default: pi)")
-    json_option(p, "one JSON object: the run's settings, load_moved and its plateau means "
+    json_option(p, "one JSON object: the run's settings, load_moved, plateaus_settled (x "
+              "moved < 1 mm peak to peak where the means average) and its plateau means "
               "(target_mm, x_mm, error_mm, pi_mpa, po_mpa: chamber pressures)")
     out_dir_option(p, "step")
 
@@ -124,7 +127,8 @@ def _cmd_step(args: argparse.Namespace) -> int:
     moved = load_moved(res.result)
     if args.json:
         print_json({"preset": res.preset, "load_n": res.load, "control": res.control,
-                     "settle_s": res.settle, "load_moved": moved, "run_id": rid,
+                     "settle_s": res.settle, "load_moved": moved,
+                     "plateaus_settled": settled(res), "run_id": rid,
                      "plateaus": [{"target_mm": tg / MM, "x_mm": x / MM,
                                    "error_mm": (x - tg) / MM, "pi_mpa": pi / MPA,
                                    "po_mpa": po / MPA}
@@ -133,6 +137,7 @@ def _cmd_step(args: argparse.Namespace) -> int:
     else:
         print(tables.step_text(res))
     flag_still([(f"step {res.preset} {load:g} N {control}", moved)], args.json)
+    flag_unsettled(f"step {res.preset} {load:g} N {control}", res, args.json)
     if not args.json:
         wrote([*written, manifest])
     return 0
@@ -144,11 +149,13 @@ def _cmd_table2(args: argparse.Namespace) -> int:
     liftable_loads(paper.LOADS_N, [run.params], "Table 2 load")
     ramp_time = paper_studies.check_ramp_time(args.ramp_time)
     out = out_dir_of(args)
-    t2 = paper_studies.table2(run.params, dt=run.dt, jobs=run.jobs_for(3 * len(paper.LOADS_N)),
-                        progress=run.progress, ramp_time=ramp_time)
     loop_area = args.loop_area or SHIPPED.loop_method
-    t2 = remeasure(t2, loop_area)
-    settings = {"ramp_time_s": ramp_time, "dt_s": run.dt, "loop_area": loop_area}
+    protocol = dataclasses.replace(SHIPPED, ramp_time=ramp_time, loop_method=loop_area)
+    (t2,) = run_batches([table2_batch(run.params, protocol, dt=run.dt)],
+                        jobs=run.jobs_for(3 * len(paper.LOADS_N)), progress=run.progress,
+                        desc="table 2")
+    settings = {"ramp_time_s": ramp_time, "ramp_top_mpa": protocol.ramp_top / MPA,
+                "dt_s": run.dt, "loop_area": loop_area}
     rid = run_id_of(args, run.params, settings)
     written = writers.write_table2_outputs(out, t2, run_id=rid)
     still = [(f"table2 open loop {lp.load:g} N, Po = {lp.po_down / MPA:g} MPa while Pi falls",

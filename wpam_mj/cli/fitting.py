@@ -26,7 +26,7 @@ def add_parsers(add) -> None:
                    help="measurement CSV files, or folders of them (their *.csv)")
     p.add_argument("--holdout", nargs="+", default=[], metavar="FILE_OR_DIR",
                    help="experiments replayed with the fitted values but not fitted")
-    p.add_argument("--free", type=name_list, metavar="NAME,NAME,...",
+    p.add_argument("--free", type=_free_names, metavar="NAME,NAME,...",
                    help="parameters to fit, as section.field (default: those the paper does "
                         "not give: braid angle, Kf, mu, F_f0, A_ax, both line conductances)")
     p.add_argument("--bounds", type=name_list, default=(), metavar="NAME=LO:HI,...",
@@ -61,16 +61,32 @@ def add_parsers(add) -> None:
                    help="logger sample period [ms], a multiple of --dt (default: 1)")
 
 
-def _bounds(items: Sequence[str]) -> dict[str, tuple[float, float]]:
+def _free_names(text: str) -> tuple[str, ...]:
+    names = name_list(text)
+    if not names:
+        raise argparse.ArgumentTypeError(f"{text!r} names no parameter; give section.field "
+                                         "names separated by commas (e.g. "
+                                         "muscle.friction_coeff), or leave --free out for "
+                                         "the default set")
+    return names
+
+
+def _bounds(items: Sequence[str], params) -> dict[str, tuple[float, float]]:
+    """--bounds NAME=LO:HI items, each bound inside the parameter's allowed range."""
     out = {}
     for item in items:
         name, _, rng = item.partition("=")
         lo, _, hi = rng.partition(":")
         try:
-            out[name.strip()] = (float(lo), float(hi))
+            bounds = out[name.strip()] = (float(lo), float(hi))
         except ValueError:
             raise ParameterError(f"--bounds {item!r}: expected NAME=LO:HI, e.g. "
                                  "muscle.friction_coeff=0.05:0.4") from None
+        for bound in bounds:
+            try:
+                params.with_values({name.strip(): bound})
+            except ParameterError as err:
+                raise ParameterError(f"--bounds {item}: {err}") from None
     return out
 
 
@@ -86,7 +102,7 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     held = [read_experiment(f, run.params) for f in experiment_files(args.holdout)] \
         if args.holdout else []
     names = args.free or estimation.default_free()
-    bounds = _bounds(args.bounds)
+    bounds = _bounds(args.bounds, run.params)
     for name in bounds:
         if name not in names:
             raise ParameterError(f"--bounds {name}: not a free parameter (free: "

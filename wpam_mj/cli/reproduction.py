@@ -25,18 +25,21 @@ def add_parsers(add) -> None:
     protocol_options(p)
     out_dir_option(p, "reproduce")
 
-    p = add("search", "global search (differential evolution) of the credible parameter box "
-            "and the protocol readings on every finding of the paper; writes the best "
-            "point and the pairwise feasibility map of the findings", _cmd_search)
+    p = add("search", "global search of the credible parameter box and the Pi ramp top on "
+            "every finding of the paper (a quasi-static screen, then differential evolution "
+            "on the simulated findings); writes the best point, the convergence and the "
+            "pairwise feasibility map of the findings", _cmd_search)
     p.add_argument("--out", type=out_path, metavar="DIR",
                    help="output folder (default: out/search): journal.jsonl, best.toml, "
-                        "best.txt, feasibility.md, feasibility.png")
+                        "best.txt, convergence.csv, convergence.png, feasibility.md, "
+                        "feasibility.png")
     p.add_argument("--seed", type=int, default=20, help="seed of the search (default: 20)")
-    p.add_argument("--popsize", type=int, default=2, metavar="K",
-                   help="population K x 15 points (default: 2)")
-    p.add_argument("--maxiter", type=int, default=3, metavar="N",
-                   help="generations after the first population (default: 3: about 145 "
-                        "points, 12 min on two free cores; docs/physics.md used 5)")
+    p.add_argument("--popsize", type=int, default=None, metavar="K",
+                   help="population K x 7 points (default: 3)")
+    p.add_argument("--maxiter", type=int, default=None, metavar="N",
+                   help="generations after the first population (default: 8: at most 190 "
+                        "points, those the screen rejects scored in milliseconds; "
+                        "docs/physics.md gives the time)")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted search in --out: journaled points are "
                         "replayed, not run again (a finished search replays in seconds)")
@@ -110,9 +113,10 @@ def _cmd_search(args: argparse.Namespace) -> int:
     if args.map_only:
         written = search.write_outputs(out, search.load_records(out), run.params)
     else:
-        written = search.write_search(out, base=run.params, seed=args.seed,
-                                      popsize=args.popsize, maxiter=args.maxiter,
-                                      jobs=run.jobs, resume=args.resume, progress=run.progress)
+        sizes = {k: v for k, v in (("popsize", args.popsize), ("maxiter", args.maxiter))
+                 if v is not None}
+        written = search.write_search(out, base=run.params, seed=args.seed, jobs=run.jobs,
+                                      resume=args.resume, progress=run.progress, **sizes)
     for path in written:
         print(f"wrote {path}")
     return 0

@@ -143,8 +143,13 @@ def write_run_manifest(args: argparse.Namespace, out: Path, rid: str, params: Pa
                        settings: dict, files) -> Path:
     """Write the run's manifest beside its files (`wpam_mj.infra.manifest.write_manifest`)."""
     from wpam_mj.infra import manifest  # noqa: PLC0415
-    return manifest.write_manifest(out, rid, args.command, params, files, settings=settings,
+    path = manifest.write_manifest(out, rid, args.command, params, files, settings=settings,
                                    argv=getattr(args, "argv", None))
+    others = manifest.mark_overwritten(out, rid)
+    if others:
+        print(f"note: this run rewrote files that {', '.join(p.name for p in others)} listed "
+              "(marked there as overwritten by this run)", file=sys.stderr)
+    return path
 
 
 def flag_still(what: Sequence[tuple[str, bool]], to_stderr: bool) -> None:
@@ -155,6 +160,26 @@ def flag_still(what: Sequence[tuple[str, bool]], to_stderr: bool) -> None:
             print(f"note: {name}: the load never moved (x spanned < {MOVE_MIN_MM:g} mm); "
                   "this run's numbers mean nothing",
                   file=sys.stderr if to_stderr else sys.stdout)
+
+
+UNSETTLED_PP_MM = 1.0  # our choice: a tenth of the staircase's 10 mm step
+
+
+def settled(run) -> bool:
+    """Whether a step run (`StepRun`) came to rest on its plateaus: x moves less than
+    `UNSETTLED_PP_MM` peak to peak over the window its plateau means average."""
+    return run.worst_peak_to_peak(run.settle) / MM < UNSETTLED_PP_MM
+
+
+def flag_unsettled(name: str, run, to_stderr: bool) -> None:
+    """One line for a step run that never settled (a limit cycle): its plateau means are
+    averages of an oscillation, not settled values."""
+    if not settled(run):
+        print(f"note: {name}: x never settled on its plateaus (it still moves "
+              f"{run.worst_peak_to_peak(run.settle) / MM:.3g} mm peak to peak over the last "
+              f"{run.settle:g} s of one; at least {UNSETTLED_PP_MM:g} mm: a limit cycle); its "
+              "plateau means are averages of that oscillation",
+              file=sys.stderr if to_stderr else sys.stdout)
 
 
 def amplitude_m(name: str, mm: float) -> float:

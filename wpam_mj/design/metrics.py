@@ -10,8 +10,8 @@ from wpam_mj.experiments.analysis import frequency_response, loop_area, steady_s
 from wpam_mj.experiments.drives import SineSpec, check_po, sine_run, step_run
 from wpam_mj.experiments.feasibility import MOVE_MIN_MM, check_liftable, load_moved
 from wpam_mj.experiments.responses import LOOP_METHOD
-from wpam_mj.experiments.paper_studies import (PLATEAU_SETTLE_S, StaticTask, plateau_segments,
-                                             table2_batch)
+from wpam_mj.experiments.paper_studies import PLATEAU_SETTLE_S, StaticTask, plateau_segments
+from wpam_mj.experiments.protocol import SHIPPED, table2_batch
 from wpam_mj.paper import STEP_HOLD_S, STEP_LEVELS_MM
 from wpam_mj.physics.params import MM, MPA, ParameterError, Params
 
@@ -73,7 +73,7 @@ def run_metrics(experiment: str, params: Params, inputs: Mapping[str, Any],
         spec = SineSpec(inputs["frequency"], amplitude=inputs["amplitude"])
         r = sine_run(params, load, inputs["controller"], spec, dt=dt)
         return _sine_metrics(_moved(r), spec)
-    batch = table2_batch(params, loads=(load,), po_down=inputs["po_down"], dt=dt)
+    batch = table2_batch(params, SHIPPED, loads=(load,), po_down=inputs["po_down"], dt=dt)
     t2 = batch.assemble([task.run() for task in batch.tasks])
     _moved(t2.feedback_runs[0].result, *(lp.result for lp in (*t2.open_loops, *t2.po_loops)))
     return {"open_po": t2.open_po[load], "feedback": t2.feedback[load],

@@ -147,7 +147,7 @@ class SineSpec:
     freq: float  # Hz
     amplitude: float = SINE_AMPLITUDE_MM * MM  # m
     mean: float = SINE_MEAN_MM * MM  # m
-    settle_cycles: int = 2
+    settle_cycles: int = 4
     cycles: int = 3  # analysed cycles after settling
 
     def __post_init__(self) -> None:

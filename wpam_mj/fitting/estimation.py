@@ -46,7 +46,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from wpam_mj.simulation.loop_contract import SimulationDiverged
-from wpam_mj.physics.params import Params, ParameterError, describe_with_ranges, plausible_range
+from wpam_mj.physics.params import (Params, ParameterError, describe_with_ranges, fitted_parameters,
+                                    plausible_range)
 from wpam_mj.infra.pool import executor_for
 from wpam_mj.infra.files import write_text_atomic
 
@@ -114,13 +115,10 @@ def _check_name(name: str) -> None:
 
 def default_free() -> tuple[str, ...]:
     """The plant parameters with a plausible range that are not measured directly: those
-    the paper does not give (damping and the regulators' lag and dead time are measurable
-    on a rig, so they stay fixed unless freed). The controller's readings are left out: a
-    replay drives the muscle with the recorded commands, so it cannot see them."""
-    measured = {"muscle.damping", "pneumatics.time_constant", "pneumatics.dead_time"}
-    return tuple(name for name, _, _, plausible, _ in describe_with_ranges(Params())
-                 if plausible is not None and name not in measured
-                 and not name.startswith("controller."))
+    the paper does not give (`wpam_mj.physics.params.fitted_parameters`: damping and the
+    regulators' lag and dead time are measurable on a rig, so they stay fixed unless freed;
+    the controller's readings are left out, as a replay cannot see them)."""
+    return fitted_parameters()
 
 
 def with_values(params: Params, free: Sequence[FreeParameter],

@@ -71,7 +71,12 @@ def replay_inputs(params: Params, exp: Experiment, dt: float) -> tuple[Params, D
 
 
 def check_replay(exp: Experiment, dt: float) -> None:
-    """A replay of `exp` at `dt` [s] within one run's budget (it records every step)."""
+    """A replay of `exp` at `dt` [s]: at least one step long (a run's two samples), within
+    one run's budget (it records every step)."""
+    if exp.duration < dt:
+        raise ParameterError(f"{exp.path or exp.name}: its record spans {exp.duration:g} s, "
+                             f"less than one step of its replay ({dt:g} s); a file needs at "
+                             f"least {dt:g} s of samples")
     check_run(f"the replay of {exp.name}", exp.duration, dt, record_dt=dt)
 
 
@@ -199,6 +204,8 @@ def fit_data(start: Params, experiments: Sequence[Experiment],
         check_replay(e, dt)
     open_loop = [e for e in experiments if e.x_ref is None] or list(experiments)
     coarse = DataModel(tuple(open_loop), min(COARSE_DT_FACTOR * dt, DT_RANGE_S[1]))
+    for e in coarse.experiments:
+        check_replay(e, coarse.dt)
     model = DataModel(tuple(experiments), dt)
     everything = DataModel((*experiments, *holdout), dt)
     with executor_for(jobs, executor) as ex:

@@ -61,7 +61,8 @@ class Experiment:
     """One measured run, SI units; arrays of shape (n,).
 
     time [s]; load [N]; pi, po regulator gauge pressures [Pa]; x contraction [m];
-    pi_cmd, po_cmd regulator commands [Pa] or None; x_ref target [m] (NaN where none) or None.
+    pi_cmd, po_cmd regulator commands [Pa] or None; x_ref target [m] (NaN where none) or None;
+    path the file it was read from (None when made in memory).
     """
 
     name: str
@@ -73,6 +74,7 @@ class Experiment:
     pi_cmd: np.ndarray | None = None
     po_cmd: np.ndarray | None = None
     x_ref: np.ndarray | None = None
+    path: Path | None = None  # the file it was read from
 
     @property
     def has_commands(self) -> bool:
@@ -141,7 +143,7 @@ def read_experiment(path: str | Path, params: Params) -> Experiment:
                    float(cols["time_s"][-1] - cols["time_s"][0]))
     si = {_UNITS[c][0]: v * _UNITS[c][1] for c, v in cols.items()}
     load = float(si.pop("load")[0])
-    return Experiment(name=path.stem, load=load, **si)
+    return Experiment(name=path.stem, load=load, **si, path=path)
 
 
 class _Where:

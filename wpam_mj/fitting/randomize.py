@@ -20,13 +20,12 @@ from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
-from wpam_mj.physics.params import Params, ParameterError, load_toml, plausible_range
+from wpam_mj.physics.params import (Params, ParameterError, fitted_parameters, load_toml,
+                                    plausible_range)
 
-# The plant parameters the calibration fits (wpam_mj.reproduction.calibrate.FREE without the
-# controller's feedforward reading): what a real muscle is least sure to share with ours.
-PLANT_PARAMETERS = ("braid.braid_angle", "muscle.output_coeff", "muscle.friction_coeff",
-                    "muscle.friction_const", "muscle.axial_area",
-                    "pneumatics.inner_conductance", "pneumatics.outer_conductance")
+# The plant parameters a fit frees (field metadata: a plausible range, not measured on a
+# rig, not the controller's): what a real muscle is least sure to share with ours.
+PLANT_PARAMETERS = fitted_parameters()
 
 if TYPE_CHECKING:  # scipy.optimize, imported by wpam_mj.fitting.estimation, is slow to import
     from wpam_mj.fitting.estimation import Estimate

@@ -6,7 +6,8 @@ The CSVs hold data only (one header line, then numbers), so the run's metadata l
     {"run_id", "command", "argv", "wpam_mj_version", "versions" (python, mujoco, numpy),
      "settings" (what the command was asked: loads, control, dt, ...),
      "params" (every parameter, SI, by section, and the preset),
-     "files": {name: {"sha256", "bytes", and per-file metadata such as load_n}}}
+     "files": {name: {"sha256", "bytes", and per-file metadata such as load_n; and
+               "overwritten_by": <run id> once a later run has rewritten the file}}}
 
 The run id is a digest of what defines the results (version, command, settings,
 parameters) and not of the time or the worker count, so a rerun writes the same bytes and
@@ -91,6 +92,32 @@ def write_manifest(out_dir: str | Path, run: str, command: str, params: Params,
     }
     text = json.dumps(manifest, indent=2, allow_nan=False) + "\n"
     return write_text_atomic(manifest_path(out_dir, run), text)
+
+
+def mark_overwritten(out_dir: str | Path, run: str) -> list[Path]:
+    """In the other manifests of `out_dir`, mark each file that run `run` (whose manifest
+    is written) has rewritten with other contents: ``"overwritten_by": run`` beside the
+    SHA-256 it had, so that no manifest vouches for a file it no longer describes (runs
+    into one folder take turns: `wpam_mj.infra.outputs`). Returns the manifests changed."""
+    out_dir = Path(out_dir)
+    ours = read_manifest(manifest_path(out_dir, run))["files"]
+    changed = []
+    for path in sorted(out_dir.glob("manifest-*.json")):
+        if path == manifest_path(out_dir, run):
+            continue
+        try:
+            other = read_manifest(path)
+        except ParameterError:
+            continue  # not a manifest of ours: left alone
+        hits = [name for name, entry in other["files"].items() if name in ours
+                and isinstance(entry, dict) and entry.get("sha256") != ours[name]["sha256"]
+                and entry.get("overwritten_by") != run]
+        if hits:
+            for name in hits:
+                other["files"][name]["overwritten_by"] = run
+            write_text_atomic(path, json.dumps(other, indent=2, allow_nan=False) + "\n")
+            changed.append(path)
+    return changed
 
 
 def read_manifest(path: str | Path) -> dict[str, Any]:

@@ -98,7 +98,13 @@ class WorkerPool(ProcessPoolExecutor):
             self.stop()
 
     def stop(self) -> None:
-        """Stop the workers now (SIGTERM, SIGKILL after a grace), drop queued tasks."""
+        """Stop the workers now (SIGTERM, SIGKILL after a grace), drop queued tasks.
+
+        The call queue's feeder thread may be blocked writing a task into a pipe no worker
+        will read again (a task larger than the pipe's buffer: a figure's records); it is
+        not joined, so that neither this pool's manager nor the interpreter's exit waits
+        for it forever."""
+        self._call_queue.cancel_join_thread()
         workers = list((self._processes or {}).values())
         for proc in workers:
             proc.terminate()

@@ -22,7 +22,6 @@ import re
 import signal
 import sys
 import threading
-from concurrent.futures import InvalidStateError
 from pathlib import Path
 from typing import Iterator
 
@@ -131,6 +130,70 @@ def handle_signals() -> Iterator[None]:
         _state = _State()
 
 
+class RequirementError(ImportError):
+    """A dependency the package cannot run with (e.g. a MuJoCo older than the pinned one)."""
+
+    status = 1
+
+
+@contextlib.contextmanager
+def importing(package: str) -> Iterator[None]:
+    """The import of `package` (the heavy imports and the plugin's build), ended cleanly by
+    a signal or a missing requirement.
+
+    In the main thread, SIGINT, SIGTERM and SIGHUP whose handlers are Python's defaults
+    raise `Interrupted`, `Terminated` and `HungUp` within the block, so that what the
+    import started is undone on the way out (the compiler's process group killed, its
+    build folder removed); the previous handlers come back afterwards. Such an exception,
+    or a `RequirementError`, leaving the block is raised on (a program may catch it); if
+    nothing does, the process ends with one line ("<package>: terminated", or what the
+    requirement needs) and the signal's status (130, 143, 129; 1 for a requirement)
+    instead of a traceback. An
+    interactive session (the REPL) keeps its usual KeyboardInterrupt.
+    """
+    global _state
+    mine = {sig for sig in _EXCEPTIONS if signal.getsignal(sig) in (
+        signal.default_int_handler, signal.SIG_DFL)}
+    if threading.current_thread() is not threading.main_thread():
+        mine = set()
+    if mine:
+        _state = _State()
+    previous = {sig: signal.signal(sig, _on_signal) for sig in mine}
+    try:
+        yield
+    except BaseException as error:
+        stop = error
+        if mine and _state.pending is not None and not isinstance(error, Interrupted):
+            stop = _state.pending()  # e.g. wrapped in an extension module's ImportError
+        if isinstance(stop, RequirementError) or (mine and isinstance(stop, Interrupted)):
+            _end_uncaught(package, stop)
+        if stop is error:
+            raise
+        raise stop from None
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+        if mine:
+            _state = _State()
+
+
+def _end_uncaught(package: str, stop: BaseException) -> None:
+    """Have `stop`, if nothing catches it, end the process with one line and its status."""
+    hook = sys.excepthook
+    interactive = hasattr(sys, "ps1") or sys.flags.interactive
+
+    def one_line(exc_type, value, tb) -> None:
+        sys.excepthook = hook
+        if value is not stop or (interactive and type(stop) is Interrupted):
+            hook(exc_type, value, tb)
+            return
+        text = f"{package}: {stop.message}" if isinstance(stop, Interrupted) else str(stop)
+        print(" ".join(text.split()), file=sys.stderr)
+        exit_now(stop.status)
+
+    sys.excepthook = one_line
+
+
 def _on_signal(signum, frame) -> None:
     if os.getpid() != _state.main_pid:  # a forked child that kept the handler: die of it
         signal.signal(signum, signal.SIG_DFL)
@@ -151,6 +214,8 @@ def _quiet_broken_pool(hook_args) -> None:
     cancelled futures broken (InvalidStateError in its manager thread). That is the
     expected end of the pool, not an error worth a traceback; anything else goes to the
     default hook."""
+    from concurrent.futures import InvalidStateError  # noqa: PLC0415 (light at import)
+
     if not issubclass(hook_args.exc_type, InvalidStateError):
         threading.__excepthook__(hook_args)
 

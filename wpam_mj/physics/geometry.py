@@ -9,8 +9,20 @@ A thread of fixed length b wound n turns around the sleeve at angle theta to the
     S = dV/dx = (3 L^2 - b^2) / (4 pi n^2)                    [m^2]
 
 with the contraction x = L0 - L (m, positive = shorter). S is the effective area that
-turns a pressure difference into axial tension (paper eq. 3). The bag cannot grow past
-its maximum diameter, which bounds the contraction at `max_contraction` (a hard stop).
+turns a pressure difference into axial tension (paper eq. 3).
+
+The muscle's stroke is 0 <= x <= `max_contraction`, and the geometry is defined at every
+length by holding it at the nearest end of the stroke:
+  * beyond the full bag (x > max_contraction) the bag is full: it cannot grow past its
+    maximum diameter, so D, V and S keep their full-bag values; the muscle is pushed
+    shorter than it can pull itself, its sleeve bunching up;
+  * past the natural length (x < 0) the braid is taut: its threads are inextensible and
+    the bag inside it does not stretch, so D, V and S keep their natural-length values
+    (a stretched muscle pulls as at x = 0; its length is held by whatever limits it).
+D, V and S are continuous across both ends, so a soft joint or tendon limit at an end
+holds the muscle there smoothly (the chambers' air sees the same S there,
+`wpam_mj.physics.pneumatics`), and the plugin reports a muscle well outside the stroke
+(`wpam_mj.simulation.plugin.STROKE_TOLERANCE`).
 
 Methods take floats (inside the per-step loop) or numpy arrays (feedforward, plots);
 np.sqrt of a float is the correctly rounded IEEE sqrt, like C's (see
@@ -38,13 +50,29 @@ class BraidGeometry:
 
     @classmethod
     def from_params(cls, braid: Braid) -> "BraidGeometry":
-        b = braid.natural_length / math.cos(braid.braid_angle)
-        n = b * math.sin(braid.braid_angle) / (math.pi * braid.natural_diameter)
-        # D = D_max  <=>  b^2 - L^2 = (n pi D_max)^2; `Braid` guarantees the bag fills
-        # before the locking angle, so this length is real and S > 0 up to it.
-        radial = n * math.pi * braid.max_diameter
+        return cls.of(braid.natural_length, braid.braid_angle, braid.natural_diameter,
+                      braid.max_diameter)
+
+    @classmethod
+    def of(cls, natural_length: float, braid_angle: float, natural_diameter: float,
+           max_diameter: float) -> "BraidGeometry":
+        """The geometry of L0 [m], theta0 [rad], D0 and D_max [m]."""
+        b = natural_length / math.cos(braid_angle)
+        n = b * math.sin(braid_angle) / (math.pi * natural_diameter)
+        # D = D_max  <=>  b^2 - L^2 = (n pi D_max)^2; the rules (wpam_mj.physics.rules)
+        # guarantee the bag fills before the locking angle, so this length is real and
+        # S > 0 up to it.
+        radial = n * math.pi * max_diameter
         length_at_stop = math.sqrt(b * b - radial * radial)
-        return cls(braid.natural_length, b, n, braid.natural_length - length_at_stop)
+        return cls(natural_length, b, n, natural_length - length_at_stop)
+
+    def in_stroke(self, x: float) -> float:
+        """x [m] held to the stroke [0, max_contraction] (the module docstring)."""
+        if isinstance(x, np.ndarray):
+            return np.minimum(np.maximum(x, 0.0), self.max_contraction)
+        if 0.0 <= x <= self.max_contraction:  # the usual case, the same number
+            return x
+        return min(max(x, 0.0), self.max_contraction)
 
     def length(self, x: float) -> float:
         """Active length L = L0 - x [m]."""
@@ -52,15 +80,16 @@ class BraidGeometry:
 
     def diameter(self, x: float) -> float:
         """Sleeve diameter D(x) [m] (Chou & Hannaford eq. 2)."""
-        L = self.natural_length - x
+        L = self.natural_length - self.in_stroke(x)
         return np.sqrt(self.thread_length ** 2 - L * L) / (self.turns * math.pi)
 
     def volume(self, x: float) -> float:
         """Inner-bag volume V(x) [m^3]."""
-        L = self.natural_length - x
+        L = self.natural_length - self.in_stroke(x)
         return L * (self.thread_length ** 2 - L * L) / (4.0 * math.pi * self.turns ** 2)
 
     def area(self, x: float) -> float:
-        """Effective area S(x) = dV/dx [m^2] (Chou & Hannaford eq. 5)."""
-        L = self.natural_length - x
+        """Effective area S(x) = dV/dx [m^2] (Chou & Hannaford eq. 5); outside the stroke,
+        that of its nearest end (the module docstring)."""
+        L = self.natural_length - self.in_stroke(x)
         return (3.0 * L * L - self.thread_length ** 2) / (4.0 * math.pi * self.turns ** 2)

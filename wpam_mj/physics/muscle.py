@@ -20,6 +20,16 @@ the bag's cross-section pi D_bag^2 / 4. F_f0 is a pressure-independent friction 
 Friction opposes motion (eqs. 1-2); its stiction is enforced by MuJoCo's tendon
 frictionloss with the no-slip solver (`wpam_mj.simulation.model`).
 
+A muscle pulls; it cannot push (`tendon_force`). The braid and the bag pull with
+Kf (dP S - Fco) where that is positive and go slack where it is not; the outer bag's air
+pushes the end fittings apart with A_ax Po. Where the fittings hang on a cable or tendon
+(free, MuJoCo's default for the plugin), nothing can carry that push through them: the
+force on the tendon is max(T, 0). Where rigid parts hold them on one axis (guided: the
+paper's hung rig, the top fitting on the frame under the load cell, the bottom one on the
+load's linear guide, `models/wpam/wpam.xml`), the push reaches the load: the force is
+max(Kf (dP S - Fco), 0) - A_ax Po, negative where Po outweighs the braid's pull. Both
+equal T wherever T > 0, so the static equilibria below hold for either.
+
 The static equilibria follow eqs. 5-6: at rest on the branch of motion direction s
 (+1 contracting, -1 extending, 0 frictionless), T - s Ff = F_load, i.e.
     Pi = Po + (F_load + Kf Fco + A_ax Po + s F_f0) / ((Kf - s mu) S).
@@ -68,6 +78,15 @@ class MuscleModel:
         dp = pi - po if pi > po else 0.0
         return (self.output_coeff * (dp * self.geometry.area(x) - self.rubber_force(x))
                 - self.axial_area * po)
+
+    def tendon_force(self, x: float, pi: float, po: float, guided: bool = False) -> float:
+        """The force [N] the muscle pulls its tendon with (the module docstring): max(T, 0)
+        on free end fittings; with `guided` ones, the braid's pull less Po's push."""
+        if guided:
+            dp = pi - po if pi > po else 0.0
+            return (max(self.output_coeff * (dp * self.geometry.area(x) - self.rubber_force(x)),
+                        0.0) - self.axial_area * po)
+        return max(self.tension(x, pi, po), 0.0)
 
     def friction(self, x: float, pi: float, po: float) -> float:
         """Dry-friction level Ff >= 0 [N] (paper eq. 4 plus a constant part)."""

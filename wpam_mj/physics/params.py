@@ -23,6 +23,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from wpam_mj import paper
+from wpam_mj.physics import rules
 from wpam_mj.physics.muscle_types import MUSCLE_TYPES, MuscleType
 from wpam_mj.paths import MODELS_DIR
 from wpam_mj.units import MM, MPA  # noqa: F401 (MM re-exported: modules take units from here)
@@ -35,12 +36,15 @@ class ParameterError(ValueError):
 
 
 def _p(default: float, unit: str, lo: float, hi: float, source: str, *,
-       lo_open: bool = False, plausible: tuple[float, float] | None = None) -> Any:
+       lo_open: bool = False, plausible: tuple[float, float] | None = None,
+       measured: bool = False) -> Any:
     """A parameter field: [lo, hi] is what the code accepts (other muscles and rigs);
     `plausible` is the physically credible range for the paper's W-PAM, with its source in
-    `source`, and the bounds of `wpam calibrate` (None: not fitted)."""
+    `source`, and the bounds of `wpam calibrate` (None: not fitted); `measured`: measurable
+    on a rig, so a fit leaves it fixed unless freed (`fitted_parameters`)."""
     return field(default=default, metadata=dict(unit=unit, lo=lo, hi=hi, source=source,
-                                                lo_open=lo_open, plausible=plausible))
+                                                lo_open=lo_open, plausible=plausible,
+                                                measured=measured))
 
 
 def shown(value: Any) -> str:
@@ -77,13 +81,15 @@ def _is_number(value: Any) -> bool:
 
 
 class _Validated:
-    """Mixin: type- and range-check every float field from its metadata after construction."""
+    """Mixin: type- and range-check every float field from its metadata after construction,
+    then the rules of `wpam_mj.physics.rules` among this section's fields."""
 
     def __post_init__(self) -> None:
+        section = type(self).__name__.lower()
         for f in dataclasses.fields(self):  # type: ignore[arg-type]
             md = f.metadata
             if "lo" in md:
-                name, value = f"{type(self).__name__.lower()}.{f.name}", getattr(self, f.name)
+                name, value = f"{section}.{f.name}", getattr(self, f.name)
                 if not _is_number(value):
                     bracket = "(" if md["lo_open"] else "["
                     raise ParameterError(
@@ -91,6 +97,9 @@ class _Validated:
                         f"in {bracket}{md['lo']:g}, {md['hi']:g}] {md['unit']}")
                 check_range(name, value, md["lo"], md["hi"], md["unit"], lo_open=md["lo_open"])
                 object.__setattr__(self, f.name, float(value))
+        names = {f"{section}.{f.name}" for f in dataclasses.fields(self)}  # type: ignore[arg-type]
+        rules.check(rules.rules_within(names),
+                    lambda name: getattr(self, name.partition(".")[2]))
 
 
 @dataclass(frozen=True)
@@ -108,33 +117,6 @@ class Braid(_Validated):
     outer_bag_length: float = _p(0.420, "m", 0.05, 3.0, "paper §2.3")
     outer_bag_diameter: float = _p(0.060, "m", 0.005, 0.5, "paper §2.3")
 
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.max_diameter <= self.natural_diameter:
-            raise ParameterError(f"braid.max_diameter = {self.max_diameter} m must exceed "
-                                 f"braid.natural_diameter = {self.natural_diameter} m")
-        if self.outer_bag_diameter <= self.max_diameter:
-            raise ParameterError(f"braid.outer_bag_diameter = {self.outer_bag_diameter} m must"
-                                 f" exceed braid.max_diameter = {self.max_diameter} m")
-        if self.outer_bag_length < self.natural_length:
-            raise ParameterError(f"braid.outer_bag_length = {self.outer_bag_length} m must be "
-                                 f"at least braid.natural_length = {self.natural_length} m "
-                                 "(the outer bag spans the muscle's end fittings)")
-        # Pantograph (wpam_mj.physics.geometry): D = b sin(theta) / (n pi) with b and n fixed, so
-        # sin(theta) grows in proportion to D. The bag must fill to max_diameter before the
-        # threads reach the locking angle atan(sqrt 2) = 54.7 deg, where the effective area
-        # dV/dx = (3 L^2 - b^2) / (4 pi n^2) falls to zero (Chou & Hannaford 1996):
-        # sin(theta) max_diameter / natural_diameter < sin(54.7 deg) = sqrt(2/3).
-        limit = math.asin(min(1.0, math.sqrt(2.0 / 3.0) * self.natural_diameter
-                              / self.max_diameter))
-        if self.braid_angle >= limit:
-            raise ParameterError(
-                f"braid.braid_angle = {self.braid_angle:g} rad "
-                f"({math.degrees(self.braid_angle):.1f} deg) reaches the 54.7 deg locking "
-                f"angle before the bag fills to braid.max_diameter = {self.max_diameter} m; "
-                f"allowed: below {limit:.4f} rad ({math.degrees(limit):.1f} deg) for "
-                f"braid.natural_diameter = {self.natural_diameter} m")
-
 
 @dataclass(frozen=True)
 class Muscle(_Validated):
@@ -142,9 +124,15 @@ class Muscle(_Validated):
 
     output_coeff: float = _p(0.8, "1", 0.0, 1.0,
                              "calibrated: paper Kf (Table 1) as the efficiency of the "
-                             "virtual-work force dP dV/dx; braided muscles deliver 0.5-1 of "
-                             "it (Chou & Hannaford 1996; Tondu & Lopez 2000); > 1 would "
-                             "create work", lo_open=True, plausible=(0.5, 1.0))
+                             "virtual-work force dP dV/dx, constant over the stroke; > 1 "
+                             "would create work. Models with an inextensible braid "
+                             "overestimate measured force by up to 70 % (Chambers & "
+                             "Wereley, Actuators 2022, 11, 219: >= 0.59 of it), and end "
+                             "effects at the rigid fittings cut it further as the bag nears "
+                             "its full diameter (Tondu, J. Intell. Mater. Syst. Struct. "
+                             "2012), which the static ramps reach at 50 N: a constant "
+                             "averaged over the stroke lies below 0.59, down to 0.5",
+                             lo_open=True, plausible=(0.5, 1.0))
     friction_coeff: float = _p(0.2, "1", 0.0, 1.0,
                                "calibrated: paper mu (eq. 4), friction per unit of the "
                                "pressure force dP S; polymer film on a polyester braid "
@@ -160,7 +148,8 @@ class Muscle(_Validated):
                                  "paper eq. 7 K_R; 0 for a non-stretchable bag (RLAM)")
     damping: float = _p(20.0, "N s/m", 0.0, 1e5,
                         "estimate: viscous losses of the linear guide and the hanging mass "
-                        "(tens of N s/m at most); not fitted", plausible=(0.0, 50.0))
+                        "(tens of N s/m at most); not fitted", plausible=(0.0, 50.0),
+                        measured=True)
 
 
 @dataclass(frozen=True)
@@ -172,11 +161,11 @@ class Pneumatics(_Validated):
     time_constant: float = _p(0.083, "s", 0.0, 5.0,
                               "ITV-series first-order lag identified from echo-step data "
                               "(porcaro_2026, scripts/itv_models.py: 83 ms)",
-                              plausible=(0.05, 0.1))
+                              plausible=(0.05, 0.1), measured=True)
     dead_time: float = _p(0.02, "s", 0.0, 1.0,
                           "ITV-series dead time identified from echo-step data "
                           "(porcaro_2026: 20-21 ms pilot models, 45 ms rounded)",
-                          plausible=(0.02, 0.045))
+                          plausible=(0.02, 0.045), measured=True)
     inner_conductance: float = _p(6e-9, "m^3/(s Pa)", 0.0, 1e-6,
                                   "calibrated: ISO 6358 C of valve + tube + fitting port; at "
                                   "most the ITV2031's 1500 L/min at 0.7 MPa abs (3.6e-8), at "
@@ -188,12 +177,6 @@ class Pneumatics(_Validated):
     critical_ratio: float = _p(0.5, "1", 0.0, 0.99, "ISO 6358 b, typical valve value")
     tube_volume: float = _p(2.5e-5, "m^3", 0.0, 0.01, "estimate (2 m of 4 mm bore tube)")
     atmosphere: float = _p(101325.0, "Pa", 5e4, 2e5, "standard atmosphere")
-
-    def __post_init__(self) -> None:
-        super().__post_init__()
-        if self.p_min >= self.p_max:
-            raise ParameterError(f"pneumatics.p_min = {self.p_min} Pa must be below "
-                                 f"pneumatics.p_max = {self.p_max} Pa")
 
 
 @dataclass(frozen=True)
@@ -218,7 +201,9 @@ class Controller(_Validated):
                                "protocol reading (the paper does not state it): the Po the "
                                "Pi feedforward assumes; the W-PAM calibration reads it as the "
                                "regulator's minimum p_min, so that Pi sits on eq. 5's "
-                               "contracting branch at the least Po (docs/physics.md)")
+                               "contracting branch at the least Po (docs/physics.md); "
+                               "plausible from the regulator minimum to Fig. 9's 0.04 MPa",
+                               plausible=(0.005 * MPA, 0.04 * MPA))
     feedforward_friction: float = _p(0.0, "1", 0.0, 1.2,
                                      "calibrated protocol reading of §4.1: the share of the "
                                      "friction band the Pi feedforward adds (0 frictionless, "
@@ -246,18 +231,9 @@ class Params:
         if self.preset not in MUSCLE_TYPES:
             raise ParameterError(f"unknown preset {self.preset!r}; valid presets: "
                                  f"{', '.join(MUSCLE_TYPES)}")
-        pn, c, b = self.pneumatics, self.controller, self.braid
-        # With A_ax at most the bag's cross-section, a bag wider than the inflated muscle and
-        # no shorter than it (checked by Braid), the outer chamber keeps a positive volume
-        # over the whole stroke: V_o >= (A_bag - A_max) L_stop > 0.
-        bag_section = math.pi * b.outer_bag_diameter ** 2 / 4.0
-        if self.muscle.axial_area > bag_section:
-            raise ParameterError(
-                f"muscle.axial_area = {self.muscle.axial_area:g} m^2 exceeds the outer bag's "
-                f"cross-section {bag_section:.4g} m^2 (braid.outer_bag_diameter)")
-        check_range("controller.po_cap", c.po_cap / MPA, pn.p_min / MPA, pn.p_max / MPA, "MPa")
-        check_range("controller.po_feedforward", c.po_feedforward / MPA, pn.p_min / MPA,
-                    c.po_cap / MPA, "MPa")
+        # the rules between fields of different sections (each section checks its own)
+        rules.check(tuple(r for r in rules.rules_within(_PARAMETER_NAMES)
+                          if len({n.partition(".")[0] for n in r.needs}) > 1), self.value)
 
     @property
     def muscle_type(self) -> MuscleType:
@@ -293,6 +269,24 @@ class Params:
 
 _SECTIONS = {"braid": Braid, "muscle": Muscle, "pneumatics": Pneumatics,
              "controller": Controller}
+
+
+def parameter_fields() -> list[tuple[str, dataclasses.Field]]:
+    """Every parameter as ("section.field", its dataclass field), in `Params` order."""
+    return [(f"{section}.{f.name}", f) for section, cls in _SECTIONS.items()
+            for f in dataclasses.fields(cls)]
+
+
+_PARAMETER_NAMES = frozenset(key for key, _ in parameter_fields())
+
+
+def fitted_parameters() -> tuple[str, ...]:
+    """The plant parameters a fit frees by default, in `Params` order: those with a
+    plausible range that are not `measured` on a rig, the controller's readings left out
+    (a replay drives the muscle with the recorded commands, so it cannot see them)."""
+    return tuple(key for key, f in parameter_fields()
+                 if f.metadata["plausible"] is not None and not f.metadata["measured"]
+                 and not key.startswith("controller."))
 
 
 def apply_overrides(params: Params, overrides: Mapping[str, Any]) -> Params:

@@ -24,6 +24,10 @@ The chamber air is isothermal at T_0 (slow, thin-walled bags):
 with dV/dt = (dV/dx) v:
 Inner chamber: V_i = V(x) + V_tube, dV_i/dx = S(x).
 Outer chamber: V_o = V_bag - V(x) - A_ax x + V_tube, dV_o/dx = -(S(x) + A_ax).
+Outside the stroke 0 <= x <= x_max the geometry is that of its nearest end
+(`wpam_mj.physics.geometry`): the volumes are held there and dV/dx = S keeps that end's
+value, the same S the tension uses, so the work the air does and the work the force does
+still agree (virtual work) for a muscle pushed a little past an end by a soft limit.
 Moving the muscle moves air, so the restriction limits its velocity: this is the paper's
 "limit velocity" (§4.2), which makes the gain fall above about 0.5 Hz.
 """
@@ -102,7 +106,9 @@ def chamber_volumes(bag_inner: float, x: float, axial_area: float, bag_volume: f
 def chamber_volumes_of(params: Params, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """`chamber_volumes` [m^3] of one parameter set at contraction x [m] (float or array)."""
     b = params.braid
-    return chamber_volumes(BraidGeometry.from_params(b).volume(x), x, params.muscle.axial_area,
+    geometry = BraidGeometry.from_params(b)
+    x = geometry.in_stroke(x)
+    return chamber_volumes(geometry.volume(x), x, params.muscle.axial_area,
                            outer_bag_volume(b.outer_bag_length, b.outer_bag_diameter),
                            params.pneumatics.tube_volume)
 
@@ -113,23 +119,34 @@ def max_flow_slope(conductance: float, b: float) -> float:
     return conductance * RHO_0 * iso6358_psi(R_LAMINAR, b) / (1.0 - R_LAMINAR)
 
 
-def stable_dt(params: Params) -> tuple[float, str]:
-    """The largest time step [s] at which `Chamber.step` (explicit Euler) is stable and
-    does not oscillate for this parameter set, and the conductance that sets it.
+def stable_timesteps(geometry: BraidGeometry, axial_area: float, bag_length: float,
+                     bag_diameter: float, tube_volume: float, conductance_i: float,
+                     conductance_o: float, b: float) -> tuple[float, float]:
+    """The largest time steps [s] at which `Chamber.step` (explicit Euler) is stable and
+    does not oscillate, (inner chamber, outer chamber).
 
     Near equilibrium dp/dt = R T_0 m_dot(p) / V is linear with rate
     lambda = R T_0 max_flow_slope / V; explicit Euler decays monotonically for
     dt lambda <= 1. V is each chamber's smallest volume over the stroke: the inner one at
-    x = 0, the outer one at the full contraction.
+    x = 0, the outer one at the full contraction. The plugin's rule table
+    (`wpam_mj.physics.rules`) bounds the model's time step by both.
     """
+    x_max = geometry.max_contraction
+    bag = outer_bag_volume(bag_length, bag_diameter)
+    v_i, _ = chamber_volumes(geometry.volume(0.0), 0.0, axial_area, bag, tube_volume)
+    _, v_o = chamber_volumes(geometry.volume(x_max), x_max, axial_area, bag, tube_volume)
+    return (v_i / (RT0 * max_flow_slope(conductance_i, b)),
+            v_o / (RT0 * max_flow_slope(conductance_o, b)))
+
+
+def stable_dt(params: Params) -> tuple[float, str]:
+    """The largest stable time step [s] of this parameter set (`stable_timesteps`) and the
+    conductance that sets it."""
     pn, b = params.pneumatics, params.braid
-    x_max = BraidGeometry.from_params(b).max_contraction
-    v_i, _ = chamber_volumes_of(params, 0.0)
-    _, v_o = chamber_volumes_of(params, x_max)
-    limits = [(float(v) / (RT0 * max_flow_slope(c, pn.critical_ratio)), name)
-              for v, c, name in ((v_i, pn.inner_conductance, "pneumatics.inner_conductance"),
-                                 (v_o, pn.outer_conductance, "pneumatics.outer_conductance"))]
-    return min(limits)
+    limits = stable_timesteps(BraidGeometry.from_params(b), params.muscle.axial_area,
+                              b.outer_bag_length, b.outer_bag_diameter, pn.tube_volume,
+                              pn.inner_conductance, pn.outer_conductance, pn.critical_ratio)
+    return min(zip(limits, ("pneumatics.inner_conductance", "pneumatics.outer_conductance")))
 
 
 def outer_bag_volume(length: float, diameter: float) -> float:

@@ -16,7 +16,7 @@ from typing import Sequence
 
 import numpy as np
 
-from wpam_mj.reproduction.search import FINDING_TEXT, FINDINGS, TRACK_MM, Record
+from wpam_mj.reproduction.search import FINDING_TEXT, FINDINGS, PAPER_CHECKS, TRACK_MM, Record
 
 
 def margin_matrix(records: Sequence[Record]) -> np.ndarray:
@@ -123,6 +123,41 @@ def figure(pm: np.ndarray, path: Path, title: str) -> Path:
     ax.set_xlabel("while this finding holds")
     ax.set_title(title, fontsize=10)
     fig.colorbar(im, ax=ax, shrink=0.7, label="best margin of the row's finding (scale units)")
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def convergence_csv(conv: Sequence[tuple[int, float, int]]) -> str:
+    """`search.convergence` as CSV: points scored, least cost and most of `wpam
+    reproduce`'s checks met so far."""
+    return "points_scored,best_cost,most_checks_met\n" + "".join(
+        f"{i},{c!r},{h}\n" for i, c, h in conv)
+
+
+def convergence_figure(runs: dict[str, Sequence[tuple[int, float, int]]], path: Path,
+                       title: str) -> Path:
+    """Least cost (log scale) and most findings met against points scored, one line per
+    search (`runs`: label -> `search.convergence`), as PNG."""
+    import matplotlib  # noqa: PLC0415 (plotting only here)
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    for label, conv in runs.items():
+        i, cost, held = (np.array(v) for v in zip(*conv))
+        top.step(i, np.minimum(cost, 1e3), where="post", label=label)
+        bottom.step(i, held, where="post", label=label)
+    top.set_yscale("log")
+    top.set_ylabel("least cost so far (1/2 |r|^2)")
+    bottom.set_ylabel(f"most checks met (of {len(PAPER_CHECKS)})")
+    bottom.set_xlabel("points scored")
+    bottom.axhline(6, color="grey", lw=0.8, ls=":")
+    bottom.set_ylim(0, len(FINDINGS) + 0.5)
+    top.legend(fontsize=8)
+    top.set_title(title, fontsize=10)
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)

@@ -1,27 +1,30 @@
-"""Global search of the credible box and the protocol readings.
+"""Global search of the credible box for a plant that meets the paper's findings.
 
-One point of the search is a parameter set (the credible ranges of `calibrate.FREE`,
-`wpam_mj.physics.params`) together with the readings the paper does not state: the Pi
-feedforward's nominal Po and share phi of the friction band, the gain reading, and the
-static ramps' `wpam_mj.experiments.protocol.Protocol` (ramp top per load or common, ramp time, hold
-at the top with Po on, loop-area definition). Each point is scored on calibrate's one
-cost (`calibrate.PaperTargets`, 1/2 |r|^2) and keeps the signed margin of every finding
-(`FINDINGS`), in units of each margin's scale (>= 0 holds), so that the archive of the
-search is also a measured feasibility map (`wpam_mj.reproduction.findings_map`).
+A point is a parameter set of the credible ranges (`calibrate.FREE`,
+`wpam_mj.physics.params`) and the one Pi ramp top the paper does not state; the other
+static-ramp readings are the shipped ones (`wpam_mj.experiments.protocol.SHIPPED`: one
+ramp for every load, 60 s each way, every loop lobe counted). Two stages:
 
-The optimiser is scipy's `differential_evolution` (Storn & Price 1997): Latin-hypercube
-start plus the shipped point, generations evaluated together ("deferred" updating) on a
-process pool, categorical readings as integer coordinates. Seeded and deterministic:
-the simulator is, results come back in task order, and the same seed draws the same
-trials. After DE, each finding's best point is scored once more with each static-ramp
-reading flipped (`probes`): DE meets a categorical value per point, so a reading
-that helps one finding may not have been tried where that finding is best. Every
-evaluation is appended to a JSON-lines journal, so a search run again
-with `resume=True` replays what it has done without running it and continues.
+  * a quasi-static screen (`wpam_mj.reproduction.static_fit`): the open-loop loops of
+    Table 2 follow from the equilibrium model alone in milliseconds, within a few per
+    cent of the simulated ones; for each point the friction coefficient, the axial area
+    and the ramp top are fitted there to the "Po = 0.04" row, so every point the search
+    simulates already lies on the narrow strip where that row holds, and a point no
+    static fit brings within the row's tolerance is scored without simulating it;
+  * the dynamic findings: scipy's `differential_evolution` (Storn & Price 1997) over the
+    remaining coordinates, each in [0, 1] of its range, Latin-hypercube start (no known
+    point given), generations evaluated together ("deferred" updating) on a process pool,
+    each point scored on calibrate's one cost (`calibrate.PaperTargets`, 1/2 |r|^2) with
+    the signed margin of every finding (`FINDINGS`, in units of each margin's scale,
+    >= 0 holds), so that the archive is also a measured feasibility map
+    (`wpam_mj.reproduction.findings_map`) and `convergence` shows how the search got there.
 
-The regulators' lag and dead time and the slide damping stay at their measured values
-(`wpam_mj.physics.params`): they are identified, not free, and docs/physics.md measured them
-to move the step errors without a trend.
+Seeded and deterministic: the simulator is, results come back in task order, and the same
+seed draws the same trials. Every evaluation is appended to a JSON-lines journal, so a
+search run again with `resume=True` replays what it has done without running it and
+continues. The regulators' lag and dead time and the slide damping stay at their measured
+values (`wpam_mj.physics.params`): they are identified, not free. The gain reading stays
+the shipped one (volts on the regulator's 0-5 V input; docs/physics.md).
 """
 
 from __future__ import annotations
@@ -41,116 +44,109 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import differential_evolution
 
-from wpam_mj import paper
+from wpam_mj.paper import TABLE2_PO_RTOL
 from wpam_mj.reproduction import findings
 from wpam_mj.fitting import estimation
 from wpam_mj.infra.pool import executor_for
-from wpam_mj.reproduction.calibrate import FREE, READINGS, PaperTargets
+from wpam_mj.reproduction.calibrate import FREE, PaperTargets
 from wpam_mj.simulation.loop_contract import SimulationDiverged
 from wpam_mj.physics.params import MPA, Params, ParameterError, check_range, preset
-from wpam_mj.experiments.protocol import LOOP_METHODS, Protocol
+from wpam_mj.experiments.protocol import SHIPPED, Protocol
+from wpam_mj.reproduction.static_fit import STATIC_FIT, static_fit
 from wpam_mj.infra.files import write_text_atomic
 
-PHYSICAL = tuple(n for n in FREE if n != "controller.feedforward_friction")
-PO_FF_RANGE_MPA = (0.005, 0.04)  # from p_min to the Po of Fig. 9
+PHYSICAL = tuple(n for n in FREE if n not in (*STATIC_FIT, "controller.feedforward_friction",
+                                              "controller.po_feedforward"))
 PHI_RANGE = (0.0, 1.05)  # params' plausible range of controller.feedforward_friction
-RAMP_TOP_RANGE_MPA = (0.08, 0.45)  # a common top: below it 150 N barely contracts
-RAMP_TIME_RANGE_S = (30.0, 120.0)  # "slow" ramps; 60 s vs 240 s moved Table 2 by <= 3 %
-TOP_HOLD_RANGE_S = (0.0, 5.0)
-STEP_ERROR_MM, STEP_PP_MM = 0.5, 0.2  # the paper's smooth, settled steps (docs/physics.md)
+PO_FF_RANGE_MPA = (0.005, 0.04)  # params' plausible range of controller.po_feedforward
 PO_RISE_SCALE_MPA = 0.01
+STEP_PP_MM = 0.2  # a converged plateau (Fig. 14: "quickly converges"); our reading
 TRACK_MM = 5.0  # half a 10 mm step: a PI staircase worse than this does not follow it
 FAILED_COST = 1e6  # DE needs a finite cost where a simulation fails
+STATIC_MISS_COST = 1e3  # ... and where the screen finds no static fit (plus its error)
 SEARCH_DT = 1e-3  # s, the physics step of every evaluation (as reproduce)
+POPSIZE, MAXITER = 3, 8  # `wpam search`'s defaults: 21 points a generation, 9 generations
 
 
 @dataclass(frozen=True)
 class Dim:
-    """One coordinate: a parameter "section.field" or a protocol field, searched on
-    [lo, hi] (log: as log(value)), or one of `choices` (an integer coordinate)."""
+    """One coordinate: a parameter "section.field", searched on
+    [lo, hi] (log: as log(value)) through u in [0, 1]."""
 
     name: str
-    lo: float = 0.0
-    hi: float = 1.0
+    lo: float
+    hi: float
     log: bool = False
-    choices: tuple = ()
 
-    @property
-    def bounds(self) -> tuple[float, float]:
-        return (0.0, len(self.choices) - 1.0) if self.choices else (0.0, 1.0)
-
-    def value(self, u: float):
-        if self.choices:
-            return self.choices[int(round(u))]
+    def value(self, u: float) -> float:
         if self.log:
             return math.exp(math.log(self.lo) + u * (math.log(self.hi) - math.log(self.lo)))
         return self.lo + u * (self.hi - self.lo)
 
-    def coordinate(self, value) -> float:
-        if self.choices:
-            return float(self.choices.index(value))
+    def coordinate(self, value: float) -> float:
         if self.log:
             return (math.log(value) - math.log(self.lo)) / (math.log(self.hi) - math.log(self.lo))
         return (value - self.lo) / (self.hi - self.lo)
 
 
-def _physical_dims() -> list[Dim]:
-    out = []
-    for name in PHYSICAL:
-        f = estimation.FreeParameter.of(name)
-        out.append(Dim(name, f.lo, f.hi, f.log))
-    return out
+def _dim(name: str) -> Dim:
+    f = estimation.FreeParameter.of(name)
+    return Dim(name, f.lo, f.hi, f.log)
 
 
-SPACE = (*_physical_dims(),
+
+SPACE = (*(_dim(n) for n in PHYSICAL),
          Dim("controller.feedforward_friction", *PHI_RANGE),
-         Dim("controller.po_feedforward", PO_FF_RANGE_MPA[0] * MPA, PO_FF_RANGE_MPA[1] * MPA),
-         Dim("controller.command_scale", choices=READINGS),
-         Dim("protocol.common_top", choices=(False, True)),
-         Dim("protocol.ramp_top", RAMP_TOP_RANGE_MPA[0] * MPA, RAMP_TOP_RANGE_MPA[1] * MPA),
-         Dim("protocol.ramp_time", *RAMP_TIME_RANGE_S, log=True),
-         Dim("protocol.top_hold", *TOP_HOLD_RANGE_S),
-         Dim("protocol.loop_method", choices=LOOP_METHODS))
+         Dim("controller.po_feedforward", PO_FF_RANGE_MPA[0] * MPA, PO_FF_RANGE_MPA[1] * MPA))
 
 
 @dataclass(frozen=True)
 class Point:
-    """A parameter set and a protocol."""
+    """A parameter set and a protocol; `static_error` is the worst relative error of the
+    quasi-static Table 2 "Po = 0.04" row its static fit reached (`static_fit`)."""
 
     params: Params
     protocol: Protocol
+    static_error: float = 0.0
 
     def values(self) -> dict[str, object]:
-        """Every coordinate of SPACE by name (protocol fields as "protocol.<name>")."""
-        out: dict[str, object] = {d.name: self.params.value(d.name) for d in SPACE
-                                  if not d.name.startswith("protocol.")}
-        pr = self.protocol
-        out.update({"protocol.common_top": pr.ramp_top != 0.0,
-                    "protocol.ramp_top": pr.ramp_top, "protocol.ramp_time": pr.ramp_time,
-                    "protocol.top_hold": pr.top_hold, "protocol.loop_method": pr.loop_method})
+        """Every searched and statically fitted value by name, and the ramp top."""
+        out: dict[str, object] = {d.name: self.params.value(d.name) for d in SPACE}
+        out.update({n: self.params.value(n) for n in STATIC_FIT})
+        out["protocol.ramp_top"] = self.protocol.ramp_top
         return out
 
 
-def point_of(u: Sequence[float], base: Params) -> Point:
-    """The point at coordinates `u` (one per SPACE dim) on top of `base`."""
+_POINTS: dict[tuple, Point | None] = {}  # (u, base, fit) -> point: each fitted once
+
+
+def _point_task(arg: tuple) -> Point | None:
+    """The point at (u, base) with its fit by `fit` (default `static_fit`), None where
+    its parameters are refused (a worker task)."""
+    u, base, fit = arg
     v = {d.name: d.value(x) for d, x in zip(SPACE, u)}
-    protocol = Protocol(ramp_top=float(v["protocol.ramp_top"]) if v["protocol.common_top"]
-                        else 0.0,
-                        ramp_time=float(v["protocol.ramp_time"]),
-                        top_hold=float(v["protocol.top_hold"]),
-                        loop_method=str(v["protocol.loop_method"]))
-    params = base.with_values({k: float(x) for k, x in v.items()
-                               if not k.startswith("protocol.")})
-    return Point(params, protocol)
+    try:
+        params, protocol, err = fit(base.with_values(v), SHIPPED)
+    except (ParameterError, ArithmeticError):
+        return None
+    return Point(params, protocol, err)
 
 
-def coordinates_of(point: Point) -> np.ndarray:
-    """The inverse of `point_of` (a per-load top keeps the middle of the top's range)."""
-    v = point.values()
-    if not v["protocol.common_top"]:
-        v["protocol.ramp_top"] = 0.5 * sum(RAMP_TOP_RANGE_MPA) * MPA
-    u = np.array([d.coordinate(v[d.name]) for d in SPACE])
-    return np.clip(u, [d.bounds[0] for d in SPACE], [d.bounds[1] for d in SPACE])
+def point_of(u: Sequence[float], base: Params) -> Point:
+    """The point at coordinates `u` (one per SPACE dim, in [0, 1]) on top of `base`,
+    with its static fit (computed once per point)."""
+    key = (tuple(float(x) for x in u), base, static_fit)
+    if key not in _POINTS:
+        _POINTS[key] = _point_task(key)
+    point = _POINTS[key]
+    if point is None:
+        raise ParameterError("the point's parameters are refused")
+    return point
+
+
+def coordinates_of(params: Params) -> np.ndarray:
+    """The searched coordinates of a parameter set."""
+    return np.clip([d.coordinate(params.value(d.name)) for d in SPACE], 0.0, 1.0)
 
 
 # ---- scoring: the cost and every finding's signed margin
@@ -158,9 +154,10 @@ def coordinates_of(point: Point) -> np.ndarray:
 # The findings of `wpam reproduce` (`findings.FINDINGS`), then two the paper shows without a
 # number: settled steps (Figs. 12-15) and Po rising with load (Fig. 15, §4.2).
 FINDING_TEXT = {**{name: f.short for name, f in findings.FINDINGS.items()},
-                "steps_settle": "steps settle: error <= 0.5 mm, p-p <= 0.2 mm",
+                "steps_settle": "PI steps settle: error <= Table 2's split, p-p <= 0.2 mm",
                 "po_rises_with_load": "plateau-mean Po rises with load"}
 FINDINGS = tuple(FINDING_TEXT)
+PAPER_CHECKS = tuple(findings.FINDINGS)  # the eight that `wpam reproduce` checks
 
 
 def _worst(margins) -> float:
@@ -171,9 +168,9 @@ def finding_margins(scores, table2) -> dict[str, float]:
     """Each finding's worst margin in units of its scale (>= 0: holds)."""
     checks = [*findings.table2_checks(table2), *scores.sweep_checks]
     out = {c.name: _worst(c.margins) for c in checks}
-    steps = [min((STEP_ERROR_MM - e) / STEP_ERROR_MM, (STEP_PP_MM - p) / STEP_PP_MM)
-             for c in scores.step_error_mm
-             for e, p in zip(scores.step_error_mm[c], scores.step_pp_mm[c])]
+    steps = [min((lim - e) / lim, (STEP_PP_MM - p) / STEP_PP_MM)
+             for e, p, lim in zip(scores.step_error_mm["pi"], scores.step_pp_mm["pi"],
+                                  scores.step_limit_mm)]
     po = scores.po_plateau_mpa
     out["steps_settle"] = min(steps)
     out["po_rises_with_load"] = min((b - a) / PO_RISE_SCALE_MPA for a, b in zip(po, po[1:]))
@@ -199,7 +196,9 @@ class Record:
 
     @property
     def held(self) -> int:
-        return 0 if self.margins is None else sum(m >= 0.0 for m in self.margins.values())
+        """How many of the paper's checks (`wpam reproduce`'s, PAPER_CHECKS) hold."""
+        return 0 if self.margins is None else sum(self.margins[f] >= 0.0
+                                                  for f in PAPER_CHECKS)
 
     def as_json(self) -> dict:
         return {"u": list(self.u), "cost": self.cost, "margins": self.margins,
@@ -216,6 +215,7 @@ def _figures(scores) -> dict:
             "feedback_row": list(scores.feedback_row),
             "step_error_mm": {c: list(v) for c, v in scores.step_error_mm.items()},
             "step_pp_mm": {c: list(v) for c, v in scores.step_pp_mm.items()},
+            "step_limit_mm": list(scores.step_limit_mm),
             "po_plateau_mpa": list(scores.po_plateau_mpa),
             "failed": list(scores.sweep_failed)}
 
@@ -297,8 +297,10 @@ class Evaluator:
     on `executor`, longest runs first (None: here, one after the other)."""
 
     def __init__(self, base: Params, journal: Journal, executor: Executor | None,
-                 targets=None, progress: bool = False, planned: int = 0) -> None:
+                 targets=None, progress: bool = False, planned: int = 0,
+                 fit=None) -> None:
         self.base, self.journal, self.executor = base, journal, executor
+        self.fit = fit or static_fit  # (params, protocol) -> (params, static error)
         # targets(protocol) -> `Targets`-like (a cheap stand-in in the smoke test)
         self.targets = targets or (lambda protocol: Targets(SEARCH_DT, protocol))
         self.progress, self.planned = progress, planned
@@ -329,15 +331,9 @@ class Evaluator:
         return [r.cost for r in self.records([list(u) for u in us])]
 
     def _run(self, us: list) -> list[Record]:
-        points, groups = [], []
-        for u in us:
-            try:
-                p = point_of(u, self.base)
-                groups.append(self.targets(p.protocol).tasks(p.params))
-            except ParameterError:
-                p = None
-                groups.append([])
-            points.append(p)
+        points = self._points(us)
+        groups = [self.targets(p.protocol).tasks(p.params)
+                  if p is not None and p.static_error <= TABLE2_PO_RTOL else [] for p in points]
         flat = sorted(((g, i, t) for g, ts in enumerate(groups) for i, t in enumerate(ts)),
                       key=lambda x: -x[2].cost)
         if self.executor is None:
@@ -348,11 +344,26 @@ class Evaluator:
         out = []
         for g, (u, p) in enumerate(zip(us, points)):
             res = [done[g, i] for i in range(len(groups[g]))]
+            if p is not None and not groups[g]:  # screened out: never simulated
+                out.append(Record(tuple(float(x) for x in u),
+                                  STATIC_MISS_COST * (1.0 + p.static_error), None,
+                                  {"static_error": p.static_error}))
+                continue
             ok = p is not None and all(r is not None for r in res)
             cost, margins, figs = (score(self.targets(p.protocol), p.params, res) if ok
                                    else score(None, None, None))
             out.append(Record(tuple(float(x) for x in u), cost, margins, figs))
         return out
+
+    def _points(self, us: list) -> list[Point | None]:
+        """Each coordinate's point with its static fit, the fits run on the workers."""
+        keys = [(tuple(float(x) for x in u), self.base, self.fit) for u in us]
+        todo = [k for k in dict.fromkeys(keys) if k not in _POINTS]
+        fitted = (map(_point_task, todo) if self.executor is None
+                  else self.executor.map(_point_task, todo))
+        for k, point in zip(todo, fitted):
+            _POINTS[k] = point
+        return [_POINTS[k] for k in keys]
 
     def _report(self) -> None:
         if not self.progress:
@@ -384,20 +395,22 @@ class SearchResult:
 
 
 def planned_evaluations(popsize: int, maxiter: int) -> int:
-    """Points scored: DE's initial population, `maxiter` generations of it, its best
-    once more and at most the `probes`."""
-    n = max(5, popsize * len(SPACE))
-    return n * (maxiter + 1) + 1 + len(PROBED) * (len(FINDINGS) + len(paper.LOADS_N))
+    """Points scored: DE's initial population, `maxiter` generations of it and its best
+    once more (some of them screened out by their static fit, in milliseconds)."""
+    return popsize * len(SPACE) * (maxiter + 1) + 1
 
 
 def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
-           popsize: int = 2, maxiter: int = 5, jobs: int = 2, resume: bool = False,
-           progress: bool = True, targets=None) -> SearchResult:
-    """Run DE over SPACE from the start point (`base`, default the wpam preset, with the
-    default readings `Protocol()`), journaling to `out`/journal.jsonl (None: in memory).
+           popsize: int = POPSIZE, maxiter: int = MAXITER, jobs: int = 2,
+           resume: bool = False, progress: bool = True, targets=None,
+           fit=None) -> SearchResult:
+    """Run DE over SPACE, every coordinate drawn from its whole range (a Latin hypercube,
+    not started from any known point): `base` (default: the wpam preset) gives only the
+    parameters that are not searched. Journals to `out`/journal.jsonl (None: in memory).
 
     popsize: DE's multiplier (population popsize * len(SPACE)); maxiter: generations;
-    targets: protocol -> `Targets` (default: the paper's, at SEARCH_DT).
+    targets: protocol -> `Targets` (default: the paper's, at SEARCH_DT); fit: the static
+    screen (default `static_fit`).
     """
     check_range("popsize", popsize, 1, 100)
     check_range("maxiter", maxiter, 0, 1000)
@@ -410,47 +423,24 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
     started = time.perf_counter()
     with executor_for(jobs) as ex:
         ev = Evaluator(base, journal, ex, targets, progress,
-                       planned_evaluations(popsize, maxiter))
+                       planned_evaluations(popsize, maxiter), fit)
         res = differential_evolution(
-            cost, [d.bounds for d in SPACE], args=(ev,), seed=seed, popsize=popsize,
+            cost, [(0.0, 1.0)] * len(SPACE), args=(ev,), seed=seed, popsize=popsize,
             maxiter=maxiter, tol=0.0, polish=False, init="latinhypercube",
-            updating="deferred", workers=ev.costs,
-            integrality=[bool(d.choices) for d in SPACE],
-            x0=coordinates_of(Point(base, Protocol())))
+            updating="deferred", workers=ev.costs)
         (best,) = ev.records([list(res.x)])
-        ev.records(probes([journal.records[k] for k in ev.asked]))
     records = tuple(journal.records[k] for k in ev.asked)
     return SearchResult(best, records, len(records), time.perf_counter() - started,
                         str(res.message))
 
 
-# The static ramps' categorical readings: DE draws them per point, so a finding's best
-# point has met only one value of each; `probes` tries the other at that point.
-PROBED = ("protocol.loop_method", "protocol.common_top")
-
-
-def _cell_error(r: Record, k: int) -> float:
-    """|relative error| of Table 2 "Po = 0.04" cell k (load paper.LOADS_N[k])."""
-    ref = paper.TABLE2["open_po"][paper.LOADS_N[k]]
-    return abs(r.figures["table2_po_row"][k] / ref - 1.0)
-
-
-def probes(records: Sequence[Record]) -> list[list[float]]:
-    """Each finding's best tracking point, then the best point of each Table 2 "Po =
-    0.04" cell (the row's margin is its worst cell: a point that gets one end of the
-    row right is where a reading may bring the rest), each with one `PROBED` reading
-    flipped (the common top keeps the point's own top coordinate)."""
-    tracking = [r for r in records if r.tracks]
-    bests = dict.fromkeys([max(tracking, key=lambda r: r.margins[f]).u for f in FINDINGS]
-                          + [min(tracking, key=lambda r: _cell_error(r, k)).u
-                             for k in range(len(paper.LOADS_N))])
-    out = []
-    for u in bests:
-        for name in PROBED:
-            i = [d.name for d in SPACE].index(name)
-            v = list(u)
-            v[i] = 1.0 - round(u[i])
-            out.append(v)
+def convergence(records: Sequence[Record]) -> list[tuple[int, float, int]]:
+    """(points scored, least cost so far, most findings met so far) after each point, in
+    the order the search scored them."""
+    out, cost, held = [], math.inf, 0
+    for i, r in enumerate(records, 1):
+        cost, held = min(cost, r.cost), max(held, r.held)
+        out.append((i, cost, held))
     return out
 
 
@@ -467,10 +457,16 @@ def describe_point(u: Sequence[float], base: Params) -> str:
     return "\n".join(lines + [f"  protocol: {p.protocol.describe()}"])
 
 
-def at_bounds(u: Sequence[float], tol: float = 1e-3) -> list[str]:
-    """The continuous coordinates within `tol` of a bound of their range."""
-    return [d.name for d, x in zip(SPACE, u) if not d.choices
-            and (x <= d.bounds[0] + tol or x >= d.bounds[1] - tol)]
+def at_bounds(u: Sequence[float], base: Params, tol: float = 1e-3) -> list[str]:
+    """The searched and statically fitted values within `tol` (of their range) of a
+    bound of their range."""
+    point = point_of(u, base)
+    near = [d.name for d, x in zip(SPACE, u) if x <= tol or x >= 1.0 - tol]
+    for name in STATIC_FIT:
+        z = estimation.FreeParameter.of(name).to_z(point.params.value(name))
+        if z <= tol or z >= 1.0 - tol:
+            near.append(name)
+    return near
 
 
 
@@ -494,14 +490,23 @@ def _cpu_seconds() -> float:
 
 def write_outputs(out: Path, records: Sequence[Record], base: Params,
                   timing: str = "") -> list[Path]:
-    """The best compromise of `records` (best.toml, best.txt) and their feasibility map
-    (feasibility.md, feasibility.png) in `out`."""
+    """The best compromise of `records` (best.toml, best.txt), how the search converged
+    (convergence.csv, convergence.png) and their feasibility map (feasibility.md,
+    feasibility.png) in `out`."""
     from wpam_mj.reproduction import findings_map  # noqa: PLC0415 (it imports this module)
 
+    conv = convergence(records)
+    written = [write_text_atomic(out / "convergence.csv", findings_map.convergence_csv(conv)),
+               findings_map.convergence_figure(
+                   {out.name: conv}, out / "convergence.png",
+                   f"Convergence of the search: {len(records)} points, "
+                   f"{sum(r.margins is not None for r in records)} simulated")]
+    if not any(r.tracks for r in records):
+        return written  # nothing simulated tracks its targets: no map to draw
     pm = findings_map.pair_margins(records)
     best = findings_map.best_compromise(records)
     most = findings_map.most_findings(records)
-    return [write_text_atomic(out / "best.toml", point_toml(point_of(best.u, base))),
+    return written + [write_text_atomic(out / "best.toml", point_toml(point_of(best.u, base))),
             write_text_atomic(out / "best.txt", summary(timing, best, base) + "\n"
                               + "the point meeting the most findings:\n"
                               + summary("", most, base)),
@@ -529,9 +534,10 @@ def point_toml(point: Point) -> str:
 def summary(timing: str, best: Record, base: Params) -> str:
     """A point of the search and its findings (plain text)."""
     return (f"{timing}\n" * bool(timing)
-            + f"cost {best.cost:.4f}, {best.held} of {len(FINDINGS)} findings met\n"
+            + f"cost {best.cost:.4f}, {best.held} of the {len(PAPER_CHECKS)} checks of "
+            "`wpam reproduce` met\n"
             + describe_point(best.u, base)
-            + f"\nat a bound: {', '.join(at_bounds(best.u)) or 'none'}"
+            + f"\nat a bound: {', '.join(at_bounds(best.u, base)) or 'none'}"
             + "\nmargins:\n" + "\n".join(f"  {k:<24s} {v:+.3f}"
                                          for k, v in (best.margins or {}).items())
             + f"\nfigures: {json.dumps(best.figures)}\n")

@@ -8,11 +8,14 @@ muscle in Python, piece for piece what ``muscle_plugin.c`` does in C:
 
   compute (installed as ``mjcb_control``, which MuJoCo calls after the constraint rows are
     made and before actuation and the solve, as it calls a plugin's compute): x, v from the
-    tendon; the controller's Po output, evaluated but not kept; the tension from the
-    chamber pressures -> the force motor; the friction level -> this simulation's friction
-    row of the tendon (`d.efc_frictionloss`).
+    tendon; the commands; the controller's Po output, evaluated but not kept; the tendon
+    force from the chamber pressures -> the force motor; the friction level -> this
+    simulation's friction row of the tendon (`d.efc_frictionloss`).
   advance (after mj_step, once per step): the controller's state kept, the regulators and
     chambers advanced (`wpam_mj.simulation.plant.Plant.step`).
+
+Configurations are checked against the rule table `wpam_mj.physics.rules`, with the same
+line as the compiled plugin (`InstanceConfig.from_config`, `python_model`).
 
 `stepping` installs the callback for the duration of a ``with`` block only: MuJoCo's
 callbacks are process-global, and a Python one makes every model compilation fail while it
@@ -26,6 +29,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import math
+import re
 import sys
 from dataclasses import dataclass
 from typing import Iterator
@@ -35,14 +39,13 @@ import numpy as np
 
 from wpam_mj.simulation import plugin
 from wpam_mj.control.controllers import CONTROLLERS, PoController, make_controller, pi_feedforward
-from wpam_mj.simulation.loop_contract import (REC_FIELDS, RunConstants, SimulationDiverged,
-                                   contraction_diverged)
+from wpam_mj.simulation.loop_contract import REC_FIELDS, RunConstants, SimulationDiverged
+from wpam_mj.physics import rules
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import ParameterError, Params, check_range, preset
+from wpam_mj.physics.params import ParameterError, Params, parameter_fields, preset
 from wpam_mj.simulation.plant import Plant
 
-FEEDFORWARD_LOAD_RANGE_N = (0.0, 1e5)
-CONTRACTION0_RANGE_M = (-1.0, 1.0)
+_RK4 = int(mujoco.mjtIntegrator.mjINT_RK4)
 
 
 @dataclass(frozen=True)
@@ -53,52 +56,69 @@ class InstanceConfig:
     params: Params
     control: str
     start_at_rest: bool
+    guided: bool  # end fittings held on one axis (MuscleModel.tendon_force)
     feedforward_load: float  # [N]
     contraction0: float  # contraction in the model's reference pose [m]
 
     @classmethod
-    def from_config(cls, name: str, config: dict[str, str]) -> "InstanceConfig":
-        """Validate the attributes as the plugin does at compile time (same ranges, same
-        names), raising ParameterError naming the attribute, value and allowed range."""
-        known = set(plugin.INSTANCE_KEYS) | {key for key, _ in plugin.parameter_fields()}
-        for key in config:
-            if key not in known:
-                raise ParameterError(f"wpam_mj.muscle instance '{name}': unknown attribute "
-                                     f"{key!r}")
-        params = preset(config.get("preset") or "wpam")
-        values = {}
+    def from_config(cls, name: str, config: dict[str, str], timestep: float,
+                    integrator: int = 0) -> "InstanceConfig":
+        """Read and check the attributes as the compiled plugin does when the model
+        compiles (its `read_config`: the same order, rules and line), for a model of this
+        `timestep` [s] and integrator; raises ParameterError with that line."""
+        prefix = f"wpam_mj.muscle instance '{name}': "
+        known = set(plugin.attribute_names())
         for key, value in config.items():
-            if key in plugin.INSTANCE_KEYS or value == "":
+            if key not in known:
+                raise ParameterError(f"{prefix}unknown attribute {key!r}; the attributes are "
+                                     f"{', '.join(plugin.INSTANCE_KEYS)} and every parameter"
+                                     " by its section.field name (models/README.md)")
+            if value == "":  # the compiled plugin cannot see this: MuJoCo drops it
+                raise ParameterError(f"{prefix}{key} is empty; give it a value or leave the "
+                                     "attribute out")
+        words = {}
+        for key, allowed in {**plugin.INSTANCE_WORDS, "control": tuple(CONTROLLERS)}.items():
+            words[key] = config.get(key) or allowed[0]
+            if words[key] not in allowed:
+                raise ParameterError(f"{prefix}{key} = '{words[key]}' is not one of: "
+                                     f"{', '.join(allowed)}")
+        base = preset(words["preset"])
+        values: dict[str, float] = {key: base.value(key) for key, _ in parameter_fields()}
+        values.update(feedforward_load=0.0, contraction0=0.0)
+        own = {r.subject: r for r in rules.field_rules()}
+        for key in values:
+            text = config.get(key)
+            if text is None:
                 continue
-            try:
-                values[key] = float(value)
-            except ValueError:
-                raise ParameterError(f"wpam_mj.muscle instance '{name}': {key} = {value!r} "
-                                     "is not a number") from None
-        params = params.with_values(values)
-        control = config.get("control") or "open"
-        if control not in CONTROLLERS:
-            raise ParameterError(f"wpam_mj.muscle instance '{name}': control = {control!r} "
-                                 f"is not one of: {', '.join(CONTROLLERS)}")
-        if CONTROLLERS[control].feedback and not params.outer_chamber:
-            raise ParameterError(f"wpam_mj.muscle instance '{name}': preset "
-                                 f"'{params.preset}' has no outer chamber for Po feedback "
-                                 f"(control = '{control}'); use control = 'open'")
-        start = config.get("start") or "vented"
-        if start not in ("vented", "rest"):
-            raise ParameterError(f"wpam_mj.muscle instance '{name}': start = {start!r} is "
-                                 "not one of: vented, rest")
-        load = check_range(f"wpam_mj.muscle instance '{name}': feedforward_load",
-                           config.get("feedforward_load") or 0.0, *FEEDFORWARD_LOAD_RANGE_N,
-                           "N")
-        x0 = check_range(f"wpam_mj.muscle instance '{name}': contraction0",
-                         config.get("contraction0") or 0.0, *CONTRACTION0_RANGE_M, "m")
-        return cls(name, params, control, start == "rest", load, x0)
+            rule = own[key]
+            value = rules.parse_number(text)
+            if value is None:
+                raise ParameterError(rules.not_a_number(prefix, key, text, rule))
+            bad = rules.violation(rule, {key: value}.__getitem__)
+            if bad is not None:
+                raise ParameterError(rules.message(prefix, key, *bad, rule.lo_open,
+                                                   rule.hi_open))
+            values[key] = value
+        control = words["control"]
+        if CONTROLLERS[control].feedback and not base.outer_chamber:
+            raise ParameterError(f"{prefix}preset '{base.preset}' has no outer chamber for Po "
+                                 f"feedback (control = '{control}'); use control = 'open'")
+        values[rules.TIMESTEP] = timestep
+        rules.check(rules.CROSS_RULES, values.__getitem__, prefix)
+        if integrator == _RK4:
+            raise ParameterError(f"{prefix}the RK4 integrator evaluates each step four times; "
+                                 "use Euler, implicit or implicitfast (the pneumatics advance "
+                                 "once per step)")
+        params = base.with_values({k: v for k, v in values.items() if "." in k})
+        return cls(name, params, control, words["start"] == "rest",
+                   words["end_fittings"] == "guided", values["feedforward_load"],
+                   values["contraction0"])
 
 
 def instance_configs(spec: mujoco.MjSpec) -> dict[str, InstanceConfig]:
     """Every wpam_mj.muscle instance of `spec`, by name."""
-    return {p.name: InstanceConfig.from_config(p.name, dict(p.config))
+    return {p.name: InstanceConfig.from_config(p.name, dict(p.config), spec.option.timestep,
+                                               int(spec.option.integrator))
             for p in spec.plugins if p.plugin_name == plugin.NAME}
 
 
@@ -114,28 +134,58 @@ class PythonMuscle:
         self.tendon = int(model.actuator_trnid[force_actuator, 0])
         self.length0 = float(model.tendon_length0[self.tendon])
         self.dt = float(model.opt.timestep)
+        self.integrator = int(model.opt.integrator)
         self.muscle = MuscleModel.from_params(self.params)
         self.feedback = plugin.control_mode(config.control).feedback
         self.friction_row = 0  # where the tendon's friction row was last step
+        # each channel's ctrlrange where it is limited (read_commands clamps to it)
+        self.ctrl_limits = [tuple(map(float, model.actuator_ctrlrange[a]))
+                            if model.actuator_ctrllimited[a] else None for a in channels]
+        self.refused = False  # the model's options changed after it was made (warned)
         self.reset()
 
     def reset(self) -> None:
         """Vented chambers, empty regulators, controller at its start (plugin reset)."""
-        self.plant = Plant(self.muscle, RunConstants.make(self.params, self.dt, self.dt))
+        self.plant = Plant(self.muscle, RunConstants.make(self.params, self.dt, self.dt),
+                           guided=self.config.guided)
         self.controller: PoController = make_controller(self.config.control, self.params,
                                                         self.dt)
         self.rest_pending = self.config.start_at_rest
         self.pending: tuple | None = None  # what compute computed and advance keeps
-        self.status = ""  # why the state left its range ("" while it has not)
+        self.status_bits = 0  # plugin.STATUS_* bits
+        self.inputs = [0.0] * plugin.MAX_CHANNELS  # each channel's last finite command
         self.record = dict.fromkeys(REC_FIELDS[1:], 0.0)
         self.record["x_ref"] = math.nan
 
+    @property
+    def status(self) -> str:
+        """Why the muscle's state left its range, in one line ("" while it has not)."""
+        if not self.status_bits:
+            return ""
+        p_i, p_o = (c.pressure for c in (self.plant.chamber_i, self.plant.chamber_o))
+        return plugin.status_message(self.status_bits, self.record["x"], p_i, p_o)
+
+    @property
+    def stopped(self) -> bool:
+        """A muscle whose state left its range, or whose model changed, steps no more."""
+        return bool(self.status_bits & (plugin.STATUS_PRESSURE | plugin.STATUS_MODEL))
+
     def _inputs(self, ctrl: np.ndarray) -> tuple[float, float, float]:
-        """(x_ref, Pi command, Po command or feedforward) from the input channels."""
-        values = [float(ctrl[i]) for i in self.channels]
+        """(x_ref, Pi command, Po command or feedforward) from the input channels (the
+        plugin's read_commands): each clamped to its ctrlrange where limited, a
+        non-finite one replaced by the channel's last finite value, x_ref held to the
+        stroke."""
+        values = []
+        for i, (a, limits) in enumerate(zip(self.channels, self.ctrl_limits)):
+            c = float(ctrl[a])
+            if limits is not None:
+                c = min(max(c, limits[0]), limits[1])
+            if math.isfinite(c):
+                self.inputs[i] = c
+            values.append(self.inputs[i])
         if not self.feedback:
             return math.nan, values[0], values[1]
-        x_ref = values[0]
+        x_ref = self.muscle.geometry.in_stroke(values[0])
         if len(values) > 1:
             pi_cmd = values[1]
         else:
@@ -144,29 +194,54 @@ class PythonMuscle:
                                           self.params.controller.po_feedforward))
         return x_ref, pi_cmd, values[2] if len(values) > 2 else 0.0
 
+    def _options_changed(self, model: mujoco.MjModel) -> bool:
+        """The plugin's refusal of a timestep or integrator changed after compile: status,
+        and one warning line."""
+        opt = model.opt
+        if opt.timestep == self.dt and opt.integrator == self.integrator:
+            self.refused = False
+            return False
+        if not self.refused:
+            what = "timestep" if model.opt.timestep != self.dt else "integrator"
+            print(f"WARNING: wpam_mj.muscle instance '{self.config.name}': the {what} "
+                  f"changed after the model compiled (timestep {model.opt.timestep:.6g} s, "
+                  f"integrator {plugin.INTEGRATORS[int(model.opt.integrator)]}); the "
+                  "muscle stops until it is changed back or the model recompiled",
+                  file=sys.stderr)
+        self.refused = True
+        self.status_bits |= plugin.STATUS_MODEL
+        return True
+
     def compute(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
         """The step's force and friction level; nothing kept but what advance needs."""
         if self.pending is not None and data.time != self.pending[0]:
             self.advance()  # a loop that only calls mj_step: the last step ends here
+        if self._options_changed(model) or self.stopped:
+            data.ctrl[self.force_actuator] = 0.0
+            return
         x = self.config.contraction0 + (self.length0 - float(data.ten_length[self.tendon]))
         v = -float(data.ten_velocity[self.tendon])
         x_ref, pi_cmd, po_in = self._inputs(data.ctrl)
         po_cmd, ctl_state = self.controller.evaluate(x, x_ref, po_in)
         if self.rest_pending:
             self.plant.rest(pi_cmd, po_cmd)
-        tension, friction = self.plant.forces(x)
-        if not -1.0 < x < 1.0 and not self.status:
-            self.status = contraction_diverged(x)
+        force, friction = self.plant.forces(x)
+        tolerance = plugin.STROKE_TOLERANCE
+        if not -tolerance <= x <= self.muscle.geometry.max_contraction + tolerance:
+            self.status_bits |= plugin.STATUS_STROKE
+        if not math.isfinite(x):  # MuJoCo's state is already bad: add nothing to it
+            force, friction = 0.0, self.params.muscle.friction_const
         pi, po = self.plant.pressures
         self.record.update(x=x, velocity=v, x_ref=x_ref, pi=pi, po=po, pi_cmd=pi_cmd,
-                           po_cmd=po_cmd, tension=tension, friction=friction)
-        data.ctrl[self.force_actuator] = -tension  # along the tendon's length
-        self.friction_row = set_friction_rows(data, self.tendon, friction, self.friction_row)
+                           po_cmd=po_cmd, tension=force, friction=friction)
+        data.ctrl[self.force_actuator] = -force  # along the tendon's length
+        self.friction_row = set_friction_level(data, self.tendon, friction,
+                                               self.friction_row)
         self.pending = (float(data.time), x, v, pi_cmd, po_cmd, ctl_state)
 
     def advance(self) -> None:
         """Keep the controller's state, advance the regulators and chambers."""
-        if self.pending is None:
+        if self.pending is None or self.stopped:
             return
         _, x, v, pi_cmd, po_cmd, ctl_state = self.pending
         self.pending = None
@@ -174,80 +249,100 @@ class PythonMuscle:
         self.rest_pending = False
         try:
             self.plant.step(x, v, pi_cmd, po_cmd)
-        except SimulationDiverged as err:
-            self.status = self.status or str(err)
+        except SimulationDiverged:
+            self.status_bits |= plugin.STATUS_PRESSURE
         self.record["pi_reg"], self.record["po_reg"] = self.plant.set_points
 
 
 _FRICTION_TENDON = int(mujoco.mjtConstraint.mjCNSTR_FRICTION_TENDON)
 
 
-def set_friction_rows(data: mujoco.MjData, tendon: int, friction: float,
-                      row: int = 0) -> int:
+def set_friction_level(data: mujoco.MjData, tendon: int, friction: float,
+                       row: int = 0) -> int:
     """Write this step's friction level [N] into the tendon's friction row (made by MuJoCo
-    because the model's tendon_frictionloss is positive; the model stays untouched).
+    because the model's tendon_frictionloss is positive; the model stays untouched): the
+    plugin's set_friction_level, which says why this runs at the right point of the step.
     `row`: where to look first (the row keeps its place while the set of equality and
-    friction constraints before it does). Returns the row, -1 if there is none."""
+    friction constraints before it does). Returns the row, `row` if there is none."""
     kinds, ids = data.efc_type, data.efc_id
     if not (row < data.nefc and kinds[row] == _FRICTION_TENDON and ids[row] == tendon):
         rows = np.flatnonzero((kinds[:data.nefc] == _FRICTION_TENDON)
                               & (ids[:data.nefc] == tendon))
         if not rows.size:
-            return -1
+            return row
         row = int(rows[0])
     data.efc_frictionloss[row] = friction
     return row
 
 
+def _channel_error(spec: mujoco.MjSpec, instance: str, config: InstanceConfig,
+                   acts: list, others: dict[str, str]) -> str | None:
+    """The plugin's bind_channels on the spec: the line of the first channel error."""
+    prefix = f"wpam_mj.muscle instance '{instance}': "
+    control = plugin.control_mode(config.control)
+    n = len(acts)
+    if not control.required <= n <= len(control.channels):
+        return (f"{prefix}control = '{control.name}' takes {control.required} to "
+                f"{len(control.channels)} actuators (input channels), {n} name the instance")
+    if acts[0].trntype != mujoco.mjtTrn.mjTRN_TENDON:
+        return f"{prefix}its first actuator must act on a tendon (the muscle)"
+    tendon = acts[0].target
+    for act in acts[1:]:
+        if act.trntype != mujoco.mjtTrn.mjTRN_TENDON or act.target != tendon:
+            return (f"{prefix}actuator '{act.name}' does not act on the muscle's tendon "
+                    f"'{tendon}'; every input channel names the muscle's tendon")
+    names = list(others)
+    for other, other_tendon in others.items():
+        if other != instance and other_tendon == tendon:
+            first, second = sorted((instance, other), key=names.index)
+            return (f"wpam_mj.muscle instances '{first}' and '{second}' both pull tendon "
+                    f"'{tendon}'; one muscle per tendon")
+    return None
+
+
 def python_model(spec: mujoco.MjSpec) -> tuple[mujoco.MjModel, list[PythonMuscle]]:
     """Compile `spec` with its wpam_mj.muscle actuators replaced for the Python engine.
 
-    Each plugin actuator becomes a motor of gear 0 in place (same name, index and ctrl:
-    an input channel), and each instance gets a force motor, named "<instance>_force", on
-    its first actuator's tendon, appended after the model's actuators. Returns the model
-    and the muscles, one per instance.
+    Each plugin actuator becomes a motor of gear 0 in place (same name, index, ctrl and
+    ctrlrange: an input channel), and each instance gets a force motor, named
+    "<instance>_force", on its first actuator's tendon, appended after the model's
+    actuators. Returns the model and the muscles, one per instance. Raises ParameterError
+    with the compiled plugin's line for a configuration it refuses.
     """
     configs = instance_configs(spec)
-    channel_names: dict[str, list[str]] = {name: [] for name in configs}
-    tendons: dict[str, str] = {}
+    acts: dict[str, list] = {name: [] for name in configs}
     for act in spec.actuators:
-        if not act.plugin.active or act.plugin.name not in configs:
-            continue
-        instance = act.plugin.name
-        if not channel_names[instance]:
-            if act.trntype != mujoco.mjtTrn.mjTRN_TENDON:
-                raise ParameterError(f"wpam_mj.muscle instance '{instance}': its first "
-                                     "actuator must act on a tendon (the muscle)")
-            tendons[instance] = act.target
-        channel_names[instance].append(act.name)
-        act.plugin.active = False
-        act.plugin.name = ""
-        act.plugin.plugin_name = ""
-        act.gear[0] = 0.0  # an input channel only
-        act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
-        act.biastype = mujoco.mjtBias.mjBIAS_NONE
+        if act.plugin.active and act.plugin.name in configs:
+            acts[act.plugin.name].append(act)
+    first_tendons = {name: (a[0].target if a and a[0].trntype == mujoco.mjtTrn.mjTRN_TENDON
+                            else None) for name, a in acts.items()}
+    for instance, config in configs.items():
+        error = _channel_error(spec, instance, config, acts[instance], first_tendons)
+        if error:
+            raise ParameterError(error)
+    for instance_acts in acts.values():
+        for act in instance_acts:
+            act.plugin.active = False
+            act.plugin.name = ""
+            act.plugin.plugin_name = ""
+            act.gear[0] = 0.0  # an input channel only
+            act.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+            act.biastype = mujoco.mjtBias.mjBIAS_NONE
     for p in [p for p in spec.plugins if p.name in configs]:
         spec.delete(p)
     for instance in configs:
-        spec.add_actuator(name=f"{instance}_force", target=tendons[instance],
+        spec.add_actuator(name=f"{instance}_force", target=first_tendons[instance],
                           trntype=mujoco.mjtTrn.mjTRN_TENDON)
     model = spec.compile()
     muscles = []
     for instance, config in configs.items():
-        control = plugin.control_mode(config.control)
-        n = len(channel_names[instance])
-        if not control.required <= n <= len(control.channels):
-            raise ParameterError(f"wpam_mj.muscle instance '{instance}': control = "
-                                 f"'{control.name}' takes {control.required} to "
-                                 f"{len(control.channels)} actuators (input channels), "
-                                 f"{n} name the instance")
-        tendon = model.tendon(tendons[instance])
+        tendon = model.tendon(first_tendons[instance])
         if model.tendon_frictionloss[tendon.id] <= 0.0:
             raise ParameterError(f"wpam_mj.muscle instance '{instance}': tendon "
                                  f"'{tendon.name}' needs a positive frictionloss (any value;"
                                  " the plugin sets the level every step)")
         muscles.append(PythonMuscle(model, config,
-                                    [model.actuator(a).id for a in channel_names[instance]],
+                                    [model.actuator(a.name).id for a in acts[instance]],
                                     model.actuator(f"{instance}_force").id))
     return model, muscles
 
@@ -272,16 +367,28 @@ def stepping(model: mujoco.MjModel, muscles: list[PythonMuscle]) -> Iterator[Non
 
 # ---- a stand-in registration, so that MJCF naming the plugin parses without a compiler ----
 
-class _MjpPlugin(ctypes.Structure):
-    """mjpPlugin of mjplugin.h (MuJoCo 3.x), field for field."""
-
-    _fields_ = [("name", ctypes.c_char_p), ("nattribute", ctypes.c_int),
-                ("attributes", ctypes.POINTER(ctypes.c_char_p)),
-                ("capabilityflags", ctypes.c_int), ("needstage", ctypes.c_int),
-                *[(f, ctypes.c_void_p) for f in (
-                    "nstate", "nsensordata", "init", "destroy", "copy", "reset", "compute",
-                    "advance", "visualize", "actuator_act_dot", "sdf_distance",
-                    "sdf_gradient", "sdf_staticdistance", "sdf_attribute", "sdf_aabb")]]
+def _plugin_struct() -> type[ctypes.Structure]:
+    """ctypes' mjpPlugin, field for field as the installed mujoco's mjplugin.h declares
+    it (pointers, function pointers and ints; any other field type is refused)."""
+    header = (plugin.MUJOCO_DIR / "include" / "mujoco" / "mjplugin.h").read_text()
+    found = re.search(r"typedef struct mjpPlugin_ \{(.*?)\} mjpPlugin;", header, re.S)
+    if found is None:
+        raise RuntimeError("mjplugin.h declares no mjpPlugin")
+    fields = []
+    for declaration in re.sub(r"//[^\n]*|/\*.*?\*/", "", found.group(1), flags=re.S).split(";"):
+        declaration = " ".join(declaration.split())
+        callback = re.fullmatch(r"[^(]*\(\s*\*\s*(\w+)\s*\)\s*\(.*\)", declaration)
+        field = re.fullmatch(r"(.*?)\s*(\w+)", declaration)
+        if callback:
+            fields.append((callback.group(1), ctypes.c_void_p))
+        elif field and "*" in field.group(1):
+            fields.append((field.group(2), ctypes.c_void_p))
+        elif field and field.group(1) == "int":
+            fields.append((field.group(2), ctypes.c_int))
+        elif declaration:
+            raise RuntimeError(f"mjplugin.h: mjpPlugin field '{declaration}' is of a type the "
+                               "stand-in does not lay out")
+    return type("MjpPlugin", (ctypes.Structure,), {"_fields_": fields})
 
 
 _NSTATE = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_int)
@@ -291,11 +398,13 @@ _RESET = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_
 _COMPUTE = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int,
                             ctypes.c_int)
 _keep: list = []  # the registration's C objects live as long as the process
+INSTEAD = ("model, muscles = wpam_mj.simulation.engine.python_model(mujoco.MjSpec.from_file("
+           "PATH)), stepped inside `with engine.stepping(model, muscles):` (docs/plugin.md)")
 
 
 def _refuse(model, data, instance) -> int:
-    print(f"wpam_mj: the compiled plugin is unavailable ({plugin.unavailable_reason()}); "
-          "run such a model on the Python engine (wpam_mj.simulation.engine.python_model)",
+    print(f"wpam_mj: this model's muscles need the compiled plugin, unavailable here "
+          f"({plugin.unavailable_reason()}); load it on the Python engine instead: {INSTEAD}",
           file=sys.stderr)
     return -1
 
@@ -303,20 +412,27 @@ def _refuse(model, data, instance) -> int:
 def register_stand_in() -> None:
     """Register a ``wpam_mj.muscle`` that declares the plugin's attributes and computes
     nothing, so that an MJCF naming the plugin parses where the compiled plugin cannot be
-    built; `python_model` then removes it before compiling. Does nothing when the
-    compiled plugin is registered."""
-    if plugin.available() or _keep:
+    built; `python_model` then removes it before compiling, and compiling such a model
+    directly fails, with one line saying what to call instead. Does nothing when a
+    plugin of that name is registered (the compiled one, or the stand-in already)."""
+    from wpam_mj.simulation import plugin_build  # noqa: PLC0415 (loaded only here)
+
+    if plugin.available() or plugin_build.registered():
         return
     names = plugin.attribute_names()
     attributes = (ctypes.c_char_p * len(names))(*[n.encode() for n in names])
+    name = ctypes.create_string_buffer(plugin.NAME.encode())
     # init fails: a model compiled with the stand-in itself has no muscle and must not run
     callbacks = (_NSTATE(lambda m, i: 0), _INIT(_refuse),
                  _RESET(lambda m, s, p, i: None), _COMPUTE(lambda m, d, i, c: None))
-    stand_in = _MjpPlugin(name=plugin.NAME.encode(), nattribute=len(names),
-                          attributes=ctypes.cast(attributes, ctypes.POINTER(ctypes.c_char_p)),
-                          capabilityflags=1)
+    lib = plugin_build.libmujoco()
+    stand_in = _plugin_struct()()
+    lib.mjp_defaultPlugin(ctypes.byref(stand_in))
+    stand_in.name = ctypes.addressof(name)
+    stand_in.nattribute = len(names)
+    stand_in.attributes = ctypes.addressof(attributes)
+    stand_in.capabilityflags = 1  # mjPLUGIN_ACTUATOR
     for field, callback in zip(("nstate", "init", "reset", "compute"), callbacks):
-        setattr(stand_in, field, ctypes.cast(callback, ctypes.c_void_p))
-    lib = ctypes.CDLL(str(plugin.libmujoco_path()))
+        setattr(stand_in, field, ctypes.cast(callback, ctypes.c_void_p).value)
     lib.mjp_registerPlugin(ctypes.byref(stand_in))
-    _keep.extend([stand_in, attributes, callbacks, lib])
+    _keep.extend([stand_in, name, attributes, callbacks])

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 from wpam_mj.physics import pneumatics as pn
 from wpam_mj.physics.params import Params, check_whole_steps
-from wpam_mj.simulation.plugin import FAIL_CONTRACTION, FIELD, STATE_FIELDS
+from wpam_mj.simulation.plugin import FIELD, STATE_FIELDS, status_message
 
 # Rows of the recording array, in this order: the time, then the plugin state's recorded
 # fields; `SimResult` has a field of each name.
@@ -19,25 +19,13 @@ REC_ROWS = len(REC_FIELDS)
 
 
 class SimulationDiverged(RuntimeError):
-    """The state left its physical range (non-finite or negative absolute pressure)."""
-
-
-def contraction_diverged(x: float) -> str:
-    """Why a run stopped: the contraction x [m] left (-1, 1) m."""
-    return f"contraction x = {x!r} m"
-
-
-def pressure_diverged(p_i: float, p_o: float) -> str:
-    """Why a run stopped: a chamber pressure [Pa, absolute] is not positive."""
-    return f"chamber pressure Pi = {p_i!r} Pa, Po = {p_o!r} Pa (absolute)"
+    """The state left its physical range (`wpam_mj.simulation.plugin.status_message`)."""
 
 
 def state_failure(state) -> str:
     """Why a plugin instance stopped, from its state (starting at its first field) whose
-    "status" is set."""
-    if state[FIELD["status"]] == FAIL_CONTRACTION:
-        return contraction_diverged(float(state[FIELD["x"]]))
-    return pressure_diverged(float(state[FIELD["p_i"]]), float(state[FIELD["p_o"]]))
+    "status" is set: one line."""
+    return status_message(*(float(state[FIELD[n]]) for n in ("status", "x", "p_i", "p_o")))
 
 
 @dataclass(frozen=True)

@@ -102,7 +102,10 @@ def rig_spec(params: Params, load: float, dt: float = 1e-3, *, control: str = "o
     joint.damping[0] = params.muscle.damping
     mode = plugin.control_mode(control)
     instance = next(p for p in spec.plugins if p.name == INSTANCE)
-    instance.config = {"preset": params.preset, "control": control,
+    # the rig's own attributes stay (end_fittings: how its end fittings carry Po's push)
+    instance.config = {**{k: v for k, v in dict(instance.config).items()
+                          if k in plugin.INSTANCE_WORDS},
+                       "preset": params.preset, "control": control,
                        "start": "rest" if start_at_rest else "vented",
                        "feedforward_load": repr(float(feedforward_load)),
                        **{key: repr(float(params.value(key)))
@@ -123,6 +126,8 @@ def build_model(params: Params, load: float, dt: float = 1e-3, *,
                 xml: str | Path = MODEL_XML) -> mujoco.MjModel:
     """The rig compiled as the Python engine sees it (plain motors; `MuscleIndex` finds
     the muscle): for readers of its mechanics (the linear model, drawing) and the
-    bare-step benchmark."""
+    bare-step benchmark. Compiled at a step the chambers can take (the rule table refuses
+    a longer one), as only its mechanics are read."""
+    dt = min(dt, pneumatics.stable_dt(params)[0])
     model, _ = engine.python_model(rig_spec(params, load, dt, xml=xml))
     return model

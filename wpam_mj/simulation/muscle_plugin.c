@@ -5,33 +5,41 @@
    evaluates every expression in the Python order, so the two are bit-identical
    (tests/test_plugin.py). The physics and its sources are in the Python modules:
    BraidGeometry (wpam_mj/physics/geometry.py; Chou & Hannaford 1996), MuscleModel
-   (wpam_mj/physics/muscle.py; paper eqs. 1-7), Regulator, Chamber, mass_flow (wpam_mj/physics/pneumatics.py;
-   ISO 6358), PoFeedback and the Pi feedforward (wpam_mj/control/controllers.py; paper §4).
+   (wpam_mj/physics/muscle.py; paper eqs. 1-7), Regulator, Chamber, mass_flow
+   (wpam_mj/physics/pneumatics.py; ISO 6358), PoFeedback and the Pi feedforward
+   (wpam_mj/control/controllers.py; paper §4). Every range the configuration must lie in is
+   the rule table of wpam_mj/physics/rules.py, generated into WPAM_RULES.
 
    Built with -ffp-contract=off and without -ffast-math (no fused multiply-adds, no
-   reassociation); libm's sqrt, pow, sin, cos, expm1 are the functions Python's floats call.
-   min/max follow Python's builtins (first argument wins ties).
+   reassociation); libm's sqrt, pow, sin, cos, asin, expm1 are the functions Python's floats
+   call. min/max follow Python's builtins (first argument wins ties).
 
-   One plugin instance is one muscle. The actuators that name the instance are its input
-   channels in model order (WPAM_CHANNELS of the generated header; docs/plugin.md): the
-   first must act on the muscle's tendon and carries the force, the others carry none.
-   Per step:
-     compute (mj_fwdActuation, after the constraint rows are made, before the solve):
-       contraction x = tendon_length0 - ten_length, v = -ten_velocity; the Po controller's
-       output from its committed state (nothing committed: compute may run more than once
-       per step); the tension from the chamber pressures -> actuator_force = -tension
-       (along the tendon's length); the friction level -> this simulation's friction row
-       of the tendon (efc_frictionloss: stiction per simulation through the constraint
-       solver, the model's tendon_frictionloss untouched).
-     advance (after integration, once per step): the controller's state committed, the
-       regulators and chambers advanced from the values compute used.
-   Everything that changes lives in plugin_state (layout WPAM_STATE); constants derived
-   from the configuration are cached per mjData and re-derived whenever the model or its
-   configuration differs from the cached one (a batch may run many models on one mjData).
+   One plugin instance is one muscle on one tendon. The actuators that name the instance
+   are its input channels in model order (WPAM_CONTROLS; docs/plugin.md): all act on the
+   muscle's tendon, the first carries the force. The callbacks, as MuJoCo calls them:
+     nstate   (compile) the state size: the named fields and the regulators' dead-time
+              queues, fixed for the time step the model compiles with;
+     init     (compile and every new mjData) the configuration read, checked against the
+              rules and derived once into this mjData's Instance; a bad one fails the
+              compile with one line (mju_error: never on the step path);
+     compute  (mj_fwdActuation, after the constraint rows are made, before the solve) the
+              contraction and its velocity from the tendon, the commands, the Po
+              controller's output (nothing committed: compute may run more than once per
+              step), the tendon force from the chamber pressures, the friction level into
+              this simulation's friction row of the tendon (set_friction_level);
+     advance  (after integration, once per step) the controller's state committed, the
+              regulators and chambers advanced from the values compute used.
+   Everything that changes lives in plugin_state (layout WPAM_STATE). The Instance of an
+   mjData holds only what its model and configuration determine, plus where the friction
+   row was last step; it is found through a handle that a copied or unpickled mjData
+   cannot mistake for its own (instance_of).
 
-   Units: SI throughout (m, m/s, Pa gauge unless named absolute, N, kg/s, s). */
+   Pressures: *_gauge above the atmosphere, *_abs absolute; SI throughout (m, m/s, Pa, N,
+   kg/s, s). */
 
 #include <math.h>
+#include <pthread.h>
+#include <stdatomic.h>
 #include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -40,129 +48,146 @@
 #include <mujoco/mujoco.h>
 #include <mujoco/mjplugin.h>
 
-#include "wpam_plugin_tables.h" /* generated from wpam_mj/physics/params.py by wpam_mj/simulation/plugin.py */
+#include "wpam_plugin_tables.h" /* generated from wpam_mj/physics by wpam_mj/simulation/plugin.py */
 
-#define PI 3.14159265358979323846 /* rounds to math.pi */
-
-/* columns of WPAM_PARAMS(F): F(NAME, key, unit, lo, hi, lo_open) */
+/* columns of WPAM_PARAMS(F) and WPAM_NUMBERS(F): F(NAME, key, unit, lo, hi, lo_open) */
 #define WPAM_LO(NAME, key, unit, lo, hi, lo_open) lo,
 #define WPAM_HI(NAME, key, unit, lo, hi, lo_open) hi,
 #define WPAM_LO_OPEN(NAME, key, unit, lo, hi, lo_open) lo_open,
-#define WPAM_UNIT(NAME, key, unit, lo, hi, lo_open) unit,
 
 static double py_max(double a, double b) { return b > a ? b : a; }
 static double py_min(double a, double b) { return b < a ? b : a; }
 
-/* ---- enums from the generated tables ---- */
-#define AS_PARAM_ENUM(NAME, key, unit, lo, hi, lo_open, ...) P_##NAME,
+/* ---- enums and tables from the generated header ---- */
+
+#define AS_PARAM_ENUM(NAME, key, unit, lo, hi, lo_open) P_##NAME,
 #define AS_STATE_ENUM(NAME, name) S_##NAME,
 #define AS_CONTROL_ENUM(NAME, name, nmin, nmax, feedback) C_##NAME,
 enum { WPAM_PARAMS(AS_PARAM_ENUM) P_COUNT };
 enum { WPAM_STATE(AS_STATE_ENUM) S_COUNT };
 enum { WPAM_CONTROLS(AS_CONTROL_ENUM) C_COUNT };
 
-#define AS_KEY(NAME, key, ...) key,
+/* The quantities the rules speak of: the parameters (Q_x == P_x), the instance's numbers,
+   the time step and the derived quantities (wpam_mj.physics.rules). */
+#define AS_Q(NAME, ...) Q_##NAME,
+enum { WPAM_PARAMS(AS_Q) WPAM_NUMBERS(AS_Q) Q_TIMESTEP, WPAM_DERIVED(AS_Q) Q_COUNT };
+#define AS_NAME(NAME, key, unit, ...) key,
+#define AS_UNIT(NAME, key, unit, ...) unit,
+static const char* const QUANTITY_NAMES[] = {
+    WPAM_PARAMS(AS_NAME) WPAM_NUMBERS(AS_NAME) "timestep", WPAM_DERIVED(AS_NAME)};
+static const char* const QUANTITY_UNITS[] = {
+    WPAM_PARAMS(AS_UNIT) WPAM_NUMBERS(AS_UNIT) "s", WPAM_DERIVED(AS_UNIT)};
+
 #define AS_CONTROL_NAME(NAME, name, ...) #name,
-static const char* const PARAM_KEYS[] = {WPAM_PARAMS(AS_KEY)};
-static const char* const CONTROL_NAMES[] = {WPAM_CONTROLS(AS_CONTROL_NAME)};
 #define AS_NMIN(NAME, name, nmin, nmax, feedback) nmin,
 #define AS_NMAX(NAME, name, nmin, nmax, feedback) nmax,
 #define AS_FEEDBACK(NAME, name, nmin, nmax, feedback) feedback,
+static const char* const CONTROL_NAMES[] = {WPAM_CONTROLS(AS_CONTROL_NAME)};
 static const int CONTROL_NMIN[] = {WPAM_CONTROLS(AS_NMIN)};
 static const int CONTROL_NMAX[] = {WPAM_CONTROLS(AS_NMAX)};
 static const int CONTROL_FEEDBACK[] = {WPAM_CONTROLS(AS_FEEDBACK)};
 
-/* Every configuration attribute: the instance keys, then every parameter by name. */
-#define AS_ATTRIBUTE(NAME, key, ...) key,
-static const char* const ATTRIBUTES[] = {WPAM_INSTANCE_KEYS WPAM_PARAMS(AS_ATTRIBUTE)};
+/* Every configuration attribute: the instance's keys, then every parameter by name. */
+static const char* const ATTRIBUTES[] = {WPAM_INSTANCE_KEYS WPAM_PARAMS(AS_NAME)};
 #define NATTRIBUTE ((int)(sizeof(ATTRIBUTES) / sizeof(ATTRIBUTES[0])))
 
-/* ---- the constants of one instance: parameters and what is derived from them ---- */
+/* ---- one muscle of one mjData ---- */
 
 typedef struct {
+  /* the configuration, read once */
   double p[P_COUNT];          /* parameters by WPAM_PARAMS, SI */
   int control;                /* C_* */
   int start_at_rest;          /* 1: the first step's commands were held before the run */
+  int guided;                 /* 1: end fittings held on one axis (MuscleModel.tendon_force) */
   double feedforward_load;    /* load the Pi feedforward holds [N] */
-  double length0;             /* tendon length at which x = contraction0 [m] */
   double contraction0;        /* contraction in the model's reference pose [m] */
+  /* what the model determines: the model and options it was derived for */
+  const mjModel* model;
+  double dt;
+  int integrator;
+  int refused;                /* 1: this model's options changed after compile: stopped */
   int tendon;                 /* the muscle's tendon id */
   int channel[WPAM_MAX_CHANNELS]; /* actuator ids of the input channels */
   int nchannel;
+  double length0;             /* tendon length at which x = contraction0 [m] */
   /* derived, each with the expression of the Python code it stands for */
-  double thread_length, turns, max_contraction;    /* BraidGeometry.from_params */
-  double thread_sq, volume_denom, diameter_denom;  /* b ** 2, 4 pi n ** 2, n pi */
+  double thread_sq, volume_denom, diameter_denom, max_contraction; /* BraidGeometry */
   double lag_alpha;           /* RunConstants.lag_alpha */
   int delay_steps;            /* RunConstants.delay_steps */
   double bag_volume;          /* pneumatics.outer_bag_volume */
   double pa_per_unit, integral0, kd;  /* PoFeedback */
-  double dt;
-} Constants;
+  /* this mjData's */
+  const mjData* owner;
+  int instance;
+  int in_use;
+  int friction_row;           /* where the tendon's friction row was last step */
+} Instance;
 
-/* Cache of one mjData: the constants of every instance, valid for one model and one
-   configuration (compared whole on every call: cheap against a physics step). */
-typedef struct {
-  const mjModel* model;
-  double timestep;
-  char* attr;      /* copy of m->plugin_attr */
-  int nattr;
-  Constants* k;    /* by instance id */
-  int nplugin;
-} Cache;
+/* ---- BraidGeometry (wpam_mj/physics/geometry.py): held to the stroke outside it ---- */
 
-/* Parse one instance's configuration into k; on error write a one-line message. */
-static int parse_config(const mjModel* m, int instance, Constants* k, int channels, char* err,
-                        int nerr);
+static double geom_in_stroke(const Instance* k, double x) {
+  return py_min(py_max(x, 0.0), k->max_contraction);
+}
 
-/* ---- BraidGeometry (wpam_mj/physics/geometry.py) ---- */
-
-static double geom_diameter(const Constants* k, double x) {
-  double L = k->p[P_BRAID_NATURAL_LENGTH] - x;
+static double geom_diameter(const Instance* k, double x) {
+  double L = k->p[P_BRAID_NATURAL_LENGTH] - geom_in_stroke(k, x);
   return sqrt(k->thread_sq - L * L) / k->diameter_denom;
 }
 
-static double geom_volume(const Constants* k, double x) {
-  double L = k->p[P_BRAID_NATURAL_LENGTH] - x;
+static double geom_volume(const Instance* k, double x) {
+  double L = k->p[P_BRAID_NATURAL_LENGTH] - geom_in_stroke(k, x);
   return L * (k->thread_sq - L * L) / k->volume_denom;
 }
 
-static double geom_area(const Constants* k, double x) {
-  double L = k->p[P_BRAID_NATURAL_LENGTH] - x;
+static double geom_area(const Instance* k, double x) {
+  double L = k->p[P_BRAID_NATURAL_LENGTH] - geom_in_stroke(k, x);
   return (3.0 * L * L - k->thread_sq) / k->volume_denom;
 }
 
 /* ---- MuscleModel (wpam_mj/physics/muscle.py); gauge pressures ---- */
 
-static double muscle_rubber_force(const Constants* k, double x) {
-  return PI * k->p[P_MUSCLE_RUBBER_STIFFNESS]
+static double muscle_rubber_force(const Instance* k, double x) {
+  return mjPI * k->p[P_MUSCLE_RUBBER_STIFFNESS]
          * (geom_diameter(k, x) - k->p[P_BRAID_NATURAL_DIAMETER]);
 }
 
-static double muscle_tension(const Constants* k, double x, double pi, double po) {
-  double dp = pi > po ? pi - po : 0.0;
+static double muscle_tension(const Instance* k, double x, double pi_gauge, double po_gauge) {
+  double dp = pi_gauge > po_gauge ? pi_gauge - po_gauge : 0.0;
   return (k->p[P_MUSCLE_OUTPUT_COEFF] * (dp * geom_area(k, x) - muscle_rubber_force(k, x))
-          - k->p[P_MUSCLE_AXIAL_AREA] * po);
+          - k->p[P_MUSCLE_AXIAL_AREA] * po_gauge);
 }
 
-static double muscle_friction(const Constants* k, double x, double pi, double po) {
-  double dp = pi > po ? pi - po : 0.0;
+/* MuscleModel.tendon_force: a muscle pulls; only guided end fittings carry Po's push. */
+static double muscle_tendon_force(const Instance* k, double x, double pi_gauge,
+                                  double po_gauge) {
+  if (k->guided) {
+    double dp = pi_gauge > po_gauge ? pi_gauge - po_gauge : 0.0;
+    return (py_max(k->p[P_MUSCLE_OUTPUT_COEFF]
+                       * (dp * geom_area(k, x) - muscle_rubber_force(k, x)), 0.0)
+            - k->p[P_MUSCLE_AXIAL_AREA] * po_gauge);
+  }
+  return py_max(muscle_tension(k, x, pi_gauge, po_gauge), 0.0);
+}
+
+static double muscle_friction(const Instance* k, double x, double pi_gauge, double po_gauge) {
+  double dp = pi_gauge > po_gauge ? pi_gauge - po_gauge : 0.0;
   return k->p[P_MUSCLE_FRICTION_COEFF] * dp * geom_area(k, x) + k->p[P_MUSCLE_FRICTION_CONST];
 }
 
-/* MuscleModel.equilibrium_pressure then control.pi_feedforward's clip: the Pi [Pa] that
-   holds x_ref under the feedforward load at Po = po_feedforward, on the branch
+/* MuscleModel.equilibrium_pressure then control.pi_feedforward's clip: the Pi [Pa gauge]
+   that holds x_ref under the feedforward load at Po = po_feedforward, on the branch
    feedforward_friction; p_max where the braid cannot hold it (inf, clipped). */
-static double pi_feedforward(const Constants* k, double x_ref) {
+static double pi_feedforward(const Instance* k, double x_ref) {
   double s = k->p[P_CONTROLLER_FEEDFORWARD_FRICTION];
-  double po = k->p[P_CONTROLLER_PO_FEEDFORWARD];
+  double po_gauge = k->p[P_CONTROLLER_PO_FEEDFORWARD];
   double gain = (k->p[P_MUSCLE_OUTPUT_COEFF] - s * k->p[P_MUSCLE_FRICTION_COEFF])
                 * geom_area(k, x_ref);
-  double rhs = py_max(k->feedforward_load + k->p[P_MUSCLE_AXIAL_AREA] * po
+  double rhs = py_max(k->feedforward_load + k->p[P_MUSCLE_AXIAL_AREA] * po_gauge
                       + k->p[P_MUSCLE_OUTPUT_COEFF] * muscle_rubber_force(k, x_ref)
                       + s * k->p[P_MUSCLE_FRICTION_CONST], 0.0);
-  double pi = gain > 0.0 ? po + rhs / gain : INFINITY;
+  double pi_gauge = gain > 0.0 ? po_gauge + rhs / gain : INFINITY;
   /* np.clip(pi, lo, hi) = min(max(pi, lo), hi) */
-  return py_min(py_max(pi, k->p[P_PNEUMATICS_P_MIN]), k->p[P_PNEUMATICS_P_MAX]);
+  return py_min(py_max(pi_gauge, k->p[P_PNEUMATICS_P_MIN]), k->p[P_PNEUMATICS_P_MAX]);
 }
 
 /* ---- pneumatics (wpam_mj/physics/pneumatics.py); absolute pressures ---- */
@@ -178,22 +203,23 @@ static double iso6358_psi(double r, double b) {
   return sqrt(1.0 - q * q) * (1.0 - r) / (1.0 - WPAM_R_LAMINAR);
 }
 
-static double mass_flow(double p_source, double p_chamber, double c, double b) {
-  if (p_source >= p_chamber)
-    return c * WPAM_RHO_0 * p_source * iso6358_psi(p_chamber / p_source, b);
-  return -c * WPAM_RHO_0 * p_chamber * iso6358_psi(p_source / p_chamber, b);
+static double mass_flow(double source_abs, double chamber_abs, double c, double b) {
+  if (source_abs >= chamber_abs)
+    return c * WPAM_RHO_0 * source_abs * iso6358_psi(chamber_abs / source_abs, b);
+  return -c * WPAM_RHO_0 * chamber_abs * iso6358_psi(source_abs / chamber_abs, b);
 }
 
 /* Chamber.step: one explicit Euler step of dp/dt = (R T0 m_dot - p dV/dt) / V. */
-static double chamber_step(const Constants* k, double p, double conductance, double p_source,
-                           double volume, double dvdx, double v) {
-  double m = mass_flow(p_source, p, conductance, k->p[P_PNEUMATICS_CRITICAL_RATIO]);
-  return p + k->dt * (WPAM_RT0 * m - p * dvdx * v) / volume;
+static double chamber_step(const Instance* k, double chamber_abs, double conductance,
+                           double source_abs, double volume, double dvdx, double v) {
+  double m = mass_flow(source_abs, chamber_abs, conductance,
+                       k->p[P_PNEUMATICS_CRITICAL_RATIO]);
+  return chamber_abs + k->dt * (WPAM_RT0 * m - chamber_abs * dvdx * v) / volume;
 }
 
 /* Regulator.update: the command through the dead time (ring buffer `queue`, shared head),
-   clamped, then the first-order lag. Returns the new set point. */
-static double regulator_update(const Constants* k, double* set_point, double* queue,
+   clamped, then the first-order lag. Returns the new set point [Pa gauge]. */
+static double regulator_update(const Instance* k, double* set_gauge, double* queue,
                                int head, double command) {
   double clamped;
   if (k->delay_steps) {
@@ -202,21 +228,21 @@ static double regulator_update(const Constants* k, double* set_point, double* qu
     command = held;
   }
   clamped = py_min(py_max(command, 0.0), k->p[P_PNEUMATICS_P_MAX]);
-  *set_point += k->lag_alpha * (clamped - *set_point);
-  return *set_point;
+  *set_gauge += k->lag_alpha * (clamped - *set_gauge);
+  return *set_gauge;
 }
 
 /* Regulator.rest */
-static void regulator_rest(const Constants* k, double* set_point, double* queue,
+static void regulator_rest(const Instance* k, double* set_gauge, double* queue,
                            double command) {
   int i;
   for (i = 0; i < k->delay_steps; i++) queue[i] = command;
-  *set_point = py_min(py_max(command, 0.0), k->p[P_PNEUMATICS_P_MAX]);
+  *set_gauge = py_min(py_max(command, 0.0), k->p[P_PNEUMATICS_P_MAX]);
 }
 
 /* ---- PoFeedback.update (wpam_mj/control/controllers.py), split: evaluate, then commit ---- */
 
-static double feedback_output(const Constants* k, const double* s, double x, double x_ref,
+static double feedback_output(const Instance* k, const double* s, double x, double x_ref,
                               double po_ff, double* integral_next, double* derivative,
                               double* e_out) {
   const double* p = k->p;
@@ -245,12 +271,13 @@ static double feedback_output(const Constants* k, const double* s, double x, dou
 /* ---- the state of one instance ---- */
 
 static double* queue_i(double* s) { return s + S_COUNT; }
-static double* queue_o(const Constants* k, double* s) { return s + S_COUNT + k->delay_steps; }
+static double* queue_o(const Instance* k, double* s) { return s + S_COUNT + k->delay_steps; }
+static int state_size(const Instance* k) { return S_COUNT + 2 * k->delay_steps; }
 
 /* Initial state: vented chambers, empty regulators, controller at its bumpless start. */
-static void state_reset(const Constants* k, double* s) {
-  int i, n = S_COUNT + 2 * k->delay_steps;
-  for (i = 0; i < n; i++) s[i] = 0.0;
+static void state_reset(const Instance* k, double* s) {
+  int i;
+  for (i = 0; i < state_size(k); i++) s[i] = 0.0;
   s[S_X_REF] = NAN;
   s[S_P_I] = k->p[P_PNEUMATICS_ATMOSPHERE];
   s[S_P_O] = k->p[P_PNEUMATICS_ATMOSPHERE];
@@ -259,154 +286,167 @@ static void state_reset(const Constants* k, double* s) {
 }
 
 /* Plant.rest: regulators settled on the commands, chambers at their set points. */
-static void plant_rest(const Constants* k, double* s, double pi_cmd, double po_cmd) {
-  double pa = k->p[P_PNEUMATICS_ATMOSPHERE];
+static void plant_rest(const Instance* k, double* s, double pi_cmd, double po_cmd) {
+  double atmosphere = k->p[P_PNEUMATICS_ATMOSPHERE];
   regulator_rest(k, &s[S_PI_REG], queue_i(s), pi_cmd);
   regulator_rest(k, &s[S_PO_REG], queue_o(k, s), po_cmd);
-  s[S_P_I] = s[S_PI_REG] + pa;
-  s[S_P_O] = s[S_PO_REG] + pa;
+  s[S_P_I] = s[S_PI_REG] + atmosphere;
+  s[S_P_O] = s[S_PO_REG] + atmosphere;
 }
 
-/* ---- configuration ---- */
+/* Once a muscle's state has left its range, or its model changed under it, it stops:
+   no force, no advance, until mj_resetData. */
+static int stopped(const double* s) {
+  return ((int)s[S_STATUS] & (WPAM_STATUS_PRESSURE | WPAM_STATUS_MODEL)) != 0;
+}
 
-static int find_key(const char* key, const char* const* list, int n) {
+static void set_status(double* s, int bit) { s[S_STATUS] = (double)((int)s[S_STATUS] | bit); }
+
+/* ---- configuration: read, checked against the rules, derived (once per model) ---- */
+
+static int find_word(const char* word, const char* const* list, int n) {
   int i;
   for (i = 0; i < n; i++)
-    if (!strcmp(key, list[i])) return i;
+    if (!strcmp(word, list[i])) return i;
   return -1;
 }
 
-/* A number from the configuration: strtod must consume the whole value. */
+/* A number from the configuration (rules.parse_number): strtod must consume the whole
+   value but trailing spaces, a decimal number (no hexadecimal), finite. */
 static int parse_number(const char* text, double* out) {
   char* end;
-  if (!text || !text[0]) return 0;
+  if (strpbrk(text, "xX")) return 0;
   *out = strtod(text, &end);
+  if (end == text) return 0;
   while (*end == ' ') end++;
   return *end == '\0' && isfinite(*out);
 }
 
-static int fail(char* err, int nerr, const char* message) {
-  snprintf(err, nerr, "%s", message);
-  return -1;
+static const char* instance_name(const mjModel* m, int instance) {
+  const char* name = mj_id2name(m, mjOBJ_PLUGIN, instance);
+  return name ? name : "(unnamed)";
 }
 
-/* channels = 0: the parameters only (at compile time, before the actuators exist). */
-static int parse_config(const mjModel* m, int instance, Constants* k, int channels, char* err,
-                        int nerr) {
-  static const double PRESET_DEFAULTS[WPAM_NPRESET][P_COUNT] = WPAM_PRESET_DEFAULTS;
-  static const double LO[] = {WPAM_PARAMS(WPAM_LO)};
-  static const double HI[] = {WPAM_PARAMS(WPAM_HI)};
-  static const int LO_OPEN[] = {WPAM_PARAMS(WPAM_LO_OPEN)};
-  static const char* const UNITS[] = {WPAM_PARAMS(WPAM_UNIT)};
-  static const char* const PRESETS[] = {WPAM_PRESETS};
-  static const int PRESET_OUTER[] = {WPAM_PRESET_OUTER};  /* MuscleType.outer_chamber */
-  const char* name = mj_id2name(m, mjOBJ_PLUGIN, instance);
-  const char* text;
-  char msg[400];
-  int i, preset = 0;
+/* rules.shown_range and rules.message: the one line of a value outside its range. */
+static void shown_range(char* out, int nout, double lo, double hi, int lo_open, int hi_open,
+                        const char* unit) {
+  snprintf(out, nout, "%c%.6g, %.6g%c%s%s", lo_open || lo == -INFINITY ? '(' : '[', lo, hi,
+           hi_open || hi == INFINITY ? ')' : ']', strcmp(unit, "1") ? " " : "",
+           strcmp(unit, "1") ? unit : "");
+}
+
+static void range_message(char* err, int nerr, const char* name, int q, double value,
+                          double lo, double hi, int lo_open, int hi_open, const char* why) {
+  const char* unit = QUANTITY_UNITS[q];
+  char range[160];
+  shown_range(range, sizeof(range), lo, hi, lo_open, hi_open, unit);
+  snprintf(err, nerr, "wpam_mj.muscle instance '%s': %s = %.6g%s%s is outside the allowed "
+           "range %s%s%s%s", name, QUANTITY_NAMES[q], value, strcmp(unit, "1") ? " " : "",
+           strcmp(unit, "1") ? unit : "", range, why[0] ? " (" : "", why, why[0] ? ")" : "");
+}
+
+/* A word from the configuration, one of `list` (or the first when absent). */
+static int read_word(const mjModel* m, int instance, const char* key, const char* const* list,
+                     int n, const char* allowed, int* out, char* err, int nerr) {
+  const char* text = mj_getPluginConfig(m, instance, key);
+  *out = text && text[0] ? find_word(text, list, n) : 0;
+  if (*out < 0) {
+    snprintf(err, nerr, "wpam_mj.muscle instance '%s': %s = '%s' is not one of: %s",
+             instance_name(m, instance), key, text, allowed);
+    return -1;
+  }
+  return 0;
+}
+
+/* A number of the configuration into q[index] (the default when absent), within its own
+   range [lo, hi] (open below when lo_open). */
+static int read_number(const mjModel* m, int instance, int index, double lo, double hi,
+                       int lo_open, double* q, char* err, int nerr) {
+  const char* text = mj_getPluginConfig(m, instance, QUANTITY_NAMES[index]);
+  char range[160];
   double value;
-  memset(k, 0, sizeof(*k));
-  name = name ? name : "(unnamed)";
+  if (!text || !text[0]) return 0; /* MuJoCo keeps an empty value as none */
+  if (!parse_number(text, &value)) {
+    shown_range(range, sizeof(range), lo, hi, lo_open, 0, QUANTITY_UNITS[index]);
+    snprintf(err, nerr, "wpam_mj.muscle instance '%s': %s = '%s' is not a number; "
+             "allowed: %s", instance_name(m, instance), QUANTITY_NAMES[index], text, range);
+    return -1;
+  }
+  if (!(lo_open ? value > lo : value >= lo) || !(value <= hi)) {
+    range_message(err, nerr, instance_name(m, instance), index, value, lo, hi, lo_open, 0,
+                  "");
+    return -1;
+  }
+  q[index] = value;
+  return 0;
+}
 
-  text = mj_getPluginConfig(m, instance, "preset");
-  if (text && text[0]) {
-    preset = find_key(text, PRESETS, WPAM_NPRESET);
-    if (preset < 0) {
-      snprintf(msg, sizeof(msg), "wpam_mj.muscle instance '%s': preset = '%s' is not one "
-               "of: %s", name, text, WPAM_PRESET_LIST);
-      return fail(err, nerr, msg);
-    }
-  }
-  for (i = 0; i < P_COUNT; i++) {
-    k->p[i] = PRESET_DEFAULTS[preset][i];
-    text = mj_getPluginConfig(m, instance, PARAM_KEYS[i]);
-    if (!text || !text[0]) continue;
-    if (!parse_number(text, &value) || (LO_OPEN[i] ? value <= LO[i] : value < LO[i])
-        || value > HI[i]) {
-      snprintf(msg, sizeof(msg), "wpam_mj.muscle instance '%s': %s = '%s' %s is outside "
-               "the allowed range %s%.6g, %.6g] %s", name, PARAM_KEYS[i], text, UNITS[i],
-               LO_OPEN[i] ? "(" : "[", LO[i], HI[i], UNITS[i]);
-      return fail(err, nerr, msg);
-    }
-    k->p[i] = value;
-  }
+/* BraidGeometry.of: the braid's constants into k (thread length b, turns n). */
+static void derive_geometry(Instance* k) {
+  double angle = k->p[P_BRAID_BRAID_ANGLE], L0 = k->p[P_BRAID_NATURAL_LENGTH];
+  double b = L0 / cos(angle);
+  double n = b * sin(angle) / (mjPI * k->p[P_BRAID_NATURAL_DIAMETER]);
+  double radial = n * mjPI * k->p[P_BRAID_MAX_DIAMETER];
+  k->max_contraction = L0 - sqrt(b * b - radial * radial);
+  k->thread_sq = pow(b, 2.0);
+  k->volume_denom = 4.0 * mjPI * pow(n, 2.0);
+  k->diameter_denom = n * mjPI;
+}
 
-  text = mj_getPluginConfig(m, instance, "control");
-  k->control = text && text[0] ? find_key(text, CONTROL_NAMES, C_COUNT) : 0;
-  if (k->control < 0) {
-    snprintf(msg, sizeof(msg), "wpam_mj.muscle instance '%s': control = '%s' is not one of: "
-             "%s", name, text, WPAM_CONTROL_LIST);
-    return fail(err, nerr, msg);
-  }
-  if (CONTROL_FEEDBACK[k->control] && !PRESET_OUTER[preset]) {
-    snprintf(msg, sizeof(msg), "wpam_mj.muscle instance '%s': preset '%s' has no outer "
-             "chamber for Po feedback (control = '%s'); use control = 'open'", name,
-             PRESETS[preset], CONTROL_NAMES[k->control]);
-    return fail(err, nerr, msg);
-  }
-  text = mj_getPluginConfig(m, instance, "start");
-  if (text && text[0] && strcmp(text, "vented") && strcmp(text, "rest")) {
-    snprintf(msg, sizeof(msg), "wpam_mj.muscle instance '%s': start = '%s' is not one of: "
-             "vented, rest", name, text);
-    return fail(err, nerr, msg);
-  }
-  k->start_at_rest = text && !strcmp(text, "rest");
-  text = mj_getPluginConfig(m, instance, "feedforward_load");
-  k->feedforward_load = 0.0;
-  if (text && text[0] && (!parse_number(text, &k->feedforward_load)
-                          || k->feedforward_load < 0.0 || k->feedforward_load > 1e5)) {
-    snprintf(msg, sizeof(msg), "wpam_mj.muscle instance '%s': feedforward_load = '%s' N is "
-             "outside the allowed range [0, 100000] N", name, text);
-    return fail(err, nerr, msg);
-  }
+/* pneumatics.max_flow_slope: the largest |d m_dot / d p_chamber| [kg/(s Pa)]. */
+static double max_flow_slope(double conductance, double b) {
+  return conductance * WPAM_RHO_0 * iso6358_psi(WPAM_R_LAMINAR, b) / (1.0 - WPAM_R_LAMINAR);
+}
 
-  text = mj_getPluginConfig(m, instance, "contraction0");
-  k->contraction0 = 0.0;
-  if (text && text[0] && (!parse_number(text, &k->contraction0) || k->contraction0 < -1.0
-                          || k->contraction0 > 1.0)) {
-    snprintf(msg, sizeof(msg), "wpam_mj.muscle instance '%s': contraction0 = '%s' m is "
-             "outside the allowed range [-1, 1] m", name, text);
-    return fail(err, nerr, msg);
+/* pneumatics.stable_timesteps: the longest stable step of each chamber's update [s]. */
+static void stable_timesteps(const Instance* k, double* dt_i, double* dt_o) {
+  double b = k->p[P_PNEUMATICS_CRITICAL_RATIO], tube = k->p[P_PNEUMATICS_TUBE_VOLUME];
+  double bag = mjPI * k->p[P_BRAID_OUTER_BAG_DIAMETER] * k->p[P_BRAID_OUTER_BAG_DIAMETER]
+               * k->p[P_BRAID_OUTER_BAG_LENGTH] / 4.0;
+  double x_max = k->max_contraction;
+  double v_i = geom_volume(k, 0.0) + tube;
+  double v_o = bag + tube - geom_volume(k, x_max) - k->p[P_MUSCLE_AXIAL_AREA] * x_max;
+  *dt_i = v_i / (WPAM_RT0 * max_flow_slope(k->p[P_PNEUMATICS_INNER_CONDUCTANCE], b));
+  *dt_o = v_o / (WPAM_RT0 * max_flow_slope(k->p[P_PNEUMATICS_OUTER_CONDUCTANCE], b));
+}
+
+/* The derived quantities of the rules (rules.DERIVED), into q; k's geometry derived. */
+static void derive_quantities(Instance* k, double* q) {
+  double d_bag = q[Q_BRAID_OUTER_BAG_DIAMETER];
+  memcpy(k->p, q, sizeof(k->p));
+  derive_geometry(k);
+  q[Q_LOCKING_ANGLE] = asin(py_min(1.0, sqrt(2.0 / 3.0) * q[Q_BRAID_NATURAL_DIAMETER]
+                                            / q[Q_BRAID_MAX_DIAMETER]));
+  q[Q_BAG_SECTION] = mjPI * (d_bag * d_bag) / 4.0;
+  q[Q_MAX_CONTRACTION] = k->max_contraction;
+  stable_timesteps(k, &q[Q_INNER_STABLE_TIMESTEP], &q[Q_OUTER_STABLE_TIMESTEP]);
+  q[Q_SHORTEST_TIMESTEP] = q[Q_PNEUMATICS_DEAD_TIME] / WPAM_MAX_QUEUE_STEPS;
+}
+
+/* rules.check over WPAM_RULES: the first rule that fails (NaN never holds). */
+static int check_rules(const mjModel* m, int instance, const double* q, char* err, int nerr) {
+#define Q(NAME) q[Q_##NAME]
+#define CHECK_RULE(SUBJECT, LO, LO_OPEN, HI, HI_OPEN, WHY)                                   \
+  {                                                                                          \
+    double v = q[Q_##SUBJECT], lo = LO, hi = HI;                                             \
+    if (!(LO_OPEN ? v > lo : v >= lo) || !(HI_OPEN ? v < hi : v <= hi)) {                    \
+      range_message(err, nerr, instance_name(m, instance), Q_##SUBJECT, v, lo, hi, LO_OPEN,  \
+                    HI_OPEN, WHY);                                                           \
+      return -1;                                                                             \
+    }                                                                                        \
   }
+  WPAM_RULES(CHECK_RULE)
+#undef CHECK_RULE
+#undef Q
+  return 0;
+}
 
-  /* the cross-field checks of wpam_mj.physics.params */
-  if (k->p[P_BRAID_MAX_DIAMETER] <= k->p[P_BRAID_NATURAL_DIAMETER])
-    return fail(err, nerr, "wpam_mj.muscle: braid.max_diameter must exceed "
-                "braid.natural_diameter");
-  if (k->p[P_PNEUMATICS_P_MIN] >= k->p[P_PNEUMATICS_P_MAX])
-    return fail(err, nerr, "wpam_mj.muscle: pneumatics.p_min must be below pneumatics.p_max");
-  if (asin(py_min(1.0, sqrt(2.0 / 3.0) * k->p[P_BRAID_NATURAL_DIAMETER]
-                          / k->p[P_BRAID_MAX_DIAMETER])) <= k->p[P_BRAID_BRAID_ANGLE])
-    return fail(err, nerr, "wpam_mj.muscle: braid.braid_angle reaches the 54.7 deg locking "
-                "angle before the bag fills to braid.max_diameter");
-
-  /* derived constants, each as its Python original computes it */
-  k->dt = m->opt.timestep;
-  if (m->opt.integrator == mjINT_RK4)
-    return fail(err, nerr, "wpam_mj.muscle: the RK4 integrator evaluates each step four "
-                "times; use Euler, implicit or implicitfast (the pneumatics advance once per "
-                "step)");
-  if (!(k->dt > 0.0) || k->p[P_PNEUMATICS_DEAD_TIME] / k->dt > 1e6)
-    return fail(err, nerr, "wpam_mj.muscle: the timestep must be positive and at least "
-                "1e-6 of pneumatics.dead_time");
+/* The constants the Python engine's pieces derive from the parameters and dt. */
+static void derive_constants(Instance* k) {
+  double tau = k->p[P_PNEUMATICS_TIME_CONSTANT];
   k->delay_steps = (int)nearbyint(k->p[P_PNEUMATICS_DEAD_TIME] / k->dt); /* half-even */
-  {
-    double angle = k->p[P_BRAID_BRAID_ANGLE], L0 = k->p[P_BRAID_NATURAL_LENGTH];
-    double b = L0 / cos(angle);
-    double n = b * sin(angle) / (PI * k->p[P_BRAID_NATURAL_DIAMETER]);
-    double radial = n * PI * k->p[P_BRAID_MAX_DIAMETER];
-    k->thread_length = b;
-    k->turns = n;
-    k->max_contraction = L0 - sqrt(b * b - radial * radial);
-    k->thread_sq = pow(b, 2.0);
-    k->volume_denom = 4.0 * PI * pow(n, 2.0);
-    k->diameter_denom = n * PI;
-  }
-  {
-    double tau = k->p[P_PNEUMATICS_TIME_CONSTANT];
-    k->lag_alpha = tau == 0.0 ? 1.0 : -expm1(-k->dt / tau);
-  }
-  k->bag_volume = PI * k->p[P_BRAID_OUTER_BAG_DIAMETER] * k->p[P_BRAID_OUTER_BAG_DIAMETER]
+  k->lag_alpha = tau == 0.0 ? 1.0 : -expm1(-k->dt / tau);
+  k->bag_volume = mjPI * k->p[P_BRAID_OUTER_BAG_DIAMETER] * k->p[P_BRAID_OUTER_BAG_DIAMETER]
                   * k->p[P_BRAID_OUTER_BAG_LENGTH] / 4.0;
   k->pa_per_unit = k->p[P_CONTROLLER_COMMAND_SCALE] * WPAM_MPA;
   k->kd = k->control == C_PID ? k->p[P_CONTROLLER_KD] : 0.0;
@@ -415,195 +455,451 @@ static int parse_config(const mjModel* m, int instance, Constants* k, int channe
                      ? k->p[P_CONTROLLER_PO_FEEDFORWARD] / k->pa_per_unit
                            / k->p[P_CONTROLLER_KI]
                      : 0.0;
+}
 
-  { /* pneumatics.stable_dt: the explicit chamber update is monotone for dt lambda <= 1 */
-    double b = k->p[P_PNEUMATICS_CRITICAL_RATIO], tube = k->p[P_PNEUMATICS_TUBE_VOLUME];
-    double v_i = geom_volume(k, 0.0) + tube;
-    double v_o = k->bag_volume + tube - geom_volume(k, k->max_contraction)
-                 - k->p[P_MUSCLE_AXIAL_AREA] * k->max_contraction;
-    double slope = WPAM_RHO_0 * iso6358_psi(WPAM_R_LAMINAR, b) / (1.0 - WPAM_R_LAMINAR);
-    double dt_i = v_i / (WPAM_RT0 * k->p[P_PNEUMATICS_INNER_CONDUCTANCE] * slope);
-    double dt_o = v_o / (WPAM_RT0 * k->p[P_PNEUMATICS_OUTER_CONDUCTANCE] * slope);
-    int inner = dt_i <= dt_o;
-    if (k->dt > (inner ? dt_i : dt_o)) {
-      snprintf(msg, sizeof(msg), "wpam_mj.muscle instance '%s': pneumatics.%s_conductance = "
-               "%g m^3/(s Pa) fills its chamber too fast for the timestep %g s (the explicit "
-               "chamber update would oscillate or diverge); use a timestep <= %.3g s", name,
-               inner ? "inner" : "outer",
-               k->p[inner ? P_PNEUMATICS_INNER_CONDUCTANCE : P_PNEUMATICS_OUTER_CONDUCTANCE],
-               k->dt, inner ? dt_i : dt_o);
-      return fail(err, nerr, msg);
-    }
+/* The configuration of `instance` for model m at its time step into k: every attribute
+   read (engine.InstanceConfig.from_config), every rule checked, the constants derived.
+   Returns 0, or -1 with the one line in err. Never raises: the step path calls it too. */
+static int read_config(const mjModel* m, int instance, Instance* k, char* err, int nerr) {
+  static const double PRESET_DEFAULTS[WPAM_NPRESET][P_COUNT] = WPAM_PRESET_DEFAULTS;
+  static const double LO[] = {WPAM_PARAMS(WPAM_LO) WPAM_NUMBERS(WPAM_LO)};
+  static const double HI[] = {WPAM_PARAMS(WPAM_HI) WPAM_NUMBERS(WPAM_HI)};
+  static const int LO_OPEN[] = {WPAM_PARAMS(WPAM_LO_OPEN) WPAM_NUMBERS(WPAM_LO_OPEN)};
+  static const char* const PRESETS[] = {WPAM_PRESETS};
+  static const int PRESET_OUTER[] = {WPAM_PRESET_OUTER}; /* MuscleType.outer_chamber */
+  static const char* const START[] = {"vented", "rest"};
+  static const char* const FITTINGS[] = {"free", "guided"};
+  double q[Q_COUNT];
+  int i, preset;
+  memset(k, 0, sizeof(*k));
+  k->dt = m->opt.timestep;
+  k->integrator = m->opt.integrator;
+  if (read_word(m, instance, "preset", PRESETS, WPAM_NPRESET, WPAM_PRESET_LIST, &preset,
+                err, nerr)
+      || read_word(m, instance, "control", CONTROL_NAMES, C_COUNT, WPAM_CONTROL_LIST,
+                   &k->control, err, nerr)
+      || read_word(m, instance, "start", START, 2, "vented, rest", &k->start_at_rest, err,
+                   nerr)
+      || read_word(m, instance, "end_fittings", FITTINGS, 2, "free, guided", &k->guided, err,
+                   nerr))
+    return -1;
+  for (i = 0; i < P_COUNT; i++) q[i] = PRESET_DEFAULTS[preset][i];
+  q[Q_FEEDFORWARD_LOAD] = 0.0;
+  q[Q_CONTRACTION0] = 0.0;
+  q[Q_TIMESTEP] = k->dt;
+  for (i = 0; i < Q_TIMESTEP; i++)
+    if (read_number(m, instance, i, LO[i], HI[i], LO_OPEN[i], q, err, nerr)) return -1;
+  if (CONTROL_FEEDBACK[k->control] && !PRESET_OUTER[preset]) {
+    snprintf(err, nerr, "wpam_mj.muscle instance '%s': preset '%s' has no outer chamber for "
+             "Po feedback (control = '%s'); use control = 'open'", instance_name(m, instance),
+             PRESETS[preset], CONTROL_NAMES[k->control]);
+    return -1;
   }
-
-  /* the channels: every actuator naming this instance, in model order */
-  if (!channels) return 0;
-  k->nchannel = 0;
-  for (i = 0; i < m->nu; i++) {
-    if (m->actuator_plugin[i] != instance) continue;
-    if (k->nchannel == WPAM_MAX_CHANNELS) {
-      k->nchannel++;
-      break;
-    }
-    k->channel[k->nchannel++] = i;
+  derive_quantities(k, q);
+  if (check_rules(m, instance, q, err, nerr)) return -1;
+  if (k->integrator == mjINT_RK4) {
+    snprintf(err, nerr, "wpam_mj.muscle instance '%s': the RK4 integrator evaluates each "
+             "step four times; use Euler, implicit or implicitfast (the pneumatics advance "
+             "once per step)", instance_name(m, instance));
+    return -1;
   }
-  if (k->nchannel < CONTROL_NMIN[k->control] || k->nchannel > CONTROL_NMAX[k->control]) {
-    snprintf(msg, sizeof(msg), "wpam_mj.muscle instance '%s': control = '%s' takes %d to %d "
-             "actuators (input channels), %d name the instance", name,
-             CONTROL_NAMES[k->control], CONTROL_NMIN[k->control], CONTROL_NMAX[k->control],
-             k->nchannel);
-    return fail(err, nerr, msg);
-  }
-  if (m->actuator_trntype[k->channel[0]] != mjTRN_TENDON) {
-    snprintf(msg, sizeof(msg), "wpam_mj.muscle instance '%s': its first actuator must act on "
-             "a tendon (the muscle)", name);
-    return fail(err, nerr, msg);
-  }
-  k->tendon = m->actuator_trnid[2 * k->channel[0]];
-  if (m->tendon_frictionloss[k->tendon] <= 0.0) {
-    snprintf(msg, sizeof(msg), "wpam_mj.muscle instance '%s': tendon '%s' needs a positive "
-             "frictionloss (any value; the plugin sets the level every step)", name,
-             mj_id2name(m, mjOBJ_TENDON, k->tendon));
-    return fail(err, nerr, msg);
-  }
-  k->length0 = m->tendon_length0[k->tendon];
-
+  k->feedforward_load = q[Q_FEEDFORWARD_LOAD];
+  k->contraction0 = q[Q_CONTRACTION0];
+  derive_constants(k);
   return 0;
 }
 
-/* The constants of `instance` for model m, from the mjData's cache (re-derived when the
-   model or configuration changed). mju_error on a configuration error. */
-static const Constants* constants(const mjModel* m, mjData* d, int instance) {
-  Cache* c = (Cache*)d->plugin_data[instance];
-  if (c->model != m || c->timestep != m->opt.timestep || c->nattr != m->npluginattr
-      || c->nplugin != m->nplugin || memcmp(c->attr, m->plugin_attr, m->npluginattr)) {
-    char err[500];
-    int i;
-    free(c->attr);
-    free(c->k);
-    c->attr = malloc(m->npluginattr > 0 ? m->npluginattr : 1);
-    c->k = calloc(m->nplugin, sizeof(Constants));
-    if (!c->attr || !c->k) mju_error("wpam_mj.muscle: out of memory");
-    memcpy(c->attr, m->plugin_attr, m->npluginattr);
-    c->nattr = m->npluginattr;
-    c->nplugin = m->nplugin;
-    c->model = m;
-    c->timestep = m->opt.timestep;
-    for (i = 0; i < m->nplugin; i++)
-      if (m->plugin[i] == m->plugin[instance] && parse_config(m, i, &c->k[i], 1, err, sizeof(err)))
-        mju_error("%s", err);
+/* The input channels: every actuator naming the instance, in model order, all on the
+   muscle's tendon, which no other muscle pulls and whose friction row MuJoCo makes. */
+static int bind_channels(const mjModel* m, int instance, Instance* k, char* err, int nerr) {
+  const char* name = instance_name(m, instance);
+  int i, j;
+  k->nchannel = 0;
+  for (i = 0; i < m->nu; i++) {
+    if (m->actuator_plugin[i] != instance) continue;
+    if (k->nchannel < WPAM_MAX_CHANNELS) k->channel[k->nchannel] = i;
+    k->nchannel++;
   }
-  return &c->k[instance];
+  if (k->nchannel < CONTROL_NMIN[k->control] || k->nchannel > CONTROL_NMAX[k->control]) {
+    snprintf(err, nerr, "wpam_mj.muscle instance '%s': control = '%s' takes %d to %d "
+             "actuators (input channels), %d name the instance", name,
+             CONTROL_NAMES[k->control], CONTROL_NMIN[k->control], CONTROL_NMAX[k->control],
+             k->nchannel);
+    return -1;
+  }
+  if (m->actuator_trntype[k->channel[0]] != mjTRN_TENDON) {
+    snprintf(err, nerr, "wpam_mj.muscle instance '%s': its first actuator must act on a "
+             "tendon (the muscle)", name);
+    return -1;
+  }
+  k->tendon = m->actuator_trnid[2 * k->channel[0]];
+  for (i = 1; i < k->nchannel; i++) {
+    int a = k->channel[i];
+    if (m->actuator_trntype[a] != mjTRN_TENDON || m->actuator_trnid[2 * a] != k->tendon) {
+      snprintf(err, nerr, "wpam_mj.muscle instance '%s': actuator '%s' does not act on the "
+               "muscle's tendon '%s'; every input channel names the muscle's tendon", name,
+               mj_id2name(m, mjOBJ_ACTUATOR, a), mj_id2name(m, mjOBJ_TENDON, k->tendon));
+      return -1;
+    }
+  }
+  for (j = 0; j < m->nplugin; j++) { /* the first channel of every other muscle */
+    if (j == instance || m->plugin[j] != m->plugin[instance]) continue;
+    for (i = 0; i < m->nu && m->actuator_plugin[i] != j; i++) continue;
+    if (i < m->nu && m->actuator_trntype[i] == mjTRN_TENDON
+        && m->actuator_trnid[2 * i] == k->tendon) {
+      snprintf(err, nerr, "wpam_mj.muscle instances '%s' and '%s' both pull tendon '%s'; "
+               "one muscle per tendon", instance_name(m, j < instance ? j : instance),
+               instance_name(m, j < instance ? instance : j),
+               mj_id2name(m, mjOBJ_TENDON, k->tendon));
+      return -1;
+    }
+  }
+  if (m->tendon_frictionloss[k->tendon] <= 0.0) {
+    snprintf(err, nerr, "wpam_mj.muscle instance '%s': tendon '%s' needs a positive "
+             "frictionloss (any value; the plugin sets the level every step)", name,
+             mj_id2name(m, mjOBJ_TENDON, k->tendon));
+    return -1;
+  }
+  k->length0 = m->tendon_length0[k->tendon];
+  return 0;
+}
+
+/* Everything the model determines, read for model m: its configuration and channels,
+   and a state layout that fits the state MuJoCo sized when the model compiled. */
+static int derive_for_model(const mjModel* m, int instance, Instance* k, char* err,
+                            int nerr) {
+  if (read_config(m, instance, k, err, nerr) || bind_channels(m, instance, k, err, nerr))
+    return -1;
+  if (state_size(k) != m->plugin_statenum[instance]) {
+    snprintf(err, nerr, "wpam_mj.muscle instance '%s': timestep = %.6g s needs dead-time "
+             "queues of %d steps, but the model compiled with %d; the time step is fixed when "
+             "the model compiles", instance_name(m, instance), k->dt, k->delay_steps,
+             (m->plugin_statenum[instance] - S_COUNT) / 2);
+    return -1;
+  }
+  k->model = m;
+  k->friction_row = 0;
+  return 0;
+}
+
+/* ---- the Instances of every mjData: handles a copied mjData cannot mistake ----
+
+   MuJoCo keeps one uintptr_t per instance in d->plugin_data and copies it raw when an
+   MjData is pickled, into a data that is not the one it was made for (or into another
+   process, where it means nothing). So plugin_data holds a handle, index + 1 into this
+   library's table of Instances, never a pointer: a handle is looked up, bounds-checked
+   and its Instance's owner compared with d before anything is read through it. A data
+   holding another's handle (a pickled copy) finds or makes its own. The table grows in
+   chunks that never move, so steps on other threads read it without a lock. */
+
+#define CHUNK_SLOTS 64
+#define MAX_CHUNKS 16384
+static Instance* chunks[MAX_CHUNKS];
+static atomic_int nslot;  /* slots handed out: handles 1 .. nslot are valid indices */
+static pthread_mutex_t table_lock = PTHREAD_MUTEX_INITIALIZER;
+
+static Instance* slot(uintptr_t handle) {
+  uintptr_t i = handle - 1;
+  if (handle == 0 || handle > (uintptr_t)atomic_load(&nslot)) return NULL;
+  return &chunks[i / CHUNK_SLOTS][i % CHUNK_SLOTS];
+}
+
+static int owned(const Instance* k, const mjData* d, int instance) {
+  return k && k->in_use && k->owner == d && k->instance == instance;
+}
+
+/* The handle of d's Instance of `instance`, 0 if it has none. */
+static uintptr_t find_owned(const mjData* d, int instance) {
+  uintptr_t h, n = (uintptr_t)atomic_load(&nslot);
+  for (h = 1; h <= n; h++)
+    if (owned(slot(h), d, instance)) return h;
+  return 0;
+}
+
+/* A new Instance owned by (d, instance) holding *k: a freed slot, or one appended (its
+   chunk allocated first, then published by nslot); 0 when memory runs out. */
+static uintptr_t new_slot(const mjData* d, int instance, const Instance* k) {
+  uintptr_t h, n;
+  Instance* fresh;
+  pthread_mutex_lock(&table_lock);
+  n = (uintptr_t)atomic_load(&nslot);
+  for (h = 1; h <= n && slot(h)->in_use; h++) continue;
+  if (h > n) {
+    uintptr_t chunk = n / CHUNK_SLOTS;
+    if (chunk < MAX_CHUNKS && !chunks[chunk])
+      chunks[chunk] = calloc(CHUNK_SLOTS, sizeof(Instance));
+    if (chunk >= MAX_CHUNKS || !chunks[chunk]) {
+      pthread_mutex_unlock(&table_lock);
+      return 0;
+    }
+    atomic_store(&nslot, (int)h);
+  }
+  fresh = slot(h);
+  *fresh = *k;
+  fresh->owner = d;
+  fresh->instance = instance;
+  fresh->in_use = 1;
+  pthread_mutex_unlock(&table_lock);
+  return h;
+}
+
+static void free_slot(uintptr_t h) {
+  pthread_mutex_lock(&table_lock);
+  slot(h)->in_use = 0;
+  slot(h)->owner = NULL;
+  pthread_mutex_unlock(&table_lock);
+}
+
+/* The one line of why a muscle stops stepping, as a MuJoCo warning (once per cause). */
+static void refuse(Instance* k, double* s, const char* err) {
+  if (!k->refused) mju_warning("%s", err);
+  k->refused = 1;
+  set_status(s, WPAM_STATUS_MODEL);
+}
+
+/* d's own Instance of `instance`. A pickled copy holds another data's handle: it finds the
+   Instance its own init made, or makes one. NULL (status set) if it cannot. */
+static Instance* own_instance(const mjModel* m, mjData* d, int instance, double* s) {
+  Instance* k = slot(d->plugin_data[instance]);
+  Instance fresh;
+  char err[600];
+  uintptr_t h;
+  if (owned(k, d, instance)) return k;
+  h = find_owned(d, instance);
+  if (!h) {
+    if (derive_for_model(m, instance, &fresh, err, sizeof(err))) {
+      if (!((int)s[S_STATUS] & WPAM_STATUS_MODEL)) mju_warning("%s", err);
+      set_status(s, WPAM_STATUS_MODEL);
+      return NULL;
+    }
+    h = new_slot(d, instance, &fresh);
+    if (!h) return NULL;
+  }
+  d->plugin_data[instance] = h;
+  return slot(h);
+}
+
+/* Whether k is current for model m and its options: the same model with its time step or
+   integrator edited after compile (MuJoCo's viewer allows it) is refused; another model
+   of the same state layout (mujoco.batch's set_models) is derived afresh. */
+static int current_for(const mjModel* m, int instance, Instance* k, double* s) {
+  static const char* const INTEGRATORS[] = {WPAM_INTEGRATORS};
+  const int nintegrator = (int)(sizeof(INTEGRATORS) / sizeof(INTEGRATORS[0]));
+  int integrator = m->opt.integrator;
+  Instance fresh;
+  char err[600];
+  if (k->model == m && k->dt == m->opt.timestep && k->integrator == integrator) {
+    k->refused = 0; /* (changed back: the muscle steps again after mj_resetData) */
+    return 1;
+  }
+  if (k->model == m) {
+    snprintf(err, sizeof(err), "wpam_mj.muscle instance '%s': the %s changed after the model "
+             "compiled (timestep %.6g s, integrator %s); the muscle stops until it is changed "
+             "back or the model recompiled", instance_name(m, instance),
+             k->dt != m->opt.timestep ? "timestep" : "integrator", m->opt.timestep,
+             integrator >= 0 && integrator < nintegrator ? INTEGRATORS[integrator] : "unknown");
+    refuse(k, s, err);
+    return 0;
+  }
+  if (derive_for_model(m, instance, &fresh, err, sizeof(err))) {
+    refuse(k, s, err);
+    return 0;
+  }
+  fresh.owner = k->owner;
+  fresh.instance = k->instance;
+  fresh.in_use = 1;
+  *k = fresh;
+  return 1;
+}
+
+/* d's Instance of `instance`, current for model m; NULL when the muscle cannot step. */
+static Instance* instance_of(const mjModel* m, mjData* d, int instance, double* s) {
+  Instance* k = own_instance(m, d, instance, s);
+  return k && current_for(m, instance, k, s) ? k : NULL;
+}
+
+/* ---- the step ---- */
+
+/* The commands of this step from the input channels: each clamped to its actuator's
+   ctrlrange where limited (as MuJoCo does for its own actuators); a non-finite one, which
+   MuJoCo warns about (mjWARN_BADCTRL), replaced by that channel's last finite value
+   (held in the state, 0 at the start); the target held to the stroke. */
+static void read_commands(const mjModel* m, const mjData* d, const Instance* k, double* s,
+                          double* command) {
+  int i;
+  for (i = 0; i < k->nchannel; i++) {
+    int a = k->channel[i];
+    double c = d->ctrl[a];
+    if (m->actuator_ctrllimited[a])
+      c = py_min(py_max(c, m->actuator_ctrlrange[2 * a]), m->actuator_ctrlrange[2 * a + 1]);
+    if (isfinite(c))
+      s[S_INPUT0 + i] = c;
+    command[i] = s[S_INPUT0 + i];
+  }
+  if (CONTROL_FEEDBACK[k->control]) command[0] = geom_in_stroke(k, command[0]);
+}
+
+/* The friction level [N] of this step into this simulation's friction row of the muscle's
+   tendon: the plugin's one write into MuJoCo's constraint data.
+
+   MuJoCo makes a friction row for a tendon whose model frictionloss is positive
+   (efc_type mjCNSTR_FRICTION_TENDON, efc_id the tendon) in mj_makeConstraint, and reads
+   efc_frictionloss in the constraint solve; mj_fwdActuation, which calls compute, runs
+   between the two (MuJoCo 3.x mj_forward: ... mj_makeConstraint, ..., mj_fwdActuation,
+   mj_fwdAcceleration, mj_fwdConstraint). So the level written here is the one the solver
+   (and the no-slip solver) holds the tendon with this step, for this mjData alone; the
+   model's tendon_frictionloss, shared by every simulation of a batch, stays untouched.
+   tests/test_plugin.py fails if that order changes. The row keeps its place while the
+   constraints before it do; it is looked up again when it moved. */
+static void set_friction_level(mjData* d, Instance* k, double level) {
+  int row = k->friction_row;
+  if (!(row < d->nefc && d->efc_type[row] == mjCNSTR_FRICTION_TENDON
+        && d->efc_id[row] == k->tendon)) {
+    for (row = 0; row < d->nefc; row++)
+      if (d->efc_type[row] == mjCNSTR_FRICTION_TENDON && d->efc_id[row] == k->tendon) break;
+    if (row == d->nefc) return;
+    k->friction_row = row;
+  }
+  d->efc_frictionloss[row] = level;
+}
+
+/* No force from a muscle that does not step (its friction row keeps the model's level). */
+static void no_force(const mjModel* m, mjData* d, int instance) {
+  int i;
+  for (i = 0; i < m->nu; i++)
+    if (m->actuator_plugin[i] == instance) d->actuator_force[i] = 0.0;
 }
 
 /* ---- plugin callbacks ---- */
 
-/* State size; the configuration is validated here, at compile time. */
+/* The state size: the named fields and two dead-time queues of round(dead_time / timestep)
+   steps at the time step the model compiles with (checked in full by init). */
 static int wpam_nstate(const mjModel* m, int instance) {
-  Constants k;
-  char err[500];
-  if (parse_config(m, instance, &k, 0, err, sizeof(err))) mju_error("%s", err);
-  return S_COUNT + 2 * k.delay_steps;
+  double dead_time = 0.0, dt = m->opt.timestep;
+  const char* text = mj_getPluginConfig(m, instance, "pneumatics.dead_time");
+  static const double PRESET_DEFAULTS[WPAM_NPRESET][P_COUNT] = WPAM_PRESET_DEFAULTS;
+  static const char* const PRESETS[] = {WPAM_PRESETS};
+  const char* preset_name = mj_getPluginConfig(m, instance, "preset");
+  int preset = preset_name ? find_word(preset_name, PRESETS, WPAM_NPRESET) : 0;
+  dead_time = PRESET_DEFAULTS[preset > 0 ? preset : 0][P_PNEUMATICS_DEAD_TIME];
+  if (text && text[0] && !parse_number(text, &dead_time)) dead_time = 0.0;
+  if (!(dt > 0.0) || !(dead_time >= 0.0) || !(dead_time / dt <= WPAM_MAX_QUEUE_STEPS))
+    return S_COUNT; /* init refuses the configuration */
+  return S_COUNT + 2 * (int)nearbyint(dead_time / dt);
 }
 
-/* A new mjData: its constants cache; the channels are validated here (mju_error). */
+/* A new mjData: the instance's configuration read and checked once, into its Instance. */
 static int wpam_init(const mjModel* m, mjData* d, int instance) {
-  Cache* c = calloc(1, sizeof(Cache));
-  if (!c) return -1;
-  d->plugin_data[instance] = (uintptr_t)c;
-  constants(m, d, instance);
+  Instance k;
+  char err[600];
+  uintptr_t h;
+  if (derive_for_model(m, instance, &k, err, sizeof(err))) mju_error("%s", err);
+  h = new_slot(d, instance, &k);
+  if (!h) return -1;
+  d->plugin_data[instance] = h;
   return 0;
 }
 
+/* Frees d's own Instance, never another data's whose handle a copy holds. */
 static void wpam_destroy(mjData* d, int instance) {
-  Cache* c = (Cache*)d->plugin_data[instance];
-  if (c) {
-    free(c->attr);
-    free(c->k);
-    free(c);
-  }
+  uintptr_t h = d->plugin_data[instance];
+  if (!owned(slot(h), d, instance)) h = find_owned(d, instance);
+  if (h) free_slot(h);
   d->plugin_data[instance] = 0;
 }
 
+/* mj_copyData: dest keeps its own Instance (MuJoCo restores dest's plugin_data); it holds
+   what the model determines, which instance_of re-derives if dest steps another model. */
 static void wpam_copy(mjData* dest, const mjModel* m, const mjData* src, int instance) {
+  (void)dest;
   (void)m;
   (void)src;
-  wpam_destroy(dest, instance);
-  wpam_init(m, dest, instance); /* the copy re-derives its constants on first use */
+  (void)instance;
 }
 
+/* mj_resetData: the initial state from the Instance a handle names (any data's: what the
+   model determines is the same), or read afresh; never past the state MuJoCo sized. */
 static void wpam_reset(const mjModel* m, mjtNum* plugin_state, void* plugin_data,
                        int instance) {
-  Constants k;
-  char err[500];
-  (void)plugin_data;
-  if (parse_config(m, instance, &k, 0, err, sizeof(err))) mju_error("%s", err);
-  state_reset(&k, plugin_state);
-}
-
-/* Write this step's friction level into the tendon's friction row(s). */
-static void set_friction_rows(const mjModel* m, mjData* d, int tendon, double friction) {
+  const Instance* k = slot((uintptr_t)plugin_data);
+  Instance fresh;
+  char err[600];
   int i;
-  for (i = 0; i < d->nefc; i++)
-    if (d->efc_type[i] == mjCNSTR_FRICTION_TENDON && d->efc_id[i] == tendon)
-      d->efc_frictionloss[i] = friction;
+  if (!(k && k->in_use && k->model == m && k->instance == instance
+        && state_size(k) == m->plugin_statenum[instance])) {
+    if (derive_for_model(m, instance, &fresh, err, sizeof(err))) {
+      for (i = 0; i < m->plugin_statenum[instance]; i++) plugin_state[i] = 0.0;
+      plugin_state[S_STATUS] = WPAM_STATUS_MODEL;
+      return;
+    }
+    k = &fresh;
+  }
+  state_reset(k, plugin_state);
 }
 
 static void wpam_compute(const mjModel* m, mjData* d, int instance, int capability_bit) {
-  const Constants* k = constants(m, d, instance);
   double* s = d->plugin_state + m->plugin_stateadr[instance];
-  const double* ctrl = d->ctrl;
-  double pa = k->p[P_PNEUMATICS_ATMOSPHERE];
-  double x = k->contraction0 + (k->length0 - d->ten_length[k->tendon]);
-  double v = -d->ten_velocity[k->tendon];
-  double x_ref = NAN, pi_cmd, po_cmd, pi, po, tension, friction;
+  Instance* k = instance_of(m, d, instance, s);
+  double command[WPAM_MAX_CHANNELS] = {0.0};
+  double atmosphere, x, v, x_ref = NAN, pi_cmd, po_cmd, pi_gauge, po_gauge, force, friction;
   int i;
   (void)capability_bit;
-
+  if (!k || stopped(s)) {
+    no_force(m, d, instance);
+    return;
+  }
+  atmosphere = k->p[P_PNEUMATICS_ATMOSPHERE];
+  x = k->contraction0 + (k->length0 - d->ten_length[k->tendon]);
+  v = -d->ten_velocity[k->tendon];
+  read_commands(m, d, k, s, command);
   if (CONTROL_FEEDBACK[k->control]) {
-    double po_ff = k->nchannel > 2 ? ctrl[k->channel[2]] : 0.0;
+    double po_ff = k->nchannel > 2 ? command[2] : 0.0;
     double integral_next, derivative, e;
-    x_ref = ctrl[k->channel[0]];
-    pi_cmd = k->nchannel > 1 ? ctrl[k->channel[1]] : pi_feedforward(k, x_ref);
+    x_ref = command[0];
+    pi_cmd = k->nchannel > 1 ? command[1] : pi_feedforward(k, x_ref);
     po_cmd = feedback_output(k, s, x, x_ref, po_ff, &integral_next, &derivative, &e);
     s[S_NEXT_INTEGRAL] = integral_next;
     s[S_NEXT_DERIVATIVE] = derivative;
     s[S_NEXT_E] = e;
   } else {
-    pi_cmd = ctrl[k->channel[0]];
-    po_cmd = ctrl[k->channel[1]];
+    pi_cmd = command[0];
+    po_cmd = command[1];
   }
   if (s[S_REST_PENDING] != 0.0) plant_rest(k, s, pi_cmd, po_cmd);
-  pi = s[S_P_I] - pa;
-  po = s[S_P_O] - pa;
-  tension = muscle_tension(k, x, pi, po);
-  friction = muscle_friction(k, x, pi, po);
-  if (!(-1.0 < x && x < 1.0) && s[S_STATUS] == 0.0) s[S_STATUS] = WPAM_FAIL_CONTRACTION;
+  pi_gauge = s[S_P_I] - atmosphere;
+  po_gauge = s[S_P_O] - atmosphere;
+  force = muscle_tendon_force(k, x, pi_gauge, po_gauge);
+  friction = muscle_friction(k, x, pi_gauge, po_gauge);
+  if (!(-WPAM_STROKE_TOLERANCE <= x && x <= k->max_contraction + WPAM_STROKE_TOLERANCE))
+    set_status(s, WPAM_STATUS_STROKE);
+  if (!isfinite(x)) { /* MuJoCo's state is already bad: add nothing to it */
+    force = 0.0;
+    friction = k->p[P_MUSCLE_FRICTION_CONST];
+  }
 
   s[S_X] = x;
   s[S_VELOCITY] = v;
   s[S_X_REF] = x_ref;
-  s[S_PI] = pi;
-  s[S_PO] = po;
+  s[S_PI] = pi_gauge;
+  s[S_PO] = po_gauge;
   s[S_PI_CMD] = pi_cmd;
   s[S_PO_CMD] = po_cmd;
-  s[S_TENSION] = tension;
+  s[S_TENSION] = force;
   s[S_FRICTION] = friction;
 
-  d->actuator_force[k->channel[0]] = -tension; /* along the tendon's length */
+  d->actuator_force[k->channel[0]] = -force; /* along the tendon's length */
   for (i = 1; i < k->nchannel; i++) d->actuator_force[k->channel[i]] = 0.0;
-  set_friction_rows(m, d, k->tendon, friction);
+  set_friction_level(d, k, friction);
 }
 
 static void wpam_advance(const mjModel* m, mjData* d, int instance) {
-  /* compute ran on this model in this step: its constants are current */
-  const Cache* c = (const Cache*)d->plugin_data[instance];
-  const Constants* k = c->model == m ? &c->k[instance] : constants(m, d, instance);
   double* s = d->plugin_state + m->plugin_stateadr[instance];
-  double pa = k->p[P_PNEUMATICS_ATMOSPHERE];
-  double x = s[S_X], v = s[S_VELOCITY], set_i, set_o, area, vol;
-  int head = (int)s[S_HEAD];
-
+  Instance* k = instance_of(m, d, instance, s);
+  double atmosphere, x, set_i, set_o, area, vol, v;
+  int head;
+  if (!k || stopped(s)) return;
+  atmosphere = k->p[P_PNEUMATICS_ATMOSPHERE];
+  head = (int)s[S_HEAD];
   if (CONTROL_FEEDBACK[k->control]) { /* PoFeedback.update's commit */
     s[S_INTEGRAL] = s[S_NEXT_INTEGRAL];
     s[S_DERIVATIVE] = s[S_NEXT_DERIVATIVE];
@@ -611,20 +907,23 @@ static void wpam_advance(const mjModel* m, mjData* d, int instance) {
     s[S_HAS_PREV] = 1.0;
   }
   s[S_REST_PENDING] = 0.0;
-  /* Plant.advance: regulators, then chambers (volumes: pneumatics.chamber_volumes) */
+  /* Plant.step: regulators, then chambers (volumes held to the stroke) */
   set_i = regulator_update(k, &s[S_PI_REG], queue_i(s), head, s[S_PI_CMD]);
   set_o = regulator_update(k, &s[S_PO_REG], queue_o(k, s), head, s[S_PO_CMD]);
   if (k->delay_steps) s[S_HEAD] = (head + 1) % k->delay_steps;
+  v = s[S_VELOCITY];
+  x = geom_in_stroke(k, s[S_X]);
   area = geom_area(k, x);
   vol = geom_volume(k, x);
-  s[S_P_I] = chamber_step(k, s[S_P_I], k->p[P_PNEUMATICS_INNER_CONDUCTANCE], set_i + pa,
-                          vol + k->p[P_PNEUMATICS_TUBE_VOLUME], area, v);
-  s[S_P_O] = chamber_step(k, s[S_P_O], k->p[P_PNEUMATICS_OUTER_CONDUCTANCE], set_o + pa,
+  s[S_P_I] = chamber_step(k, s[S_P_I], k->p[P_PNEUMATICS_INNER_CONDUCTANCE],
+                          set_i + atmosphere, vol + k->p[P_PNEUMATICS_TUBE_VOLUME], area, v);
+  s[S_P_O] = chamber_step(k, s[S_P_O], k->p[P_PNEUMATICS_OUTER_CONDUCTANCE],
+                          set_o + atmosphere,
                           k->bag_volume + k->p[P_PNEUMATICS_TUBE_VOLUME] - vol
                               - k->p[P_MUSCLE_AXIAL_AREA] * x,
                           -(area + k->p[P_MUSCLE_AXIAL_AREA]), v);
-  if (!(s[S_P_I] > 0.0 && s[S_P_O] > 0.0) && s[S_STATUS] == 0.0)
-    s[S_STATUS] = WPAM_FAIL_PRESSURE;
+  if (!(s[S_P_I] > 0.0 && s[S_P_O] > 0.0 && isfinite(s[S_P_I]) && isfinite(s[S_P_O])))
+    set_status(s, WPAM_STATUS_PRESSURE);
 }
 
 /* 1 when the headers this file was compiled with match the loaded libmujoco. */

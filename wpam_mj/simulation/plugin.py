@@ -8,10 +8,11 @@ with ``mujoco.mj_loadPluginLibrary``. `load()` does this once per process; `impo
 wpam_mj` calls it, so any MJCF that names the plugin compiles after the import.
 
 Nothing is copied by hand between Python and C: `tables_header()` writes every parameter
-(``section.field`` names, units, ranges, each preset's values) from `wpam_mj.physics.params`, the
-state layout `STATE_FIELDS`, the control modes `CONTROLS` and the physical constants of
-`wpam_mj.physics.pneumatics` as C tables (floats as exact hex literals), and the library reports
-their hash, which must match.
+(``section.field`` names, units, ranges, each preset's values) from `wpam_mj.physics.params`,
+the rule table of `wpam_mj.physics.rules` (the instance's numbers, the derived quantities,
+the rules between quantities), the state layout `STATE_FIELDS` and its status bits, the
+control modes `CONTROLS` and the physical constants of `wpam_mj.physics.pneumatics` as C
+tables (floats as exact hex literals), and the library reports their hash, which must match.
 
 Set ``WPAM_MJ_NO_COMPILE=1`` to skip the build (`available()` is then False and the Python
 engine runs).
@@ -19,13 +20,9 @@ engine runs).
 
 from __future__ import annotations
 
-import ctypes
-import dataclasses
 import hashlib
 import os
 import shutil
-import subprocess
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -33,6 +30,7 @@ import mujoco
 
 from wpam_mj.physics import params as prm
 from wpam_mj.physics import pneumatics as pn
+from wpam_mj.physics import rules
 from wpam_mj.units import MM, MPA
 
 NAME = "wpam_mj.muscle"
@@ -45,16 +43,46 @@ CFLAGS = ("-O2", "-fPIC", "-shared", "-std=c11", "-ffp-contract=off", "-fno-fast
 # The plugin state of one instance, in order; the first eleven are also the recorded
 # series of a run (`wpam_mj.simulation.loop_contract.REC_FIELDS` after time). Pressures pi, po are
 # gauge [Pa] (what the force used this step), p_i, p_o the chambers' absolute pressures
-# [Pa]; the regulators' dead-time queues follow the named fields (2 x delay steps).
+# [Pa]; "tension" is the force the muscle pulls its tendon with [N]; the regulators'
+# dead-time queues follow the named fields (2 x delay steps).
+MAX_CHANNELS = 3  # the most input channels a control mode takes (`CONTROLS`)
 STATE_FIELDS = (
     "x", "velocity", "x_ref", "pi", "po", "pi_cmd", "po_cmd", "tension", "friction",
     "pi_reg", "po_reg",  # recorded: the step's inputs, outputs and regulator set points
     "p_i", "p_o",  # chamber pressures at the start of the next step, absolute [Pa]
     "integral", "derivative", "e_prev", "has_prev",  # PoFeedback's committed state
     "next_integral", "next_derivative", "next_e",  # what advance commits
-    "rest_pending", "status", "head")  # start at rest; FAIL_* code; dead-time ring head
-FAIL_CONTRACTION, FAIL_PRESSURE = 1, 2  # values of the "status" field
+    "rest_pending", "status", "head",  # start at rest; STATUS_* bits; dead-time ring head
+    *(f"input{i}" for i in range(MAX_CHANNELS)))  # each channel's last finite command
 FIELD = {name: i for i, name in enumerate(STATE_FIELDS)}  # offset of each named field
+
+# MuJoCo's integrators by their mjtIntegrator values, as messages name them
+INTEGRATORS = ("Euler", "RK4", "implicit", "implicitfast")
+
+# Bits of the "status" field (docs/plugin.md), 0 while the muscle is well:
+STATUS_STROKE = 1  # the contraction left the stroke [0, full bag] by more than the tolerance
+STATUS_PRESSURE = 2  # a chamber pressure left its range: the muscle stops
+STATUS_MODEL = 4  # the timestep or integrator changed after compile: the muscle stops
+# How far past an end of its stroke the contraction may go before STATUS_STROKE [m]: a
+# soft joint or tendon limit at the end lets it by a little (on the rig's lower stop
+# 0.09 mm at 50 N; 1.0 mm at its harshest, a 1 N load under 0.5 MPa of Po).
+STROKE_TOLERANCE = 5e-3
+
+
+def status_message(status: float, x: float, p_i: float, p_o: float) -> str:
+    """The one line of a muscle's `status` (its bits) from its state's contraction x [m]
+    and absolute chamber pressures [Pa]; "" when it is 0."""
+    bits = int(status)
+    lines = []
+    if bits & STATUS_STROKE:
+        lines.append(f"contraction x = {x!r} m left the muscle's stroke (from 0 to the full "
+                     f"bag) by more than {STROKE_TOLERANCE:g} m")
+    if bits & STATUS_PRESSURE:
+        lines.append(f"chamber pressure Pi = {p_i!r} Pa, Po = {p_o!r} Pa (absolute)")
+    if bits & STATUS_MODEL:
+        lines.append("the model's timestep or integrator changed after it compiled; the "
+                     "muscle stopped (change it back and reset, or recompile)")
+    return "; ".join(lines)
 
 
 @dataclass(frozen=True)
@@ -92,16 +120,15 @@ def control_mode(name: str) -> Control:
     like = CONTROL_BY_NAME["pi_ff" if feedback else "open"]
     return Control(name, like.channels, like.required, feedback)
 # Attributes besides the parameters (docs/plugin.md): preset, control mode, whether the
-# run starts at rest at its first commands, the load the Pi feedforward holds [N], and the
-# muscle's contraction in the model's reference pose [m] (x = contraction0 + tendon length
-# at qpos0 - tendon length; nonzero for muscles mounted pre-contracted, as in a pair).
-INSTANCE_KEYS = ("preset", "control", "start", "feedforward_load", "contraction0")
-
-
-def parameter_fields() -> list[tuple[str, dataclasses.Field]]:
-    """Every parameter as ("section.field", its dataclass field), in `Params` order."""
-    return [(f"{section}.{f.name}", f) for section, cls in prm._SECTIONS.items()
-            for f in dataclasses.fields(cls)]
+# run starts at rest at its first commands, whether the end fittings are guided (can carry
+# the outer bag's push, `wpam_mj.physics.muscle`), then the instance's numbers
+# (`wpam_mj.physics.rules.INSTANCE_NUMBERS`: the load the Pi feedforward holds [N], the
+# muscle's contraction in the model's reference pose [m]: x = contraction0 + tendon length
+# at qpos0 - tendon length).
+INSTANCE_WORDS = {"preset": prm.PRESETS, "control": tuple(c.name for c in CONTROLS),
+                  "start": ("vented", "rest"), "end_fittings": ("free", "guided")}
+INSTANCE_KEYS = (*INSTANCE_WORDS, *rules.INSTANCE_NUMBERS)
+parameter_fields = prm.parameter_fields
 
 
 def attribute_names() -> tuple[str, ...]:
@@ -131,22 +158,48 @@ def state_of(model, data, instance: int | str = 0) -> dict[str, float]:
     return dict(zip(STATE_FIELDS, map(float, data.plugin_state[start:start + len(STATE_FIELDS)])))
 
 
+def status_of(model, data, instance: int | str = 0) -> str:
+    """The one line of a muscle's `status` in `data` ("" while it is well)."""
+    s = state_of(model, data, instance)
+    return status_message(s["status"], s["x"], s["p_i"], s["p_o"])
+
+
 def _c(value: float) -> str:
     """A double as an exact C99 hex literal."""
-    return "INFINITY" if value == float("inf") else float(value).hex()
+    if value in (float("inf"), float("-inf")):
+        return "INFINITY" if value > 0 else "-INFINITY"
+    return float(value).hex()
+
+
+def _q(name: str) -> str:
+    """The C name of a quantity of the rules."""
+    return name.replace(".", "_").upper()
+
+
+def _bound(value: float | str) -> str:
+    return f"Q({_q(value)})" if isinstance(value, str) else _c(value)
 
 
 def tables_header() -> str:
     """The generated C tables of `muscle_plugin.c` (see the module docstring)."""
     presets = [prm.preset(name) for name in prm.PRESETS]
     fields = parameter_fields()
-    lines = ["/* Generated by wpam_mj/simulation/plugin.py from wpam_mj/physics/params.py: "
-             "do not edit. */",
+    lines = ["/* Generated by wpam_mj/simulation/plugin.py from wpam_mj/physics: do not edit. */",
              "#define WPAM_PARAMS(ENTRY) \\"]
     for key, f in fields:
         md = f.metadata
-        lines.append(f'  ENTRY({key.replace(".", "_").upper()}, "{key}", "{md["unit"]}", '
+        lines.append(f'  ENTRY({_q(key)}, "{key}", "{md["unit"]}", '
                      f'{_c(md["lo"])}, {_c(md["hi"])}, {int(md["lo_open"])}) \\')
+    lines.append("")
+    lines.append("#define WPAM_NUMBERS(ENTRY) " + " ".join(
+        f'ENTRY({_q(k)}, "{k}", "{n.unit}", {_c(n.lo)}, {_c(n.hi)}, 0)'
+        for k, n in rules.INSTANCE_NUMBERS.items()))
+    lines.append("#define WPAM_DERIVED(ENTRY) " + " ".join(
+        f'ENTRY({_q(k)}, "{k}", "{d.unit}")' for k, d in rules.DERIVED.items()))
+    lines.append("#define WPAM_RULES(RULE) \\")
+    for r in rules.CROSS_RULES:
+        lines.append(f'  RULE({_q(r.subject)}, {_bound(r.lo)}, {int(r.lo_open)}, '
+                     f'{_bound(r.hi)}, {int(r.hi_open)}, "{r.why}") \\')
     lines.append("")
     rows = ", ".join("{" + ", ".join(_c(p.value(key)) for key, _ in fields) + "}"
                      for p in presets)
@@ -162,13 +215,17 @@ def tables_header() -> str:
                   f"ENTRY({c.name.upper()}, {c.name}, {c.required}, {len(c.channels)}, "
                   f"{int(c.feedback)})" for c in CONTROLS),
               f'#define WPAM_CONTROL_LIST "{", ".join(CONTROL_BY_NAME)}"',
-              f"#define WPAM_MAX_CHANNELS {max(len(c.channels) for c in CONTROLS)}",
+              f"#define WPAM_MAX_CHANNELS {MAX_CHANNELS}",
+              "#define WPAM_INTEGRATORS " + ", ".join(f'"{n}"' for n in INTEGRATORS),
               "#define WPAM_INSTANCE_KEYS " + " ".join(f'"{k}",' for k in INSTANCE_KEYS),
               f"#define WPAM_RT0 {_c(pn.RT0)}", f"#define WPAM_RHO_0 {_c(pn.RHO_0)}",
               f"#define WPAM_R_LAMINAR {_c(pn.R_LAMINAR)}", f"#define WPAM_MM {_c(MM)}",
               f"#define WPAM_MPA {_c(MPA)}",
-              f"#define WPAM_FAIL_CONTRACTION {FAIL_CONTRACTION}",
-              f"#define WPAM_FAIL_PRESSURE {FAIL_PRESSURE}"]
+              f"#define WPAM_MAX_QUEUE_STEPS {_c(rules.MAX_QUEUE_STEPS)}",
+              f"#define WPAM_STROKE_TOLERANCE {_c(STROKE_TOLERANCE)}",
+              f"#define WPAM_STATUS_STROKE {STATUS_STROKE}",
+              f"#define WPAM_STATUS_PRESSURE {STATUS_PRESSURE}",
+              f"#define WPAM_STATUS_MODEL {STATUS_MODEL}"]
     body = "\n".join(lines) + "\n"
     digest = hashlib.sha256(body.encode()).hexdigest()[:16]
     return body + f'#define WPAM_TABLES_HASH "{digest}"\n'
@@ -176,11 +233,6 @@ def tables_header() -> str:
 
 def _header_hash(header: str) -> str:
     return header.rsplit('"', 2)[-2]
-
-
-def cache_dir() -> Path:
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "wpam_mj"
 
 
 def compiler() -> str | None:
@@ -193,76 +245,13 @@ def disabled() -> bool:
     return os.environ.get("WPAM_MJ_NO_COMPILE", "") not in ("", "0")
 
 
-def libmujoco_path() -> Path:
-    libs = sorted(MUJOCO_DIR.glob("libmujoco.so.*"))
-    if not libs:
-        raise FileNotFoundError(f"no libmujoco.so.* in {MUJOCO_DIR}")
-    return libs[-1]
-
-
-def library_path(header: str) -> Path:
-    """Where the plugin built from this source, `header` and MuJoCo is cached."""
-    key = hashlib.sha256()
-    for part in (SOURCE.read_bytes(), header.encode(), mujoco.__version__.encode(),
-                 str(libmujoco_path()).encode(), " ".join(CFLAGS).encode()):
-        key.update(part)
-        key.update(b"\0")
-    return cache_dir() / f"wpam_muscle-{mujoco.__version__}-{key.hexdigest()[:16]}.so"
-
-
-def build(target: Path, header: str) -> None:
-    """Compile the plugin to `target`, atomically (temporary name, then os.replace), so
-    that processes building at once never load a half-written library."""
-    cc = compiler()
-    if cc is None:
-        raise FileNotFoundError(f"C compiler {os.environ.get('CC') or 'gcc'!r} not found")
-    include = MUJOCO_DIR / "include"
-    if not (include / "mujoco" / "mjplugin.h").exists():
-        raise FileNotFoundError(f"MuJoCo headers not found in {include}")
-    target.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=target.parent, prefix=".build-") as tmpdir:
-        (Path(tmpdir) / "wpam_plugin_tables.h").write_text(header)
-        out = Path(tmpdir) / target.name
-        libmujoco = libmujoco_path()
-        cmd = [cc, *CFLAGS, f"-I{include}", f"-I{tmpdir}", "-o", str(out), str(SOURCE),
-               str(libmujoco), f"-Wl,-rpath,{libmujoco.parent}", "-lm"]
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
-        if proc.returncode != 0:
-            raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stderr.strip()}")
-        os.replace(out, target)
-
-
-_state: dict[str, object] = {}  # "path" or "reason", once per process
-
-
 def load() -> Path | None:
-    """Build (once per source, tables and MuJoCo version) and register the plugin.
+    """Build (once per source, tables and MuJoCo version), check and register the plugin,
+    once per process (`wpam_mj.simulation.plugin_build`). Returns the library's path, or
+    None when it is unavailable (`unavailable_reason()` says why). Never raises."""
+    from wpam_mj.simulation import plugin_build  # noqa: PLC0415 (it imports this module)
 
-    Returns the library's path, or None when it is unavailable (`unavailable_reason()`
-    says why). Never raises; registering twice is harmless.
-    """
-    if "path" in _state or "reason" in _state:
-        return _state.get("path")  # type: ignore[return-value]
-    if disabled():
-        _state["reason"] = "disabled by WPAM_MJ_NO_COMPILE"
-        return None
-    try:
-        header = tables_header()
-        target = library_path(header)
-        if not target.exists():
-            build(target, header)
-        lib = ctypes.CDLL(str(target))
-        if not lib.wpam_abi_ok():
-            raise RuntimeError("MuJoCo headers and library versions differ")
-        lib.wpam_tables_hash.restype = ctypes.c_char_p
-        if lib.wpam_tables_hash().decode() != _header_hash(header):
-            raise RuntimeError(f"{target.name} was built from other tables")
-        mujoco.mj_loadPluginLibrary(str(target))
-    except Exception as err:  # noqa: BLE001 (any failure means: use the Python engine)
-        _state["reason"] = f"{type(err).__name__}: {err}"
-        return None
-    _state["path"] = target
-    return target
+    return plugin_build.load()
 
 
 def available() -> bool:
@@ -272,5 +261,6 @@ def available() -> bool:
 
 def unavailable_reason() -> str | None:
     """Why `available()` is False (None when it is True)."""
-    load()
-    return _state.get("reason")  # type: ignore[return-value]
+    from wpam_mj.simulation import plugin_build  # noqa: PLC0415 (it imports this module)
+
+    return plugin_build.reason()

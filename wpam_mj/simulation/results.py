@@ -1,4 +1,4 @@
-"""Result objects: recorded time series, exported as CSV (display units) or NPZ (SI)."""
+"""Result objects: recorded time series, exported as CSV (display units)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wpam_mj.infra.files import write_atomic, write_text_atomic
+from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.physics.params import MM, MPA, ParameterError
 
 _CSV_BLOCK_ROWS = 4096
@@ -99,11 +99,3 @@ class SimResult:
     def to_csv(self, path: str | Path) -> Path:
         """CSV with columns in display units (s, mm, MPa, N)."""
         return write_text_atomic(path, self.to_csv_text())
-
-    def to_npz(self, path: str | Path) -> Path:
-        """NPZ of the SI arrays plus metadata."""
-        def write(p: Path) -> None:
-            with open(p, "wb") as fh:
-                np.savez(fh, **self.arrays(), load=self.load, dt=self.dt,
-                         control=self.control, preset=self.preset)
-        return write_atomic(path, write)

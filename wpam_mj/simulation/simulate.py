@@ -170,13 +170,8 @@ def _select_engine(engine: str, control: str = "open"):
         return run_plugin
     if engine != "auto":
         raise ParameterError(f"unknown engine {engine!r}; valid: {', '.join(ENGINES)}")
-    if plugin.available():
-        return run_plugin
-    if not plugin.disabled() and "" not in _noticed:  # WPAM_MJ_NO_COMPILE=1: quietly
-        _noticed.add("")
-        print(f"wpam_mj: the compiled plugin is unavailable ({plugin.unavailable_reason()});"
-              " running the Python engine (about 6x slower, same physics)", file=sys.stderr)
-    return run_python
+    # without the plugin, loading it has said why, once per command (plugin_build.load)
+    return run_plugin if plugin.available() else run_python
 
 
 def _record_shape(n: int, record_every: int) -> tuple[int, int]:
