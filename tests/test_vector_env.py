@@ -156,13 +156,13 @@ def test_a_diverged_environment_ends_alone_with_its_last_valid_observation() -> 
     for _ in range(5):
         last, *_ = envs.step(zero)
     batch = envs.unwrapped._batch
-    batch.plugin_state[1, batch.status] = plugin.FAIL_PRESSURE
+    batch.plugin_state[1, batch.status] = plugin.STATUS_PRESSURE
     obs, rewards, terminated, truncated, infos = envs.step(zero)
     assert terminated.tolist() == [False, True, False] and not truncated.any()
     assert rewards[1] == 0.0
     np.testing.assert_array_equal(obs[1], last[1])
     assert infos["_diverged"].tolist() == [False, True, False]
-    assert "left its range" in infos["diverged"][1]
+    assert infos["diverged"][1].startswith("chamber pressure Pi = ")
     obs, rewards, terminated, *_ = envs.step(zero)  # next step: env 1 starts again
     assert rewards[1] == 0.0 and not terminated.any() and infos["time_s"][0] > 0
 

@@ -40,6 +40,7 @@ from wpam_mj.environments.dm_env_task import REWARD_BOUND
 from wpam_mj.environments.gym_env import WPAMEnv, check_episode_steps
 from wpam_mj.physics.params import MM, ParameterError
 from wpam_mj.simulation import plugin
+from wpam_mj.simulation.loop_contract import state_failure
 
 ENGINES = ("auto", "batch", "serial")
 INFO_KEYS = ("time_s", "x_m", "target_m", "error_m", "pi_cmd_pa", "po_cmd_pa", "is_success")
@@ -367,6 +368,7 @@ class _BatchedEpisodes:
         warnings = self.sim.warning[rows, :, _WARNING_NUMBER]
         if failed.any() or warnings.any():
             for j in np.flatnonzero(failed | warnings.any(axis=1)):
-                diverged.setdefault(int(j), "the muscle's state left its range" if failed[j]
+                state = self.plugin_state[at[j], self.rig.state:]
+                diverged.setdefault(int(j), state_failure(state) if failed[j]
                                     else "MuJoCo warned of an invalid physics state")
         return dict(sorted(diverged.items()))
