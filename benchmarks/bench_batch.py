@@ -5,7 +5,8 @@ its own model, stepped by one batch on 1 and on 2 threads (best of --repeats). F
 runs/s on each, the speed-up (target >= 1.8x on 2 threads; it needs two idle cores, so
 `parallel_capacity` is printed beside it), whether the records are bit-identical, and,
 for comparison, the same runs through `simulate` on a process pool of 2 (pool start
-included), the way studies, fits and calibration run today.
+included), the way studies, fits and calibration ran before the execution layer
+(docs/cluster.md) and `wpam reproduce` still runs.
 
 Run: python benchmarks/bench_batch.py [--runs N] [--duration S] [--repeats R]
 """

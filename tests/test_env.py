@@ -103,7 +103,7 @@ def run_pi_episode(env, params) -> tuple[float, list[dict]]:
 # The PI policy for a 10 s episode at the 10 ms control step, on the shipped plant: the
 # paper's Kp with ten times its Ki (gains read as volts on the regulator's input,
 # `Controller.command_scale`). On the shipped protocol the paper's own Ki ends every case
-# of `python scripts/env_pi_gains.py` as close (0.39-0.49 mm: the muscle on its contracting
+# of `python scripts/env_pi_gains.py` about as close (0.32-0.57 mm: the muscle on its contracting
 # branch, Po near the regulator minimum); the tenfold Ki is kept for the environments whose
 # Po works deeper in the band, where the paper's Ki is too slow within an episode.
 PI_GAINS = {"ki": 10 * paper.KI}

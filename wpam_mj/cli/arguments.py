@@ -20,6 +20,14 @@ JOBS_HELP = (f"parallel worker processes [count], 1 to {JOBS_PER_CPU} per CPU (d
              "runs; results do not depend on it")
 
 
+def scheduler_option(p: argparse.ArgumentParser) -> None:
+    """--scheduler ADDRESS: run on a Dask cluster instead of --jobs local cores."""
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run on the Dask cluster of this scheduler, e.g. tcp://host:8786 "
+                        f"(default: ${pool.SCHEDULER_ENV} if set, else this machine; "
+                        "docs/cluster.md)")
+
+
 class UsageError(Exception):
     """Bad command-line arguments: exit status 2."""
 

@@ -8,7 +8,7 @@ import sys
 import time
 from pathlib import Path
 
-from wpam_mj.cli.arguments import JOBS_HELP, float_list, out_path
+from wpam_mj.cli.arguments import JOBS_HELP, float_list, out_path, scheduler_option
 from wpam_mj.cli.runs import (amplitude_m, jobs_option, out_dir_of, print_json, run_id_of,
                               run_options, writable_dir, write_run_manifest, wrote)
 from wpam_mj.experiments.drives import SINE_MEAN_MM
@@ -36,7 +36,6 @@ def add_parsers(add, sub) -> None:
                         "comparison rows) on stdout")
     p.add_argument("--out", type=out_path, metavar="DIR",
                    help="output folder (default: out/linear under the current folder)")
-    from wpam_mj.infra.pool import SCHEDULER_ENV  # noqa: PLC0415 (the study's own modules)
     p = sub.add_parser("study", help="a design-space study: the runs of a study file "
                        "(grid, list, random or Latin-hypercube sample), one table row each",
                        description="Run a study file (see examples/ and the README) and "
@@ -47,9 +46,7 @@ def add_parsers(add, sub) -> None:
                    help="output folder (default: out/study/<SPEC name>)")
     p.add_argument("--jobs", type=int, default=pool.default_jobs(), metavar="N",
                    help=JOBS_HELP)
-    p.add_argument("--scheduler", metavar="ADDRESS",
-                   help="run on the Dask cluster of this scheduler, e.g. tcp://host:8786 "
-                        f"(default: ${SCHEDULER_ENV} if set, else local processes)")
+    scheduler_option(p)
     p.add_argument("--resume", action="store_true",
                    help="keep the runs an interrupted study in --out has finished")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,

@@ -7,11 +7,13 @@ import time
 from pathlib import Path
 
 from wpam_mj import paper
-from wpam_mj.cli.arguments import out_dir_option, out_path, protocol_options, ramp_time_option
+from wpam_mj.cli.arguments import (out_dir_option, out_path, protocol_options, ramp_time_option,
+                                   scheduler_option)
 from wpam_mj.cli.runs import (liftable_loads, out_dir_of, out_file, output_modules, params_of,
                               protocol_of, protocol_settings, run_id_of, run_options, writable_dir,
                               write_run_manifest)
 from wpam_mj.experiments.protocol import SHIPPED
+from wpam_mj.infra.pool import Cluster
 from wpam_mj.physics.muscle_types import COMPARED_TYPES
 from wpam_mj.physics.params import ParameterError
 from wpam_mj.reproduction import findings
@@ -46,6 +48,7 @@ def add_parsers(add) -> None:
     p.add_argument("--map-only", action="store_true",
                    help="run nothing: the best point and the feasibility map of the points "
                         "journaled in --out so far (e.g. while the search still runs)")
+    scheduler_option(p)
 
     p = add("calibrate", "fit the parameters the paper does not give (braid angle, Kf, "
             "friction, axial area, regulators) to its Table 2 and findings", _cmd_calibrate)
@@ -65,6 +68,7 @@ def add_parsers(add) -> None:
     protocol_options(p)
     p.add_argument("--max-steps", type=int, default=6, metavar="N",
                    help="most least-squares steps, each ~10 parameter sets (default: 6)")
+    scheduler_option(p)
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
@@ -96,7 +100,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     out = out_file(Path("calibrated.toml") if args.out is None else args.out)
     from wpam_mj.reproduction.calibrate import calibrate  # noqa: PLC0415 (scipy.optimize: slow import)
     readings = {} if protocol == SHIPPED else {"protocol": protocol}  # as before: none
-    result = calibrate(out=out, jobs=run.jobs, dt=run.dt, progress=run.progress,
+    jobs = run.jobs if args.scheduler is None else Cluster(args.scheduler)
+    result = calibrate(out=out, jobs=jobs, dt=run.dt, progress=run.progress,
                        start=start, samples=args.samples, seed=args.seed,
                        max_nfev=args.max_steps, resume=args.resume, **readings)
     print(result.table())
@@ -115,7 +120,8 @@ def _cmd_search(args: argparse.Namespace) -> int:
     else:
         sizes = {k: v for k, v in (("popsize", args.popsize), ("maxiter", args.maxiter))
                  if v is not None}
-        written = search.write_search(out, base=run.params, seed=args.seed, jobs=run.jobs,
+        jobs = run.jobs if args.scheduler is None else Cluster(args.scheduler)
+        written = search.write_search(out, base=run.params, seed=args.seed, jobs=jobs,
                                       resume=args.resume, progress=run.progress, **sizes)
     for path in written:
         print(f"wrote {path}")

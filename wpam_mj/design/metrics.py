@@ -2,18 +2,22 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Mapping
 
 import numpy as np
 
 from wpam_mj.experiments.analysis import frequency_response, loop_area, steady_state_means
-from wpam_mj.experiments.drives import SineSpec, check_po, sine_run, step_run
+from wpam_mj.experiments.drives import SineSpec, check_po, sine_plan, step_plan
 from wpam_mj.experiments.feasibility import MOVE_MIN_MM, check_liftable, load_moved
 from wpam_mj.experiments.responses import LOOP_METHOD
 from wpam_mj.experiments.paper_studies import PLATEAU_SETTLE_S, StaticTask, plateau_segments
 from wpam_mj.experiments.protocol import SHIPPED, table2_batch
 from wpam_mj.paper import STEP_HOLD_S, STEP_LEVELS_MM
 from wpam_mj.physics.params import MM, MPA, ParameterError, Params
+from wpam_mj.simulation.execution import SimulationTask
+from wpam_mj.simulation.results import SimResult
+from wpam_mj.simulation.simulate import Run
 
 
 def params_for(base: Params, inputs: Mapping[str, Any]) -> Params:
@@ -54,27 +58,60 @@ def _moved(*results):
     return results[0]
 
 
-def run_metrics(experiment: str, params: Params, inputs: Mapping[str, Any],
-                dt: float) -> dict[str, float]:
-    """Simulate one run and reduce it to the experiment's metrics (display units).
-    ParameterError for a load this parameter set cannot lift or one that never moved."""
-    load = inputs["load"]
-    check_liftable(params, (load,), "load")
-    if experiment == "static":
-        loop = StaticTask(params, load, check_po("po_down", inputs["po_down"], params),
-                          dt).run()
-        return {"loop_area_mpa_mm": loop.area_mpa_mm,
-                "po_max_mpa": float(_moved(loop.result).po_reg.max()) / MPA}
-    if experiment == "step":
-        hold = inputs["duration"] / len(STEP_LEVELS_MM)
-        r = step_run(params, load, inputs["controller"], hold=hold, dt=dt)
-        return _step_metrics(_moved(r), hold)
-    if experiment == "sine":
-        spec = SineSpec(inputs["frequency"], amplitude=inputs["amplitude"])
-        r = sine_run(params, load, inputs["controller"], spec, dt=dt)
-        return _sine_metrics(_moved(r), spec)
-    batch = table2_batch(params, SHIPPED, loads=(load,), po_down=inputs["po_down"], dt=dt)
-    t2 = batch.assemble([task.run() for task in batch.tasks])
-    _moved(t2.feedback_runs[0].result, *(lp.result for lp in (*t2.open_loops, *t2.po_loops)))
-    return {"open_po": t2.open_po[load], "feedback": t2.feedback[load],
-            **_step_metrics(t2.feedback_runs[0].result, STEP_HOLD_S)}
+@dataclass(frozen=True)
+class MetricsTask(SimulationTask):
+    """One run of a study (for table2: its seven runs) reduced to the experiment's
+    metrics (display units): `base` with the `varied` inputs that name a parameter
+    applied. ParameterError for inputs these parameters refuse, a load they cannot lift
+    or one that never moved."""
+
+    experiment: str
+    base: Params
+    inputs: Mapping[str, Any]
+    dt: float
+    varied: tuple[str, ...] = ()
+
+    def _params(self) -> Params:
+        return params_for(self.base, {k: self.inputs[k] for k in self.varied})
+
+    def _table2(self, params: Params):
+        return table2_batch(params, SHIPPED, loads=(self.inputs["load"],),
+                            po_down=self.inputs["po_down"], dt=self.dt)
+
+    def _static(self, params: Params) -> StaticTask:
+        return StaticTask(params, self.inputs["load"],
+                          check_po("po_down", self.inputs["po_down"], params), self.dt)
+
+    def _hold(self) -> float:
+        return self.inputs["duration"] / len(STEP_LEVELS_MM)
+
+    def _sine(self) -> SineSpec:
+        return SineSpec(self.inputs["frequency"], amplitude=self.inputs["amplitude"])
+
+    def runs(self) -> list[Run]:
+        params, inputs, load = self._params(), self.inputs, self.inputs["load"]
+        check_liftable(params, (load,), "load")
+        if self.experiment == "static":
+            return self._static(params).runs()
+        if self.experiment == "step":
+            return [step_plan(params, load, inputs["controller"], hold=self._hold(),
+                              dt=self.dt)]
+        if self.experiment == "sine":
+            return [sine_plan(params, load, inputs["controller"], self._sine(), dt=self.dt)]
+        return [run for task in self._table2(params).tasks for run in task.runs()]
+
+    def reduce(self, results: list[SimResult]) -> dict[str, float]:
+        if self.experiment == "static":
+            loop = self._static(self._params()).reduce(results)
+            return {"loop_area_mpa_mm": loop.area_mpa_mm,
+                    "po_max_mpa": float(_moved(loop.result).po_reg.max()) / MPA}
+        if self.experiment == "step":
+            return _step_metrics(_moved(*results), self._hold())
+        if self.experiment == "sine":
+            return _sine_metrics(_moved(*results), self._sine())
+        batch = self._table2(self._params())  # each of its tasks is one run
+        t2 = batch.assemble([task.reduce([r]) for task, r in zip(batch.tasks, results)])
+        _moved(t2.feedback_runs[0].result, *(lp.result for lp in (*t2.open_loops, *t2.po_loops)))
+        load = self.inputs["load"]
+        return {"open_po": t2.open_po[load], "feedback": t2.feedback[load],
+                **_step_metrics(t2.feedback_runs[0].result, STEP_HOLD_S)}

@@ -1,7 +1,7 @@
 """Running a design-space study: a study file (`study_spec`) in, one tidy table (a row
-per run, `study_table`) out. The runs (`sampling`) run in batches, one task per batch
-building its parameter set once, on any `concurrent.futures.Executor`
-(`wpam_mj.infra.pool`); each run reduced to its metrics (`metrics`). A run that
+per run, `study_table`) out. The runs (`sampling`) run in batches on the execution layer
+(`wpam_mj.simulation.execution`: here on batch threads, or each batch shipped to a Dask
+worker); each run reduced to its metrics (`metrics`). A run that
 diverges (SimulationDiverged) or whose inputs are infeasible (ParameterError, e.g. a Po
 cap below the feedforward Po) is a row with its flag set and NaN metrics, not a failed
 study. The table is the same bytes whatever the executor, the number of jobs or the
@@ -12,14 +12,13 @@ from __future__ import annotations
 
 import math
 import sys
-from concurrent.futures import FIRST_COMPLETED, Future, wait
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from tqdm import tqdm
 
-from wpam_mj.design.metrics import params_for, run_metrics
+from wpam_mj.design.metrics import MetricsTask, params_for
 from wpam_mj.design.sampling import sample
 from wpam_mj.design.study_spec import (FLAGS, METRICS, PO_DOWN_DEFAULT, RUN_INPUTS,
                                        STATIC_DURATION_S, STEP_DURATION_S, StudySpec,
@@ -30,6 +29,7 @@ from wpam_mj.experiments.drives import SineSpec
 from wpam_mj.infra.pool import Workers
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.physics.params import ParameterError, Params, preset
+from wpam_mj.simulation.execution import Failed, run_chunks
 from wpam_mj.simulation.simulate import SimulationDiverged
 
 # Batches: at least this many tasks per worker slot (so the last tasks balance), at most
@@ -40,7 +40,8 @@ MAX_TASK_STEPS = 1_000_000
 
 @dataclass(frozen=True)
 class RunBatch:
-    """A task of consecutive runs; `run()` returns their table rows (display units)."""
+    """Consecutive runs of a study: `tasks()` for the execution layer, whose outcomes
+    `rows` turns into their table rows (display units)."""
 
     base: Params  # the preset with the study's fixed parameters
     experiment: str
@@ -48,29 +49,29 @@ class RunBatch:
     varied: tuple[str, ...]  # the inputs that differ from run to run
     runs: tuple[tuple[int, Mapping[str, Any]], ...]  # (run number, inputs [SI])
 
-    def run(self) -> list[dict[str, Any]]:
-        return [self._row(i, inputs) for i, inputs in self.runs]
+    def tasks(self) -> list[MetricsTask]:
+        return [MetricsTask(self.experiment, self.base, inputs, self.dt, self.varied)
+                for _, inputs in self.runs]
 
-    def _row(self, index: int, inputs: Mapping[str, Any]) -> dict[str, Any]:
+    def rows(self, outcomes: Sequence) -> list[dict[str, Any]]:
+        return [self._row(i, inputs, o) for (i, inputs), o in zip(self.runs, outcomes)]
+
+    def _row(self, index: int, inputs: Mapping[str, Any], outcome) -> dict[str, Any]:
         row: dict[str, Any] = {"run": index}
         row.update({input_column(k).column: input_column(k).display(v)
                     for k, v in inputs.items()})
         metrics = {m: math.nan for m, _ in METRICS[self.experiment]}
         flags = dict.fromkeys(FLAGS, False)
         error = ""
-        try:
-            params = params_for(self.base, {k: inputs[k] for k in self.varied})
-            metrics.update(run_metrics(self.experiment, params, inputs, self.dt))
-        except SimulationDiverged as err:
-            flags["diverged"], error = True, str(err)
-        except ParameterError as err:
-            flags["infeasible"], error = True, str(err)
+        if not isinstance(outcome, Failed):
+            metrics.update(outcome)
+        elif isinstance(outcome.error, SimulationDiverged):
+            flags["diverged"], error = True, str(outcome.error)
+        elif isinstance(outcome.error, ParameterError):
+            flags["infeasible"], error = True, str(outcome.error)
+        else:
+            raise outcome.error  # undefined arithmetic is a fault, not a row
         return {**row, **metrics, **flags, "error": " ".join(error.split())}
-
-
-def _run_batch(batch: RunBatch) -> list[dict[str, Any]]:
-    """Worker entry point (module level, so that every executor can pickle it)."""
-    return batch.run()
 
 
 @dataclass(frozen=True)
@@ -141,27 +142,9 @@ def run_study(spec: StudySpec, out: str | Path, workers: Workers, *, resume: boo
                               csv_text(columns, rows))
             bar.update(len(rows))
 
-        if workers.executor is None:
-            for b in batches:
-                finish(b, b.run())
-        else:
-            _run_on(workers, batches, finish)
+        run_chunks([b.tasks() for b in batches], workers,
+                   lambda i, outcomes: finish(batches[i], batches[i].rows(outcomes)))
     rows = finished_rows(parts, kinds)
     table = [rows[i] for i in range(len(inputs))]
     return StudyResult(rows=table, files=write_tables(out, spec, table),
                        ran=sum(len(b.runs) for b in batches), reused=len(done))
-
-
-def _run_on(workers: Workers, batches: Sequence[RunBatch], finish) -> None:
-    """Submit every batch; hand each result to `finish` as it arrives. On any failure
-    or interruption, cancel what has not started (finished part files stay)."""
-    pending: dict[Future, RunBatch] = {workers.executor.submit(_run_batch, b): b
-                                       for b in batches}
-    try:
-        while pending:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
-            for fut in sorted(done, key=lambda f: pending[f].runs[0][0]):
-                finish(pending.pop(fut), fut.result())
-    finally:
-        for fut in pending:
-            fut.cancel()

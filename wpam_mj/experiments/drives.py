@@ -29,7 +29,7 @@ from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.paper import SINE_AMPLITUDE_MM, STEP_HOLD_S, STEP_LEVELS_MM
 from wpam_mj.physics.params import MM, MPA, ParameterError, Params, check_range, shown
 from wpam_mj.simulation.results import SimResult
-from wpam_mj.simulation.simulate import Drive, simulate
+from wpam_mj.simulation.simulate import Drive, Run, simulate_run
 
 EXPERIMENTS = ("step", "sweep", "static")  # what `simulate_for_render` can run
 SINE_MEAN_MM = 25.0  # our choice: the target spans 0-50 mm, the range of the step runs
@@ -62,7 +62,16 @@ def static_top_pressure(params: Params, load: float, x_top: float = STATIC_TOP_M
 def static_loop(params: Params, load: float, *, po_down: float = 0.0,
                 pi_top: float | None = None, ramp_time: float = STATIC_RAMP_S,
                 dt: float = 1e-3, record_dt: float = 0.01, engine: str = "auto") -> SimResult:
-    """Open-loop Pi ramp p_min -> pi_top -> p_min with Po = 0 rising, `po_down` falling.
+    """Open-loop Pi ramp p_min -> pi_top -> p_min with Po = 0 rising, `po_down` falling
+    (`static_plan`, simulated on `engine`)."""
+    return simulate_run(static_plan(params, load, po_down=po_down, pi_top=pi_top,
+                                    ramp_time=ramp_time, dt=dt, record_dt=record_dt), engine)
+
+
+def static_plan(params: Params, load: float, *, po_down: float = 0.0,
+                pi_top: float | None = None, ramp_time: float = STATIC_RAMP_S,
+                dt: float = 1e-3, record_dt: float = 0.01) -> Run:
+    """The run of `static_loop`, validated and built, not yet simulated.
 
     Args:
       load: hanging load [N].
@@ -84,8 +93,7 @@ def static_loop(params: Params, load: float, *, po_down: float = 0.0,
     pi_cmd = np.interp(t, knots_t, [p_min, p_min, pi_top, p_min, p_min])
     po_cmd = np.where(t > dwell + ramp_time, po_down, 0.0)
     drive = Drive(pi_cmd=pi_cmd, po_cmd=po_cmd, x_ref=np.full(n, np.nan))
-    return simulate(params, load, drive, dt=dt, control="open", record_dt=record_dt,
-                    engine=engine)
+    return Run.make(params, load, drive, dt=dt, control="open", record_dt=record_dt)
 
 
 def check_targets(params: Params, load: float, lo: float, hi: float, what: str) -> None:
@@ -126,7 +134,15 @@ def drive_for_targets(params: Params, load: float, x_ref: np.ndarray, control: s
 def step_run(params: Params, load: float, control: str, *, levels_mm=STEP_LEVELS_MM,
              hold: float = STEP_HOLD_S, dt: float = 1e-3, record_dt: float = 0.01,
              engine: str = "auto") -> SimResult:
-    """Staircase target (paper §4.1): open loop or PI/PID on Po."""
+    """Staircase target (paper §4.1): open loop or PI/PID on Po (`step_plan`, simulated
+    on `engine`)."""
+    return simulate_run(step_plan(params, load, control, levels_mm=levels_mm, hold=hold,
+                                  dt=dt, record_dt=record_dt), engine)
+
+
+def step_plan(params: Params, load: float, control: str, *, levels_mm=STEP_LEVELS_MM,
+              hold: float = STEP_HOLD_S, dt: float = 1e-3, record_dt: float = 0.01) -> Run:
+    """The run of `step_run`, validated and built, not yet simulated."""
     load, dt, control = check_load(load), check_dt(dt), check_control(control)
     hold = check_range("hold", hold, 0.0, 3600.0, "s", lo_open=True)
     if len(levels_mm) < 1:
@@ -136,8 +152,8 @@ def step_run(params: Params, load: float, control: str, *, levels_mm=STEP_LEVELS
     n, t = _steps(f"a staircase of {len(levels_mm)} levels of {hold:g} s",
                   len(levels_mm) * hold - dt, dt, record_dt)
     x_ref = step_targets(t, levels_mm, hold)
-    return simulate(params, load, drive_for_targets(params, load, x_ref, control, dt), dt=dt,
-                    control=control, record_dt=record_dt, engine=engine)
+    return Run.make(params, load, drive_for_targets(params, load, x_ref, control, dt), dt=dt,
+                    control=control, record_dt=record_dt)
 
 
 @dataclass(frozen=True)
@@ -179,14 +195,22 @@ class SineSpec:
 
 def sine_run(params: Params, load: float, control: str, spec: SineSpec, *,
              dt: float = 1e-3, record_dt: float = 0.01, engine: str = "auto") -> SimResult:
-    """Sinusoidal target (paper §4.2) under PI/PID on Po (or open loop)."""
+    """Sinusoidal target (paper §4.2) under PI/PID on Po (or open loop) (`sine_plan`,
+    simulated on `engine`)."""
+    return simulate_run(sine_plan(params, load, control, spec, dt=dt, record_dt=record_dt),
+                        engine)
+
+
+def sine_plan(params: Params, load: float, control: str, spec: SineSpec, *,
+              dt: float = 1e-3, record_dt: float = 0.01) -> Run:
+    """The run of `sine_run`, validated and built, not yet simulated."""
     load, dt, control = check_load(load), check_dt(dt), check_control(control)
     check_targets(params, load, spec.mean - spec.amplitude, spec.mean + spec.amplitude,
                   "the sine's target")
     n, t = _steps(f"a sine at {spec.freq:g} Hz", spec.duration, dt, record_dt)
     x_ref = spec.target(t)
-    return simulate(params, load, drive_for_targets(params, load, x_ref, control, dt), dt=dt,
-                    control=control, record_dt=record_dt, engine=engine)
+    return Run.make(params, load, drive_for_targets(params, load, x_ref, control, dt), dt=dt,
+                    control=control, record_dt=record_dt)
 
 
 def simulate_for_render(params: Params, load: float, experiment: str, control: str,

@@ -21,14 +21,15 @@ import numpy as np
 from wpam_mj.experiments.analysis import frequency_response, loop_area, steady_state_means
 from wpam_mj.control.controllers import check_control
 from wpam_mj.experiments.feasibility import load_moved
-from wpam_mj.experiments.drives import (STATIC_RAMP_S, SineSpec, check_po, sine_run, static_loop,
-                                        step_run)
+from wpam_mj.experiments.drives import (STATIC_RAMP_S, SineSpec, check_po, sine_plan, static_plan,
+                                        step_plan)
 from wpam_mj.simulation.model import check_dt, check_load
 from wpam_mj.paper import (FIG18_FREQ_HZ, FIG18_LOAD_N, LOADS_N, PO_DOWN_STATIC_MPA,
                            SINE_AMPLITUDE_MM, STEP_HOLD_S, STEP_LEVELS_MM, SWEEP_CONTROLLERS,
                            SWEEP_FREQS_HZ)
 from wpam_mj.physics.params import MM, MPA, Params, ParameterError, check_range
 from wpam_mj.infra.pool import Batch, run_batches, run_tasks
+from wpam_mj.simulation.execution import SimulationTask
 from wpam_mj.simulation.results import SimResult
 from wpam_mj.experiments.responses import (LOOP_METHOD, StaticLoop, StepRun, SweepKey, SweepPoint,
                                    SweepResult, Table2Result)
@@ -38,7 +39,7 @@ PLATEAU_SETTLE_S = 5.0  # our choice: average the last half of each 10 s plateau
 
 
 @dataclass(frozen=True)
-class StaticTask:
+class StaticTask(SimulationTask):
     params: Params
     load: float
     po_down: float
@@ -49,9 +50,12 @@ class StaticTask:
     def cost(self) -> float:
         return 2.0 * self.ramp_time / self.dt
 
-    def run(self) -> StaticLoop:
-        r = static_loop(self.params, self.load, po_down=self.po_down, dt=self.dt,
-                        ramp_time=self.ramp_time)
+    def runs(self):
+        return [static_plan(self.params, self.load, po_down=self.po_down, dt=self.dt,
+                            ramp_time=self.ramp_time)]
+
+    def reduce(self, results: list[SimResult]) -> StaticLoop:
+        (r,) = results
         return StaticLoop(load=self.load, po_down=self.po_down, preset=self.params.preset,
                           area=loop_area(r.pi, r.x, method=LOOP_METHOD), result=r)
 
@@ -96,7 +100,7 @@ def plateau_segments(levels_mm: Sequence[float] = STEP_LEVELS_MM,
 
 
 @dataclass(frozen=True)
-class StepTask:
+class StepTask(SimulationTask):
     params: Params
     load: float
     control: str
@@ -106,8 +110,11 @@ class StepTask:
     def cost(self) -> float:
         return len(STEP_LEVELS_MM) * STEP_HOLD_S / self.dt
 
-    def run(self) -> StepRun:
-        r = step_run(self.params, self.load, self.control, dt=self.dt)
+    def runs(self):
+        return [step_plan(self.params, self.load, self.control, dt=self.dt)]
+
+    def reduce(self, results: list[SimResult]) -> StepRun:
+        (r,) = results
         seg = plateau_segments()
         means = {name: steady_state_means(r.time, getattr(r, name), seg, PLATEAU_SETTLE_S)
                  for name in ("x", "pi", "po")}
@@ -160,7 +167,7 @@ def table2_batch(params: Params, *, loads: Iterable[float] = LOADS_N,
 
 
 @dataclass(frozen=True)
-class SineTask:
+class SineTask(SimulationTask):
     params: Params
     load: float
     controller: str
@@ -173,9 +180,13 @@ class SineTask:
     def cost(self) -> float:
         return SineSpec(self.freq).duration / self.dt
 
-    def run(self) -> tuple[SweepPoint, SimResult | None]:
+    def runs(self):
         spec = SineSpec(self.freq, amplitude=self.amplitude)
-        r = sine_run(self.params, self.load, self.controller, spec, dt=self.dt)
+        return [sine_plan(self.params, self.load, self.controller, spec, dt=self.dt)]
+
+    def reduce(self, results: list[SimResult]) -> tuple[SweepPoint, SimResult | None]:
+        spec = SineSpec(self.freq, amplitude=self.amplitude)
+        (r,) = results
         fr = frequency_response(r.time, r.x_ref, r.x, self.freq,
                                 settle_cycles=spec.settle_cycles, n_cycles=spec.cycles)
         window = spec.analysed(r.time)

@@ -37,7 +37,9 @@ from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import MPA, ParameterError, Params, check_range
 from wpam_mj.physics.quasistatic import ramp_contraction
 from wpam_mj.infra.pool import Batch
-from wpam_mj.simulation.simulate import Drive, simulate
+from wpam_mj.simulation.execution import SimulationTask
+from wpam_mj.simulation.results import SimResult
+from wpam_mj.simulation.simulate import Drive, Run
 from wpam_mj.experiments.paper_studies import StepTask, check_ramp_time
 from wpam_mj.experiments.responses import StaticLoop, Table2Result
 
@@ -147,7 +149,7 @@ def static_drive(params: Params, load: float, po_down: float, protocol: Protocol
 
 
 @dataclass(frozen=True)
-class ProtocolStaticTask:
+class ProtocolStaticTask(SimulationTask):
     """One open-loop ramp under `protocol` (a pool task, as `paper_studies.StaticTask`)."""
 
     params: Params
@@ -160,10 +162,13 @@ class ProtocolStaticTask:
     def cost(self) -> float:
         return (2.0 * self.protocol.ramp_time + self.protocol.top_hold) / self.dt
 
-    def run(self) -> StaticLoop:
+    def runs(self):
         drive = static_drive(self.params, self.load, self.po_down, self.protocol, self.dt)
-        r = simulate(self.params, self.load, drive, dt=self.dt, control="open",
-                     record_dt=0.01)
+        return [Run.make(self.params, self.load, drive, dt=self.dt, control="open",
+                         record_dt=0.01)]
+
+    def reduce(self, results: list[SimResult]) -> StaticLoop:
+        (r,) = results
         return StaticLoop(load=self.load, po_down=self.po_down, preset=self.params.preset,
                           area=loop_area(r.pi, r.x, method=self.protocol.loop_method),
                           result=r)

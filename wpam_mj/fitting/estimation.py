@@ -45,7 +45,7 @@ from typing import Callable, Protocol, Sequence
 import numpy as np
 from scipy.optimize import least_squares
 
-from wpam_mj.simulation.loop_contract import SimulationDiverged
+from wpam_mj.simulation.execution import execute
 from wpam_mj.physics.params import (Params, ParameterError, describe_with_ranges, fitted_parameters,
                                     plausible_range)
 from wpam_mj.infra.pool import executor_for
@@ -186,9 +186,10 @@ class Journal:
 def evaluate(model: ResidualModel, trials: Sequence[Params], executor: Executor | None = None,
              journal: Journal | None = None) -> list[np.ndarray | None]:
     """Residual vectors of `model` at each parameter set (None where its simulation
-    failed or its parameters are invalid). All tasks of all trials go to the executor
-    at once, longest first (None: run here, one after the other). Sets found in the
-    `journal` are not run again; the others are recorded in it."""
+    failed or its parameters are invalid). All tasks of all trials run at once on the
+    execution layer (`wpam_mj.simulation.execution.execute`: the simulations on batch
+    threads here, or shipped to `executor`'s workers; None: here, one batch thread).
+    Sets found in the `journal` are not run again; the others are recorded in it."""
     if journal is not None:
         todo = [p for p in trials if p not in journal]
         journal.record({Journal.key(p): r for p, r in zip(todo, evaluate(model, todo,
@@ -202,19 +203,12 @@ def evaluate(model: ResidualModel, trials: Sequence[Params], executor: Executor 
             groups.append(None)
     flat = [(g, i, t) for g, tasks in enumerate(groups) if tasks is not None
             for i, t in enumerate(tasks)]
-    outcome: dict[tuple[int, int], object] = {}
-    if executor is None:
-        for g, i, t in flat:
-            outcome[g, i] = _attempt(t.run)
-    else:
-        order = sorted(flat, key=lambda gt: -getattr(gt[2], "cost", 0.0))
-        futures = {(g, i): executor.submit(run_task, t) for g, i, t in order}
-        for key, fut in futures.items():
-            outcome[key] = _attempt(fut.result)
+    outcome = dict(zip([(g, i) for g, i, _ in flat],
+                       execute([t for _, _, t in flat], executor, failed=_FAILED)))
     out: list[np.ndarray | None] = []
     for g, tasks in enumerate(groups):
         results = None if tasks is None else [outcome[g, i] for i in range(len(tasks))]
-        if results is None or any(isinstance(r, _Failed) for r in results):
+        if results is None or any(r is _FAILED for r in results):
             out.append(None)
             continue
         try:
@@ -224,15 +218,7 @@ def evaluate(model: ResidualModel, trials: Sequence[Params], executor: Executor 
     return out
 
 
-class _Failed:
-    """A task whose simulation diverged or whose parameters were refused."""
-
-
-def _attempt(call: Callable[[], object]) -> object:
-    try:
-        return call()
-    except (SimulationDiverged, ParameterError, ArithmeticError):
-        return _Failed()
+_FAILED = object()  # a task whose simulation diverged or whose parameters were refused
 
 
 @dataclass(frozen=True)

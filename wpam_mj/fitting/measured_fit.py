@@ -42,7 +42,9 @@ from wpam_mj.fitting.measurements import Experiment
 from wpam_mj.simulation.model import DT_RANGE_S, check_dt
 from wpam_mj.physics.params import MM, Params, ParameterError
 from wpam_mj.infra.pool import executor_for
-from wpam_mj.simulation.simulate import Drive, simulate
+from wpam_mj.simulation.execution import SimulationTask, execute
+from wpam_mj.simulation.results import SimResult
+from wpam_mj.simulation.simulate import Drive, Run, simulate_run
 
 # The rough first pass of `fit_data` replays at this multiple of dt (a 2 ms replay of
 # 1 ms synthetic data biases the 7 default parameters by < 0.15 %). Both passes stop
@@ -94,15 +96,13 @@ def check_names(experiments: Sequence[Experiment]) -> None:
 def replay(params: Params, exp: Experiment, dt: float = 1e-3, *,
            engine: str = "auto") -> np.ndarray:
     """Simulated contraction [m] at the sample times of `exp`."""
-    dt = check_dt(dt)
-    p, drive, grid = replay_inputs(params, exp, dt)
-    r = simulate(p, exp.load, drive, dt=dt, control="open", record_dt=dt, engine=engine)
-    return np.interp(exp.time, grid, r.x)
+    task = ReplayTask(params, exp, dt)
+    return task.reduce([simulate_run(run, engine) for run in task.runs()])
 
 
 @dataclass(frozen=True)
-class ReplayTask:
-    """One replay, runnable in a worker process."""
+class ReplayTask(SimulationTask):
+    """One replay (`replay`), a task of the execution layer."""
 
     params: Params
     experiment: Experiment
@@ -112,8 +112,16 @@ class ReplayTask:
     def cost(self) -> float:
         return self.experiment.duration / self.dt
 
-    def run(self) -> np.ndarray:
-        return replay(self.params, self.experiment, self.dt)
+    def runs(self) -> list[Run]:
+        dt = check_dt(self.dt)
+        p, drive, _ = replay_inputs(self.params, self.experiment, dt)
+        return [Run.make(p, self.experiment.load, drive, dt=dt, control="open", record_dt=dt)]
+
+    def reduce(self, results: list[SimResult]) -> np.ndarray:
+        (r,) = results
+        exp = self.experiment
+        grid = exp.time[0] + np.arange(len(r.time)) * r.dt  # as `replay_inputs`
+        return np.interp(exp.time, grid, r.x)
 
 
 @dataclass(frozen=True)
@@ -214,8 +222,7 @@ def fit_data(start: Params, experiments: Sequence[Experiment],
         result = estimation.fit(model, rough.params, free, executor=ex, max_nfev=max_nfev,
                                 ftol=RELATIVE_COST_TOL, xtol=1e-3, progress=progress)
         tasks = everything.tasks(result.params)
-        x = [t.run() for t in tasks] if ex is None else \
-            [f.result() for f in [ex.submit(estimation.run_task, t) for t in tasks]]
+        x = execute(tasks, ex)
     files = tuple(FileFit(e, xs, i >= len(experiments))
                   for i, (e, xs) in enumerate(zip(everything.experiments, x)))
     return DataFit(result, files)

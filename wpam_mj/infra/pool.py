@@ -15,7 +15,10 @@ its own):
 
 A task is any picklable object with `.run()` (its result) and `.cost` (a relative run
 time, so that the longest start first); `TaskPool` runs them, results in task order,
-not depending on the number of workers.
+not depending on the number of workers. Studies, fits, the calibration and the search run
+their tasks through `wpam_mj.simulation.execution` instead, which takes these same
+workers: local processes stand for this machine's cores (the simulations run on as many
+`mujoco.batch` threads in this process), a Dask executor for the cluster's workers.
 """
 
 from __future__ import annotations
@@ -237,7 +240,7 @@ class Workers:
 
     executor: Executor | None
     slots: int
-    where: str  # for messages: "this process", "2 local processes", "Dask at tcp://..."
+    where: str  # for messages: "this process", "2 local cores", "Dask at tcp://..."
 
 
 def scheduler_address(scheduler: str | None) -> str | None:
@@ -245,10 +248,20 @@ def scheduler_address(scheduler: str | None) -> str | None:
     return scheduler or os.environ.get(SCHEDULER_ENV) or None
 
 
+@dataclass(frozen=True)
+class Cluster:
+    """A Dask scheduler given where a library call takes `jobs` (`search`, `calibrate`,
+    `estimation.fit`: `jobs=Cluster("tcp://host:8786")`), for `open_workers`."""
+
+    address: str
+
+
 @contextmanager
-def open_workers(jobs: int = 1, scheduler: str | None = None) -> Iterator[Workers]:
+def open_workers(jobs: int | Cluster = 1, scheduler: str | None = None) -> Iterator[Workers]:
     """Context manager yielding the `Workers` for `jobs` local processes or a Dask
     scheduler (see the module docstring); shuts them down (or disconnects) on exit."""
+    if isinstance(jobs, Cluster):
+        jobs, scheduler = 1, jobs.address
     address = scheduler_address(scheduler)
     if address is not None:
         with _dask_executor(address) as workers:
@@ -257,11 +270,12 @@ def open_workers(jobs: int = 1, scheduler: str | None = None) -> Iterator[Worker
         yield Workers(None, 1, "this process")
     else:
         with WorkerPool(jobs) as workers:  # stops its workers at once on an exception
-            yield Workers(workers, jobs, f"{jobs} local processes")
+            yield Workers(workers, jobs, f"{jobs} local cores")
 
 
 @contextmanager
-def executor_for(jobs: int = 1, executor: Executor | None = None) -> Iterator[Executor | None]:
+def executor_for(jobs: int | Cluster = 1,
+                 executor: Executor | None = None) -> Iterator[Executor | None]:
     """`executor` if given (the caller's: not shut down here), else the executor of
     `open_workers(jobs)` (None: run in this process)."""
     if executor is not None:

@@ -120,39 +120,25 @@ def report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResult
     return "\n".join(md)
 
 
-# Why the shipped parameters give up a finding, by the finding's name: the measured
-# global search (`wpam search --maxiter 5`, 204 points; the feasibility
-# map in docs/physics.md).
+# Why the shipped parameters give up a finding, by the finding's name: what was measured
+# on the shipped plant and by `wpam search` (seed 20, 189 points; docs/physics.md).
 GIVEN_UP = {
-    "table2_po_row": (
-        "the paper's row falls 11x from 50 to 150 N, which needs a friction band narrow at "
-        "50 N beside Po's 0.04 MPa shift and about equal to it at 150 N. One point of the "
-        "search meets it (a common 0.44 MPa ramp top, mu 0.40, F_f0 29 N, signed area: "
-        "0.63/0.19/0.060), and with friction that large the paper's PI neither settles the "
-        "steps nor keeps the frequency response (it fails six other findings); while any "
-        "frequency-response finding or settled steps hold, the row's worst cell is at "
-        "least 32 % off, this point's 50 N cell."),
-    "table2_feedback_row": (
-        "no point of the search meets it. Its best (0.0018/0.0016/0.0101, the 150 N loop "
-        "6x the 100 N one) misses the order and has the 150 N staircase stalled at 0.74 mm: "
-        "the heavy load's Fig. 16 loop grows only where its steps do not settle; with "
-        "settled steps the 150 N cell stays near the 100 N one (Po keeps authority to "
-        "spare at rest)."),
     "gain_falls_lag_grows": (
-        "missed by 0.001: a gain peak of 1.017 near 0.2 Hz at 150 N, the under-damped Po "
-        "loop through dry friction. Points of the search meet it with settled steps, but "
-        "with Table 2's row far off (at best 30-60 % in a cell); calibrate's cost trades "
-        "it for the row."),
+        "at 150 N the gain peaks at 1.019 at 0.2 Hz (1.004 at 0.1 Hz): the Po loop through "
+        "dry friction is under-damped at the heavy load. One point of the search meets it "
+        "with both Table 2 rows, with unsettled steps (docs/physics.md, the feasibility map)."),
     "gain_spread": (
-        "above the limit velocity (0.5-1 Hz) the lines' air flow sets the speed and the "
-        "heavier load runs at a higher Pi, so the same restriction passes more air; the "
-        "search meets it, with other frequency-response findings too, but never together "
-        "with settled steps (best margin -4.5 there; 204 and 294 points searched)."),
+        "above the limit velocity (0.5-1 Hz) the air through the lines sets the speed and it "
+        "flows faster at the heavier load's higher pressures (0.741/0.799/0.811 at 0.5 Hz). "
+        "No point of the search meets it (best spread 6 % over its 58 simulated points that "
+        "track their steps); analysed at cycles 3-5, before the sweep was settled, faster "
+        "Po lines met it, but never with the feedback row."),
     "lag_order_low_freq": (
-        "the order needs Po to rest deep in the friction band (a feedforward Po above "
-        "the regulator minimum), where the paper's slow integral (Kp/Ki = 12.5 s) cannot "
-        "finish a step within its 10 s plateau: no point of the search meets it together "
-        "with settled steps (best margin -0.45)."),
+        "50 N lags 100 N by 0.3-0.8 deg: Po rests on the regulator's minimum, so at the light "
+        "load it has no room below. A feedforward Po of 0.0055 MPa or more gives the order but "
+        "breaks the feedback row's order and the gain's fall (docs/physics.md, the Po_ff "
+        "scan); points of the search meet it with Table 2's Po row, never with the feedback "
+        "row as well nor with settled steps."),
 }
 
 

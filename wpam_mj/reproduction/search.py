@@ -49,7 +49,6 @@ from wpam_mj.reproduction import findings
 from wpam_mj.fitting import estimation
 from wpam_mj.infra.pool import executor_for
 from wpam_mj.reproduction.calibrate import FREE, PaperTargets
-from wpam_mj.simulation.loop_contract import SimulationDiverged
 from wpam_mj.physics.params import MPA, Params, ParameterError, check_range, preset
 from wpam_mj.experiments.protocol import SHIPPED, Protocol
 from wpam_mj.reproduction.static_fit import STATIC_FIT, static_fit
@@ -285,13 +284,6 @@ class Journal:
                 fh.write(json.dumps({"key": key, **rec.as_json()}) + "\n")
 
 
-def _run(task):
-    try:
-        return estimation.run_task(task)
-    except (SimulationDiverged, ParameterError, ArithmeticError):
-        return None
-
-
 class Evaluator:
     """Scores lists of coordinates: journaled points are replayed, the rest run together
     on `executor`, longest runs first (None: here, one after the other)."""
@@ -336,11 +328,9 @@ class Evaluator:
                   if p is not None and p.static_error <= TABLE2_PO_RTOL else [] for p in points]
         flat = sorted(((g, i, t) for g, ts in enumerate(groups) for i, t in enumerate(ts)),
                       key=lambda x: -x[2].cost)
-        if self.executor is None:
-            done = {(g, i): _run(t) for g, i, t in flat}
-        else:
-            futs = {(g, i): self.executor.submit(_run, t) for g, i, t in flat}
-            done = {k: f.result() for k, f in futs.items()}
+        from wpam_mj.simulation.execution import execute  # noqa: PLC0415 (the one layer)
+        done = dict(zip([(g, i) for g, i, _ in flat],
+                        execute([t for _, _, t in flat], self.executor, failed=None)))
         out = []
         for g, (u, p) in enumerate(zip(us, points)):
             res = [done[g, i] for i in range(len(groups[g]))]

@@ -17,6 +17,8 @@ STATE_FIELDS`), sampled every `record_dt`.
 from __future__ import annotations
 
 import sys
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import mujoco
@@ -129,8 +131,14 @@ def simulate(params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
       engine: "plugin", "python" or "auto" (see the module docstring; "c" is taken as
         "plugin").
     """
-    run_engine = _select_engine(engine, control)
-    run = Run.make(params, load, drive, dt=dt, control=control, record_dt=record_dt)
+    _select_engine(engine, control)  # an unknown engine is refused before the run is built
+    return simulate_run(Run.make(params, load, drive, dt=dt, control=control,
+                                 record_dt=record_dt), engine)
+
+
+def simulate_run(run: Run, engine: str = "auto") -> SimResult:
+    """`simulate` of a run already validated and built (`Run.make`)."""
+    run_engine = _select_engine(engine, run.control)
     return run.result(*run_engine(run.spec, run.inputs, run.record_every))
 
 
@@ -203,6 +211,8 @@ def run_batch(models: list[mujoco.MjModel], inputs: list[np.ndarray], record_eve
     dt = model.opt.timestep
     for start in range(0, n, CHUNK_STEPS):
         termination.check()  # a signal held back while this ran in C acts here
+        if termination.stopping() and threading.current_thread() is not threading.main_thread():
+            raise termination.Interrupted()  # the main thread is stopping: so is this one
         stop = min(n, start + CHUNK_STEPS)
         out = sim.rollout(stop - start, control=controls[:, start:stop],
                           record=("plugin_state",))["plugin_state"]
@@ -225,17 +235,52 @@ def simulate_many(runs: list[Run], *, nthread: int = 1) -> list[SimResult]:
     each run, at any thread count. Raises SimulationDiverged for the first failed run."""
     if not plugin.available():
         raise RuntimeError(f"the compiled plugin is unavailable ({plugin.unavailable_reason()})")
-    models = [run.spec.compile() for run in runs]
+    out = simulate_each(runs, nthread=nthread)
+    for r in out:
+        if isinstance(r, SimulationDiverged):
+            raise r
+    return out
+
+
+def simulate_each(runs: list[Run], *,
+                  nthread: int = 1) -> list[SimResult | SimulationDiverged]:
+    """Each run's `SimResult`, or the SimulationDiverged it raises, bit-identical to
+    `simulate_run(run)`: the runs the plugin takes share `mujoco.batch` batches (one per
+    model layout and length) on `nthread` threads (batches of fewer runs than threads run
+    side by side, one thread each); the others (no plugin, a controller only Python
+    defines) run one after another on the Python engine, as `simulate` runs them."""
+    done: dict[int, tuple] = {}
+    batched = [i for i, run in enumerate(runs) if _select_engine("auto", run.control)
+               is run_plugin]
+    models = {i: runs[i].spec.compile() for i in batched}
     groups: dict[tuple, list[int]] = {}
-    for i, (run, model) in enumerate(zip(runs, models)):
+    for i in batched:
+        run, model = runs[i], models[i]
         key = (len(run.inputs), run.record_every, model.nu, model.npluginstate, model.nq)
         groups.setdefault(key, []).append(i)
-    done: dict[int, tuple] = {}
-    for (_, record_every, *_), ids in groups.items():
-        outs = run_batch([models[i] for i in ids], [runs[i].inputs for i in ids],
-                         record_every, nthread=min(nthread, len(ids)))
-        done.update(zip(ids, outs))
-    return [run.result(*done[i]) for i, run in enumerate(runs)]
+
+    def batch(ids: list[int], threads: int) -> None:
+        done.update(zip(ids, run_batch([models[i] for i in ids], [runs[i].inputs for i in ids],
+                                       runs[ids[0]].record_every, nthread=threads)))
+
+    small = []  # batches too small for the threads: several at once, one thread each
+    for ids in groups.values():
+        if len(ids) >= nthread:
+            batch(ids, nthread)
+        else:
+            small.append(ids)
+    if small:
+        small.sort(key=lambda ids: -len(runs[ids[0]].inputs) * len(ids))  # longest first
+        with ThreadPoolExecutor(nthread) as threads:
+            for fut in [threads.submit(batch, ids, 1) for ids in small]:
+                fut.result()
+    out: list[SimResult | SimulationDiverged] = []
+    for i, run in enumerate(runs):
+        try:
+            out.append(run.result(*done[i]) if i in done else simulate_run(run))
+        except SimulationDiverged as err:
+            out.append(err)
+    return out
 
 
 def run_python(spec: mujoco.MjSpec, inputs: np.ndarray, record_every: int):

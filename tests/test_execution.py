@@ -1,0 +1,157 @@
+"""The execution layer (`wpam_mj.simulation.execution`): the same outcomes, bit for bit,
+run one task at a time, on batch threads here, on local processes or on a Dask cluster."""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+
+import numpy as np
+import pytest
+
+from wpam_mj.cli import main
+from wpam_mj.experiments.paper_studies import SineTask, StepTask
+from wpam_mj.fitting import estimation
+from wpam_mj.infra.pool import Cluster, Workers, open_workers
+from wpam_mj.physics.params import ParameterError, preset
+from wpam_mj.simulation import execution
+from wpam_mj.simulation.execution import result_bytes
+from wpam_mj.simulation.simulate import SimulationDiverged, simulate_each, simulate_run
+
+P = preset("wpam")
+DT = 5e-3
+# runs of three lengths (batches of one and of two runs), a refused load, a kept series
+TASKS = [StepTask(P, 60.0, "pi", DT), SineTask(P, 100.0, "pi", 2.0, DT, True),
+         StepTask(P, 1900.0, "pi", DT), StepTask(P, 140.0, "open", DT),
+         SineTask(P, 150.0, "pid", 1.0, DT, False)]
+
+
+def _serial(tasks) -> list:
+    out = []
+    for t in tasks:
+        try:
+            out.append(t.run())
+        except execution.FAILURES as err:
+            out.append(str(err))
+    return out
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as c:
+        yield c
+
+
+class _Plain:
+    """A task that is not a simulation: it runs as it is (on the pool, if any)."""
+
+    cost = 1.0
+
+    def __init__(self, value: float) -> None:
+        self.value = value
+
+    def run(self) -> float:
+        if self.value < 0:
+            raise ArithmeticError("negative")
+        return self.value
+
+
+def test_batch_threads_and_local_processes_give_the_serial_results_bit_for_bit():
+    serial = result_bytes(_serial(TASKS))
+    assert result_bytes(execution.execute(TASKS, None, failed=str)) == serial
+    with open_workers(2) as workers:  # two cores: batch threads here, plain tasks on the pool
+        assert result_bytes(execution.execute(TASKS, workers, failed=str)) == serial
+        assert execution.execute([_Plain(2.0), *TASKS[:1], _Plain(-1.0)], workers,
+                                 failed=None)[::2] == [2.0, None]
+
+
+def test_a_local_run_and_a_two_worker_dask_cluster_agree_bit_for_bit(cluster):
+    with open_workers(Cluster(cluster.scheduler_address)) as workers:
+        assert workers.slots == 2 and workers.where.startswith("Dask")
+        remote = execution.execute(TASKS, workers, failed=str)
+        bare = execution.execute(TASKS, workers.executor, failed=str)  # as `executor_for`
+    local = execution.execute(TASKS, None, failed=str)
+    assert (result_bytes(remote) == result_bytes(bare) == result_bytes(local)
+            == result_bytes(_serial(TASKS)))
+    assert "cannot lift" in remote[2]
+
+
+def test_failures_in_task_order_values_or_raised():
+    out = execution.execute(TASKS, None, failed=None)
+    assert out[2] is None and all(o is not None for i, o in enumerate(out) if i != 2)
+    with pytest.raises(ParameterError, match="cannot lift"):
+        execution.execute(TASKS, None)
+    with pytest.raises(KeyError):  # a fault, not a failed run: always raised
+        execution.execute([_Fault()], None, failed=None)
+
+
+class _Fault(execution.SimulationTask):
+    cost = 1.0
+
+    def runs(self):
+        return []
+
+    def reduce(self, results):
+        return {}["missing"]
+
+
+def test_runs_of_any_length_on_threads_equal_one_at_a_time():
+    runs = [r for t in (TASKS[0], TASKS[1], TASKS[3], TASKS[4]) for r in t.runs()]
+    one = [simulate_run(r) for r in runs]
+    for nthread in (1, 2, 3):
+        got = simulate_each(runs, nthread=nthread)
+        for a, b in zip(got, one):
+            assert not isinstance(a, SimulationDiverged)
+            for name, arr in b.arrays().items():
+                np.testing.assert_array_equal(getattr(a, name), arr, err_msg=name)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Steps:
+    """A residual model of one PI staircase: the plateau means' errors [mm]."""
+
+    load: float = 100.0
+
+    def tasks(self, params):
+        return [StepTask(params, self.load, "pi", DT)]
+
+    def residuals(self, params, results):
+        return (results[0].x_mean - results[0].target) * 1e3
+
+
+def test_fits_evaluate_the_same_residuals_here_and_on_dask(cluster):
+    trials = [P, P.replace(muscle={"friction_coeff": 0.2})]
+    here = estimation.evaluate(_Steps(), trials)
+    with open_workers(Cluster(cluster.scheduler_address)) as workers:
+        remote = estimation.evaluate(_Steps(), trials, workers.executor)
+        assert estimation.evaluate(_Steps(1900.0), trials, workers.executor) == [None, None]
+    serial = [np.asarray(_Steps().residuals(p, [t.run() for t in _Steps().tasks(p)]))
+              for p in trials]
+    assert result_bytes(here) == result_bytes(remote) == result_bytes(serial)
+
+
+def test_a_target_that_is_no_executor_is_refused_in_one_line():
+    with pytest.raises(ParameterError, match=r"where = 2: expected the Workers"):
+        execution.execute(TASKS, 2)
+
+
+def test_a_local_target_is_the_workers_cores():
+    assert execution._target(Workers(None, 1, "here")) == execution._Target(1, None, False)
+    with open_workers(2) as workers:
+        assert execution._target(workers).threads == 2
+        assert not execution._target(workers.executor).remote
+
+
+@pytest.mark.parametrize("command", [["search", "--maxiter", "0", "--popsize", "1"],
+                                     ["calibrate", "--max-steps", "1"]])
+def test_search_and_calibrate_take_a_scheduler(tmp_path, monkeypatch, capsys, command):
+    """--scheduler reaches the workers both commands open (here: Dask not installed,
+    refused in one line before anything runs)."""
+    monkeypatch.setitem(sys.modules, "distributed", None)  # import fails
+    out = tmp_path / ("o" if command[0] == "search" else "c.toml")
+    assert main([*command, "--scheduler", "tcp://127.0.0.1:1", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == ("wpam: error: Dask scheduler tcp://127.0.0.1:1: Dask distributed is not "
+                   'installed; pip install ".[cluster]"'), err
