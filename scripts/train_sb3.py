@@ -1,20 +1,28 @@
-"""Train a Stable-Baselines3 agent on wpam_mj/WPAMTrack-v0 and score it against the
-reference policies (not run in CI; needs the `learn` extra: README, "Learning").
+"""Train a Stable-Baselines3 agent (PPO or SAC) on the batched vector environment and
+score it against the paper's PI (not run in CI; needs the `learn` extra: docs/learning.md).
 
-    python scripts/train_sb3.py --steps 200000 --out out/train
+    python scripts/train_sb3.py --algo ppo --steps 2000000 --out out/train
 
-Every `--eval-every` steps the deterministic policy is scored on validation seeds
-(1000, 1001, ...) and the best so far is kept: PPO on this task can find a feedback law
-and lose it again. Prints and writes (`--out`): the mean return over the test seeds
-(0..N-1, never used to choose) of the constant, random, paper-PI, best and last trained
-policies, the training steps per second, `learning_curve.png` (validation scores, the
-reference policies' test scores as lines) and `scores.json`.
+The agent trains on `--n-envs` environments of `--env` stepped together on `mujoco.batch`
+(`wpam_mj.environments.vector_env`, `--nthread` threads) for exactly `--steps`
+environment steps (for PPO a whole number of rollouts of n-envs x n-steps; anything else
+is refused). Every `--eval-every` steps the deterministic policy is scored on the
+validation seeds 1000.. (`--curve-seeds` episodes) and the best so far is kept. At the end
+the best and the last policies are scored on the held-out test seeds 0..N-1
+(`--test-seeds`), which never chose anything, beside the reference policies of
+`wpam_mj.environments.policies` on the same task with Po as the action (holding Po at the
+regulator minimum, random, the paper's PI every 10 ms). Writes to `--out`:
+`learning_curve.png` and `learning_curve.csv` (steps, wall seconds, validation return),
+`scores.json` (every score, steps, wall time, training steps per second, the settings),
+`best.zip` and `last.zip`.
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
 import json
+import os
 import time
 from pathlib import Path
 
@@ -23,78 +31,90 @@ import matplotlib
 import numpy as np
 import torch
 from stable_baselines3 import PPO, SAC
-from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.env_util import make_vec_env
-from sb3_contrib import ARS
+from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 
 import wpam_mj  # noqa: F401 (registers the ids)
-from wpam_mj.environments.policies import POLICIES, episode_return
+from wpam_mj.environments.policies import POLICIES, mean_return
+from wpam_mj.environments.registry import EPISODE_STEPS
+from wpam_mj.environments.vector_env import default_threads
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
-ENV_ID = "wpam_mj/WPAMTrack-v0"
-ALGOS = {"ars": ARS, "ppo": PPO, "sac": SAC}
+ALGOS = {"ppo": PPO, "sac": SAC}
+REFERENCE_ID = "wpam_mj/WPAMTrack-v0"  # the same task with Po as the action
 
 
-def trained_policy(model):
-    return lambda obs, info: model.predict(obs, deterministic=True)[0]
+class BatchedVecEnv(VecEnv):
+    """A `WPAMVectorEnv` (same-step autoreset) as Stable-Baselines3's VecEnv: SB3 wants the
+    next episode's first observation at the step that ends one, and the last one in
+    info["terminal_observation"] (SB3 docs, "Vectorized Environments")."""
+
+    def __init__(self, env_id: str, n_envs: int, nthread: int, **kwargs) -> None:
+        self.venv = gymnasium.make_vec(env_id, num_envs=n_envs, nthread=nthread,
+                                       autoreset_mode="SameStep", **kwargs)
+        super().__init__(n_envs, self.venv.single_observation_space,
+                         self.venv.single_action_space)
+        self._actions = None
+
+    def reset(self) -> np.ndarray:
+        obs, _ = self.venv.reset(seed=[s if s is None else int(s) for s in self._seeds])
+        self._reset_seeds()
+        return obs
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = actions
+
+    def step_wait(self):
+        obs, rewards, terminated, truncated, infos = self.venv.step(self._actions)
+        dones = terminated | truncated
+        info_list: list[dict] = [{} for _ in range(self.num_envs)]
+        for i in np.flatnonzero(dones):
+            info_list[i] = {"terminal_observation": infos["final_obs"][i],
+                            "TimeLimit.truncated": bool(truncated[i] and not terminated[i])}
+        return obs, rewards.astype(np.float32), dones, info_list
+
+    def close(self) -> None:
+        self.venv.close()
+
+    def get_attr(self, attr_name, indices=None):
+        return [getattr(self.venv.envs[i], attr_name) for i in self._get_indices(indices)]
+
+    def set_attr(self, attr_name, value, indices=None) -> None:
+        for i in self._get_indices(indices):
+            setattr(self.venv.envs[i], attr_name, value)
+
+    def env_method(self, method_name, *method_args, indices=None, **method_kwargs):
+        return [getattr(self.venv.envs[i], method_name)(*method_args, **method_kwargs)
+                for i in self._get_indices(indices)]
+
+    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
 
 
-def score(env, policy, seeds) -> float:
-    """Mean return over `seeds`; `policy` a reference policy's name or a callable."""
-    return float(np.mean([episode_return(env, policy, s) for s in seeds]))
+def episode_returns(env_id: str, predict, seeds: list[int], nthread: int,
+                    **kwargs) -> np.ndarray:
+    """One episode per seed of `predict(obs) -> actions` on the batched vector env: the
+    return of each (the episodes start together and last the same number of steps)."""
+    venv = gymnasium.make_vec(env_id, num_envs=len(seeds), nthread=nthread, **kwargs)
+    obs, _ = venv.reset(seed=seeds)
+    total = np.zeros(len(seeds))
+    running = np.ones(len(seeds), dtype=bool)
+    while running.any():
+        obs, rewards, terminated, truncated, _ = venv.step(predict(obs))
+        total += np.where(running, rewards, 0.0)
+        running &= ~(terminated | truncated)
+    venv.close()
+    return total
 
 
-class Curve(BaseCallback):
-    """Scores the deterministic policy on `seeds` every `every` training steps and saves
-    the best to `best`."""
-
-    def __init__(self, env, seeds, every: int, best: Path) -> None:
-        super().__init__()
-        self.env, self.seeds, self.every, self.best = env, seeds, every, best
-        self.points: list[tuple[int, float]] = []
-        self.seconds = 0.0  # spent evaluating, not training
-        self._next = every
-
-    def _on_step(self) -> bool:
-        if self.num_timesteps >= self._next:
-            self._next += self.every
-            start = time.perf_counter()
-            value = score(self.env, trained_policy(self.model), self.seeds)
-            if value > max((v for _, v in self.points), default=-np.inf):
-                self.model.save(self.best)
-            self.points.append((self.num_timesteps, value))
-            self.seconds += time.perf_counter() - start
-            print(f"{self.num_timesteps:8d} steps: {self.points[-1][1]:7.1f}", flush=True)
-        return True
-
-
-def make_model(algo: str, seed: int, n_envs: int, env_kwargs: dict):
-    if algo == "ars":
-        # Augmented Random Search (Mania et al. 2018): a linear policy perturbed for whole
-        # episodes. Per-step action noise does not find the feedback here: one 10 ms step
-        # of more Po moves nothing through the dry friction, a sustained law does.
-        return ARS("LinearPolicy", make_vec_env(ENV_ID, n_envs=1, seed=seed,
-                                                env_kwargs=env_kwargs),
-                   n_delta=8, n_top=4, delta_std=0.3, learning_rate=0.1, seed=seed, verbose=0,
-                   policy_kwargs={"with_bias": False})  # a bias sinks into p_min's dead zone
-    if algo == "ppo":
-        venv = make_vec_env(ENV_ID, n_envs=n_envs, seed=seed, env_kwargs=env_kwargs)
-        # log_std -1: exploring Po by +-30 kPa, not +-80 (the whole range) at the start
-        return PPO("MlpPolicy", venv, n_steps=512, batch_size=256, learning_rate=3e-4,
-                   gamma=0.99, seed=seed, verbose=0, policy_kwargs={"log_std_init": -1.0})
-    return SAC("MlpPolicy", make_vec_env(ENV_ID, n_envs=1, seed=seed, env_kwargs=env_kwargs),
-               seed=seed, verbose=0)
-
-
-def plot(curve: list[tuple[int, float]], refs: dict[str, float], out: Path,
+def plot(curve: list[tuple[int, float, float]], pi_validation: float, out: Path,
          title: str) -> None:
     fig, ax = plt.subplots(figsize=(6.4, 4.0), constrained_layout=True)
-    steps, values = zip(*curve)
-    ax.plot(steps, values, "o-", color="k", label="trained, validation seeds")
-    for (name, value), style in zip(refs.items(), ("--", ":", "-.")):
-        ax.axhline(value, ls=style, color="tab:gray", label=f"{name}: {value:.0f}")
+    steps, _, values = zip(*curve)
+    ax.plot(steps, values, "o-", color="k", ms=3, label="trained policy (deterministic)")
+    ax.axhline(pi_validation, ls="--", color="tab:gray",
+               label=f"paper's PI (zero action): {pi_validation:.0f}")
     ax.set_xlabel("training steps")
     ax.set_ylabel("mean episode return")
     ax.set_title(title, fontsize=9)
@@ -103,53 +123,139 @@ def plot(curve: list[tuple[int, float]], refs: dict[str, float], out: Path,
     plt.close(fig)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--algo", choices=sorted(ALGOS), default="ars")
-    parser.add_argument("--steps", type=int, default=200_000)
-    parser.add_argument("--n-envs", type=int, default=4)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--eval-seeds", type=int, default=10, help="seeds 0..N-1")
-    parser.add_argument("--curve-seeds", type=int, default=3, help="seeds 1000..")
-    parser.add_argument("--eval-every", type=int, default=5_000)
-    parser.add_argument("--frame-skip", type=int, default=10,
-                        help="physics steps of 1 ms per action, for training and every "
-                             "score (default: 10, the registered 10 ms; 50 holds each "
-                             "action 50 ms: episodes of 200 steps, returns /5)")
-    parser.add_argument("--out", type=Path, default=Path("out/train"))
-    args = parser.parse_args()
-    torch.set_num_threads(1)  # small MLPs: threads only contend on a shared machine
-    args.out.mkdir(parents=True, exist_ok=True)
-    env_kwargs = {"frame_skip": args.frame_skip,
-                  "max_episode_steps": round(10_000 / args.frame_skip)}
-    env = gymnasium.make(ENV_ID, **env_kwargs)
-    seeds = range(args.eval_seeds)
-    refs = {name: score(env, name, seeds) for name in POLICIES}
-    print("reference policies:", {k: round(v, 1) for k, v in refs.items()}, flush=True)
+def make_model(args, venv):
+    """The agent with the documented settings (docs/learning.md, "Training")."""
+    policy_kwargs = {"log_std_init": args.log_std_init, "net_arch": [64, 64]}
+    if args.algo == "ppo":
+        return PPO("MlpPolicy", venv, n_steps=args.n_steps, batch_size=args.batch_size,
+                   n_epochs=args.epochs, learning_rate=args.learning_rate, gamma=args.gamma,
+                   gae_lambda=args.gae_lambda, clip_range=args.clip_range, ent_coef=0.0,
+                   use_sde=args.sde, sde_sample_freq=args.sde_sample_freq, seed=args.seed,
+                   verbose=0, policy_kwargs=policy_kwargs, device="cpu")
+    return SAC("MlpPolicy", venv, learning_rate=args.learning_rate, gamma=args.gamma,
+               batch_size=args.batch_size, buffer_size=args.steps,
+               learning_starts=args.learning_starts, train_freq=1,
+               gradient_steps=args.gradient_steps, use_sde=args.sde,
+               sde_sample_freq=args.sde_sample_freq, use_sde_at_warmup=args.sde,
+               seed=args.seed, verbose=0,
+               policy_kwargs=policy_kwargs, device="cpu")
 
-    model = make_model(args.algo, args.seed, args.n_envs,
-                       {"frame_skip": args.frame_skip})
-    curve = Curve(env, range(1000, 1000 + args.curve_seeds), args.eval_every,
-                  args.out / "best.zip")
-    start = time.perf_counter()
-    model.learn(total_timesteps=args.steps, callback=curve)
-    wall = time.perf_counter() - start
-    rate = model.num_timesteps / (wall - curve.seconds)
-    best = ALGOS[args.algo].load(args.out / "best.zip")
-    scores = {**refs, "trained_best": score(env, trained_policy(best), seeds),
-              "trained_last": score(env, trained_policy(model), seeds)}
-    print("scores:", {k: round(v, 1) for k, v in scores.items()})
-    print(f"{args.algo} {model.num_timesteps} steps in {wall:.0f} s "
-          f"({rate:.0f} training steps/s without the curve's evaluations)")
-    title = (f"{args.algo.upper()} on {ENV_ID} ({args.frame_skip} ms steps), seed "
-             f"{args.seed}\ncurve: mean of {args.curve_seeds} validation seeds; lines: "
-             f"{len(seeds)} test seeds")
-    plot(curve.points, refs, args.out / "learning_curve.png", title)
+
+def parse_args() -> argparse.Namespace:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--algo", choices=sorted(ALGOS), default="ppo")
+    p.add_argument("--env", default="wpam_mj/WPAMTrackResidual-v0",
+                   help="registered id to train on (default: the residual task)")
+    p.add_argument("--steps", type=int, default=3_932_160,
+                   help="environment steps to train, exactly (default: 60 PPO rollouts "
+                        "of 16 x 4096)")
+    p.add_argument("--n-envs", type=int, default=16, help="environments stepped together")
+    p.add_argument("--nthread", type=int, default=min(2, default_threads(16)),
+                   help="mujoco.batch threads (default: 2, or the CPUs available)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the agent and the "
+                   "training environments (env i: seed + i)")
+    p.add_argument("--n-steps", type=int, default=4096,
+                   help="PPO: steps per environment per rollout")
+    p.add_argument("--batch-size", type=int, default=2048, help="minibatch size")
+    p.add_argument("--epochs", type=int, default=5, help="PPO: passes over each rollout")
+    p.add_argument("--learning-rate", type=float, default=3e-4)
+    p.add_argument("--gamma", type=float, default=0.99, help="discount per 10 ms step")
+    p.add_argument("--gae-lambda", type=float, default=0.95, help="PPO: GAE lambda")
+    p.add_argument("--clip-range", type=float, default=0.2, help="PPO: clip range")
+    p.add_argument("--sde", action=argparse.BooleanOptionalAction, default=True,
+                   help="generalized state-dependent exploration (gSDE)")
+    p.add_argument("--sde-sample-freq", type=int, default=-1,
+                   help="gSDE: steps between new noise matrices (-1: once per rollout)")
+    p.add_argument("--log-std-init", type=float, default=-3.0,
+                   help="initial log standard deviation of the Gaussian policy (-2: "
+                        "exploring the Po correction by about +-11 kPa)")
+    p.add_argument("--gradient-steps", type=int, default=1,
+                   help="SAC: gradient steps per vector step")
+    p.add_argument("--learning-starts", type=int, default=10_000,
+                   help="SAC: steps before the first update, acting with the initial "
+                        "policy (its gSDE noise about a zero correction: the PI) rather "
+                        "than uniformly random corrections when --sde")
+    p.add_argument("--eval-every", type=int, default=131_072,
+                   help="score the policy on the validation seeds every this many steps")
+    p.add_argument("--curve-seeds", type=int, default=8, help="validation seeds 1000..")
+    p.add_argument("--test-seeds", type=int, default=20, help="held-out seeds 0..N-1")
+    p.add_argument("--out", type=Path, default=Path("out/train"))
+    args = p.parse_args()
+    per_update = args.n_envs * (args.n_steps if args.algo == "ppo" else 1)
+    unit = "n-envs x n-steps, one PPO rollout" if args.algo == "ppo" else "n-envs"
+    for name in ("steps", "eval_every"):
+        value = getattr(args, name)
+        if value <= 0 or value % per_update:
+            p.error(f"--{name.replace('_', '-')} {value} must be a positive multiple of "
+                    f"{per_update} ({unit})")
+    return args
+
+
+def main() -> None:
+    args = parse_args()
+    torch.set_num_threads(1)  # small MLPs: threads only contend with the batch's
+    args.out.mkdir(parents=True, exist_ok=True)
+    test = list(range(args.test_seeds))
+    validation = list(range(1000, 1000 + args.curve_seeds))
+    refs = {name: mean_return(REFERENCE_ID, name, test) for name in POLICIES}
+    zero = episode_returns(args.env, lambda o: np.zeros((len(o), 1), np.float32), test,
+                           args.nthread).mean()
+    refs["zero action"] = float(zero)
+    pi_validation = float(episode_returns(args.env, lambda o: np.zeros((len(o), 1),
+                                                                       np.float32),
+                                          validation, args.nthread).mean())
+    print("reference policies (test seeds):", {k: round(v, 1) for k, v in refs.items()},
+          flush=True)
+
+    venv = VecMonitor(BatchedVecEnv(args.env, args.n_envs, args.nthread))
+    venv.seed(args.seed)
+    model = make_model(args, venv)
+
+    def predict(m):
+        return lambda obs: m.predict(obs, deterministic=True)[0]
+
+    curve: list[tuple[int, float, float]] = []
+    best, evaluating, start = -np.inf, 0.0, time.perf_counter()
+    done = 0
+    while done < args.steps:
+        chunk = min(args.eval_every, args.steps - done)  # whole rollouts (parse_args)
+        model.learn(total_timesteps=chunk, reset_num_timesteps=False)
+        done = model.num_timesteps
+        t0 = time.perf_counter()
+        value = float(episode_returns(args.env, predict(model), validation,
+                                      args.nthread).mean())
+        if value > best:
+            best = value
+            model.save(args.out / "best.zip")
+        evaluating += time.perf_counter() - t0
+        curve.append((done, time.perf_counter() - start - evaluating, value))
+        print(f"{done:9d} steps, {curve[-1][1]:6.0f} s training: validation {value:6.1f}",
+              flush=True)
+    wall = time.perf_counter() - start - evaluating
+    best_model = ALGOS[args.algo].load(args.out / "best.zip", device="cpu")
+    scores = {**refs,
+              "trained best": float(episode_returns(args.env, predict(best_model), test,
+                                                    args.nthread).mean()),
+              "trained last": float(episode_returns(args.env, predict(model), test,
+                                                    args.nthread).mean())}
+    print("scores (test seeds):", {k: round(v, 1) for k, v in scores.items()})
+    print(f"{args.algo} trained {model.num_timesteps} steps in {wall:.0f} s "
+          f"({model.num_timesteps / wall:.0f} steps/s without the evaluations), load "
+          f"average {os.getloadavg()[0]:.2f}")
+    with open(args.out / "learning_curve.csv", "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["steps", "train_wall_s", "validation_return"])
+        writer.writerows(curve)
+    title = (f"{args.algo.upper()} on {args.env}, seed {args.seed}, {args.n_envs} batched "
+             f"envs\nmean return over the {len(validation)} validation seeds 1000..")
+    plot(curve, pi_validation, args.out / "learning_curve.png", title)
     (args.out / "scores.json").write_text(json.dumps(
-        {"env": ENV_ID, "frame_skip": args.frame_skip, "algo": args.algo, "seed": args.seed,
-         "steps": model.num_timesteps,
-         "eval_seeds": list(seeds), "scores": scores, "train_wall_s": wall,
-         "train_steps_per_s": rate, "curve": curve.points}, indent=1) + "\n")
+        {"settings": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
+         "episode_steps": EPISODE_STEPS, "test_seeds": test, "validation_seeds": validation,
+         "scores": scores, "pi_validation": pi_validation, "steps": model.num_timesteps,
+         "train_wall_s": wall,
+         "train_steps_per_s": model.num_timesteps / wall,
+         "load_average_end": os.getloadavg()[0], "curve": curve}, indent=1) + "\n")
     model.save(args.out / "last.zip")
 
 

@@ -10,13 +10,16 @@ from dm_env import test_utils
 import wpam_mj
 from wpam_mj import paper
 from wpam_mj.control.controllers import PIControl
-from wpam_mj.environments.dm_env_task import OBSERVATIONS, make_env
+from wpam_mj.environments.dm_env_task import OBSERVATIONS, dm_control_runs, make_env
 from wpam_mj.experiments.feasibility import max_liftable_load
 from wpam_mj.physics.params import MM, MPA, STANDARD_GRAVITY, ParameterError
 from wpam_mj.simulation.simulate import Drive
 
 # Code defaults, not the calibration file: these tests pin the environment, not the fit.
 PARAMS = wpam_mj.preset("wpam", calibration=None)
+
+if not dm_control_runs():  # mujoco 4: make_env refuses (tests/test_gym_env.py checks how)
+    pytest.skip("dm_control does not run on this mujoco", allow_module_level=True)
 
 
 class EnvironmentConformanceTest(test_utils.EnvironmentTestMixin, absltest.TestCase):
@@ -177,7 +180,7 @@ def test_staircase_targets_go_up_and_down_and_the_tracking_reward_is_linear() ->
         ts = env.step([PARAMS.pneumatics.p_min])
         targets.append(ts.observation["target_m"][0])
         error = ts.observation["x_m"][0] - targets[-1]
-        rewards.append((ts.reward, max(0.0, 1 - abs(error) / (5 * MM))))
+        rewards.append((ts.reward, max(0.0, 1 - abs(error) / (1 * MM))))
     levels = np.unique(targets)
     # 2.5 s per level, the new one from t = 2.5 s on; the last observation, at 10 s, the 5th
     assert len(levels) == 5 and len(np.unique(targets[:249])) == 1

@@ -15,7 +15,8 @@ from gymnasium.utils.env_checker import check_env  # noqa: E402
 import wpam_mj  # noqa: E402
 from wpam_mj import paper  # noqa: E402
 from wpam_mj.control.controllers import PIControl  # noqa: E402
-from wpam_mj.environments.dm_env_task import OBSERVATIONS, make_env  # noqa: E402
+from wpam_mj.environments.dm_env_task import (OBSERVATIONS, dm_control_runs,  # noqa: E402
+                                              make_env)
 from wpam_mj.environments.gym_env import ENV_ID, WPAMEnv  # noqa: E402
 from wpam_mj.physics.params import MM, MPA, ParameterError  # noqa: E402
 from wpam_mj.environments.policies import mean_return  # noqa: E402
@@ -68,6 +69,7 @@ def test_frame_skip_sets_the_control_step(frame_skip, dt) -> None:
     assert env.metadata["render_fps"] == pytest.approx(1 / (frame_skip * dt))
 
 
+@pytest.mark.skipif(not dm_control_runs(), reason="dm_control does not run on this mujoco")
 @pytest.mark.parametrize("reference, action", [("step", "po"), ("sine", "po"),
                                                ("step", "both")])
 def test_same_trajectory_as_dm_control(reference, action) -> None:
@@ -256,10 +258,10 @@ def test_info_carries_error_commands_and_success() -> None:
 
 
 def test_constant_po_scores_far_below_the_paper_pi() -> None:
-    """On the learning task holding Po at 5 kPa (the Pi feedforward alone) earns under half
-    of what the paper's PI earns (measured 0.41 of it; docs/learning.md), mean of 10 seeds."""
+    """On the learning task holding Po at 5 kPa (the Pi feedforward alone) earns under 30 %
+    of what the paper's PI earns (docs/learning.md), mean of 10 seeds."""
     scores = {p: mean_return("wpam_mj/WPAMTrack-v0", p, range(10)) for p in ("constant", "pi")}
-    assert scores["constant"] < 0.5 * scores["pi"], scores
+    assert scores["constant"] < 0.3 * scores["pi"], scores
 
 
 def test_make_accepts_randomize_and_draws_a_plant_per_episode(tmp_path) -> None:
@@ -274,26 +276,6 @@ def test_make_accepts_randomize_and_draws_a_plant_per_episode(tmp_path) -> None:
     relative = gymnasium.make("wpam_mj/WPAMTrackRandomized-v0", params=PARAMS)
     relative.reset(seed=0)
     assert relative.unwrapped.physics.params != PARAMS
-
-
-def test_vector_entry_point_equals_n_single_envs() -> None:
-    """make_vec's native vector env against SyncVectorEnv of the same envs: the same
-    observations, rewards, ends and infos over autoresets."""
-    kwargs = {"params": PARAMS, "time_limit": 0.2}
-    native = gymnasium.make_vec("wpam_mj/WPAMTrack-v0", num_envs=3, **kwargs)
-    sync = gymnasium.make_vec("wpam_mj/WPAMTrack-v0", num_envs=3, vectorization_mode="sync",
-                              **kwargs)
-    assert type(native).__name__ == "WPAMVectorEnv"
-    np.testing.assert_array_equal(native.reset(seed=4)[0], sync.reset(seed=4)[0])
-    rng = np.random.default_rng(0)
-    for _ in range(45):  # two autoresets
-        actions = rng.uniform(-1, 1, (3, 1)).astype(np.float32)
-        a, b = native.step(actions), sync.step(actions)
-        for x, y in zip(a[:4], b[:4]):
-            np.testing.assert_array_equal(x, y)
-        assert a[4].keys() == b[4].keys()
-        for key in a[4]:
-            np.testing.assert_array_equal(a[4][key], b[4][key])
 
 
 def test_reset_options_fix_one_episode_and_refuse_the_unknown() -> None:
@@ -322,3 +304,18 @@ def test_vector_env_refuses_a_time_limit_its_max_episode_steps_would_cut() -> No
         gymnasium.make_vec(ENV_ID, num_envs=2, params=PARAMS, time_limit=20.0)
     gymnasium.make_vec(ENV_ID, num_envs=2, params=PARAMS, time_limit=20.0,
                        max_episode_steps=2000)
+
+
+def test_the_dm_control_env_refuses_mujoco_4_naming_the_versions_that_work(
+        monkeypatch) -> None:
+    """dm-control 1.0.50 fails on mujoco 4 (MjModel has no flex_vertedge): make_env says
+    so in one line, while the Gymnasium environment runs without dm_control's Physics."""
+    import mujoco  # noqa: PLC0415
+
+    monkeypatch.setattr(mujoco, "__version__", "4.0.0")
+    with pytest.raises(RuntimeError, match=r"^the dm_control environment needs mujoco "
+                       r">= 3.17, < 4 \(dm-control fails on mujoco 4.0.0\)[^\n]*$"):
+        make_env(PARAMS)
+    env = gymnasium.make("wpam_mj/WPAMTrack-v0", params=PARAMS)
+    env.reset(seed=0)
+    env.step(env.action_space.sample())

@@ -31,6 +31,12 @@ Actions (`BoundedArray`, float64, [Pa]; out-of-range values are clipped):
                   is fed the episode's whole target path at its start.
     action="both" shape (2,): (Pi command in [p_min, p_max], Po command in [p_min, po_cap]);
                   Po keeps the bag's 0.08 MPa durability cap (paper §4.2).
+    action="residual" shape (1,): a Po correction in [-po_cap, po_cap] added to the paper's
+                  PI on Po, which runs inside the environment once per control step
+                  (`PIControl` at the control step, started bumpless as `simulate` starts
+                  it; the same law as the reference policy "pi" of
+                  `wpam_mj.environments.policies`); the sum is clipped to [p_min, po_cap].
+                  A zero action is that PI (docs/learning.md: why a residual).
 Targets (`reference`):
     "step"  x_r constant over the episode, reached from rest at x = 0 (paper §4.1);
     "sine"  x_r(t) = 25 mm - 25 mm cos(2 pi f t) (paper §4.2, `experiments.SineSpec`),
@@ -41,7 +47,7 @@ Targets (`reference`):
             follows x_r at the start of each control step (sine and staircase).
 Reward (`reward=`): "tolerance" (default), `dm_control.utils.rewards.tolerance(x - x_r)`:
 1 within +-0.5 mm of the target, Gaussian fall-off to 0.1 at 2 mm outside that band;
-"tracking", max(0, 1 - |x - x_r| / `TRACKING_SCALE`) (docs/learning.md: why).
+"tracking", max(0, 1 - |x - x_r| / `TRACKING_SCALE`), 1 mm (docs/learning.md: why).
 Discount 1; episodes end at `time_limit` [s]. A load the muscle cannot lift to the
 highest target at the regulator maximum is refused, naming the largest it can
 (`feasibility.check_liftable`). At each reset the muscle hangs at rest at x = 0 with
@@ -65,7 +71,7 @@ import numpy as np
 from dm_env import specs
 
 from wpam_mj.visualisation import gl
-from wpam_mj.control.controllers import CONTROLLERS, check_control
+from wpam_mj.control.controllers import CONTROLLERS, PIControl, check_control
 from wpam_mj.experiments.drives import SineSpec
 from wpam_mj.experiments.feasibility import check_liftable
 from wpam_mj.physics.geometry import BraidGeometry
@@ -83,7 +89,7 @@ with gl.quiet_display_probe():  # dm_control probes GLFW on import; we never ren
     from dm_control.rl import control
     from dm_control.utils import rewards
 
-ACTIONS = ("po", "both")
+ACTIONS = ("po", "both", "residual")
 REFERENCES = ("step", "sine", "staircase")
 REWARDS = ("tolerance", "tracking")
 STAIR_HOLD = 2.5  # s per staircase level: our choice, long enough for a PI to act
@@ -92,14 +98,76 @@ TARGET_RANGE = (0.0, 50 * MM)  # m: the paper's step experiment spans 0-50 mm (�
 LOAD_RANGE = (50.0, 150.0)  # N: the paper's loads (§4)
 REWARD_BOUND = 0.5 * MM  # m: reward 1 inside +-bound
 REWARD_MARGIN = 2 * MM  # m: reward 0.1 this far outside the bound
-TRACKING_SCALE = 5 * MM  # m: the "tracking" reward falls linearly to 0 at this error
+TRACKING_SCALE = 1 * MM  # m: the "tracking" reward falls linearly to 0 at this error
 TIME_LIMIT_RANGE = (1e-3, 3600.0)  # s
 CONTROL_TIMESTEP_RANGE = (1e-5, 1.0)  # s
 
 OBSERVATIONS = ("x_m", "velocity_m_s", "pi_pa", "po_pa", "target_m", "load_n")
 
 
-class MusclePhysics(engine.Physics):
+class _MuscleReadings:
+    """What the task reads and sets on the hung muscle, for `MusclePhysics` (dm_control)
+    and `RigPhysics` (plain MuJoCo) alike: both hold a `LiveRig` and its MjData."""
+
+    params: Params
+    rig: LiveRig
+
+    def _raw(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        raise NotImplementedError
+
+    def _setup(self, params: Params, rig: LiveRig) -> None:
+        self.params = params
+        self.rig = rig
+        self._load_body = rig.model.body("load").id
+        self.pi_cmd = self.po_cmd = 0.0
+        self.diverged: str | None = None
+
+    def set_load(self, load: float) -> None:
+        """Hang `load` [N]: the load body's mass becomes load / g, and the constants MuJoCo
+        derives from masses (the constraints' inverse weights) follow, so the model is the
+        one built for this load whatever load it held before."""
+        model, data = self._raw()
+        model.body_mass[self._load_body] = check_load(load) / STANDARD_GRAVITY
+        mujoco.mj_setConst(model, data)
+
+    def load(self) -> float:
+        """Hanging load [N]."""
+        return float(self._raw()[0].body_mass[self._load_body]) * STANDARD_GRAVITY
+
+    def set_commands(self, pi_cmd: float, po_cmd: float) -> None:
+        """Regulator commands [Pa] (gauge) applied from the next physics step on."""
+        self.pi_cmd, self.po_cmd = float(pi_cmd), float(po_cmd)
+
+    def contraction(self) -> float:
+        """x [m]."""
+        return self.rig.contraction(self._raw()[1])
+
+    def velocity(self) -> float:
+        """dx/dt [m/s]."""
+        return self.rig.velocity(self._raw()[1])
+
+    def pressures(self) -> tuple[float, float]:
+        """Chamber gauge pressures (Pi, Po) [Pa]."""
+        return self.rig.pressures(self._raw()[1])
+
+    def _refuse_if_diverged(self) -> None:
+        if self.diverged is not None:  # the state is meaningless until reset
+            raise control.PhysicsError(f"the muscle diverged ({self.diverged}); call reset() "
+                                       "before stepping again")
+
+    def _step_rig(self, nstep: int) -> None:
+        """`nstep` physics steps (`LiveRig.step`: the physics step of
+        `wpam_mj.simulation.simulate`), ending with `mj_step1` so that positions, sensors and
+        rendering match the new state (as dm_control's own step)."""
+        d = self._raw()[1]
+        self.rig.set_commands(d, self.pi_cmd, self.po_cmd)
+        try:
+            self.rig.step(d, nstep)
+        except SimulationDiverged as err:
+            raise control.PhysicsError(f"at t = {d.time:.4f} s: {err}") from err
+
+
+class MusclePhysics(_MuscleReadings, engine.Physics):
     """dm_control Physics of the hung muscle whose `step` is the project's physics step.
 
     The muscle is the rig's `wpam_mj.muscle` plugin (or the Python engine where it is
@@ -117,12 +185,8 @@ class MusclePhysics(engine.Physics):
         physics._setup(params, rig)
         return physics
 
-    def _setup(self, params: Params, rig: LiveRig) -> None:
-        self.params = params
-        self.rig = rig
-        self._load_body = rig.model.body("load").id
-        self.pi_cmd = self.po_cmd = 0.0
-        self.diverged: str | None = None
+    def _raw(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        return self.model.ptr, self.data.ptr
 
     def reset(self, keyframe_id=None) -> None:
         """Reset MuJoCo's state and the pneumatics (chambers vented, regulators at 0)."""
@@ -145,48 +209,83 @@ class MusclePhysics(engine.Physics):
         self._reload_from_data(wrapper.MjData(mujoco.MjData(rig.model)))
         self._setup(params, rig)
 
-    def set_load(self, load: float) -> None:
-        """Hang `load` [N]: the load body's mass becomes load / g, and the constants MuJoCo
-        derives from masses (the constraints' inverse weights) follow, so the model is the
-        one built for this load whatever load it held before."""
-        self.model.ptr.body_mass[self._load_body] = check_load(load) / STANDARD_GRAVITY
-        mujoco.mj_setConst(self.model.ptr, self.data.ptr)
-
-    def load(self) -> float:
-        """Hanging load [N]."""
-        return float(self.model.ptr.body_mass[self._load_body]) * STANDARD_GRAVITY
-
-    def set_commands(self, pi_cmd: float, po_cmd: float) -> None:
-        """Regulator commands [Pa] (gauge) applied from the next physics step on."""
-        self.pi_cmd, self.po_cmd = float(pi_cmd), float(po_cmd)
-
-    def contraction(self) -> float:
-        """x [m]."""
-        return self.rig.contraction(self.data.ptr)
-
-    def velocity(self) -> float:
-        """dx/dt [m/s]."""
-        return self.rig.velocity(self.data.ptr)
-
-    def pressures(self) -> tuple[float, float]:
-        """Chamber gauge pressures (Pi, Po) [Pa]."""
-        return self.rig.pressures(self.data.ptr)
-
     def step(self, nstep: int = 1) -> None:
-        """Advance `nstep` physics steps of the muscle and the load (`LiveRig.step`: the
-        physics step of `wpam_mj.simulation.simulate`), ending with `mj_step1` so that positions,
-        sensors and rendering match the new state (as dm_control's own step)."""
-        if self.diverged is not None:  # the state is meaningless until reset
-            raise control.PhysicsError(f"the muscle diverged ({self.diverged}); call reset() "
-                                       "before stepping again")
-        d = self.data.ptr
+        """Advance `nstep` physics steps of the muscle and the load (`_step_rig`); MuJoCo
+        warnings raise dm_control's PhysicsError."""
+        self._refuse_if_diverged()
         try:
             with self.check_invalid_state():
-                self.rig.set_commands(d, self.pi_cmd, self.po_cmd)
-                try:
-                    self.rig.step(d, nstep)
-                except SimulationDiverged as err:
-                    raise control.PhysicsError(f"at t = {d.time:.4f} s: {err}") from err
+                self._step_rig(nstep)
+        except control.PhysicsError as err:
+            self.diverged = str(err)
+            raise
+
+
+class RigPhysics(_MuscleReadings):
+    """The same physics as `MusclePhysics` on plain MuJoCo, without dm_control (which
+    does not run on mujoco 4): what the Gymnasium environment steps. `model` and `data`
+    are the MjModel and MjData; `create`, `reset`, `after_reset`, `set_params` and `step`
+    do what dm_control's Physics does in `MusclePhysics`, in the same order (its forward
+    computations with actuation disabled included), so both give the same trajectories."""
+
+    @classmethod
+    def create(cls, params: Params, dt: float = 1e-3, load: float = 100.0) -> RigPhysics:
+        """Build the MJCF model for `params`, physics step `dt` [s], `load` [N]."""
+        physics = cls()
+        physics._setup(params, LiveRig.build(params, load, check_dt(dt)))
+        return physics
+
+    def _setup(self, params: Params, rig: LiveRig) -> None:
+        super()._setup(params, rig)
+        self.model, self.data = rig.model, mujoco.MjData(rig.model)
+        self.after_reset()
+
+    def _raw(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
+        return self.model, self.data
+
+    def time(self) -> float:
+        """Episode time [s]."""
+        return float(self.data.time)
+
+    def timestep(self) -> float:
+        """Physics step [s]."""
+        return float(self.model.opt.timestep)
+
+    def reset(self) -> None:
+        """MuJoCo's state and the pneumatics back to rest (chambers vented)."""
+        mujoco.mj_resetData(self.model, self.data)
+        self.after_reset()
+        self.rig.reset()
+        self.pi_cmd = self.po_cmd = 0.0
+        self.diverged = None
+
+    def after_reset(self) -> None:
+        """The derived quantities of the state, with actuation disabled (dm_control's
+        `Physics.after_reset`, also run by its reset and on new data)."""
+        flags = self.model.opt.disableflags
+        self.model.opt.disableflags = flags | mujoco.mjtDisableBit.mjDSBL_ACTUATION
+        try:
+            mujoco.mj_forward(self.model, self.data)
+        finally:
+            self.model.opt.disableflags = flags
+
+    def set_params(self, params: Params) -> None:
+        """Use `params` from now on (domain randomisation): a model rebuilt for them with
+        the same load and time step, from rest."""
+        self._setup(params, LiveRig.build(params, self.load(), self.timestep()))
+
+    def step(self, nstep: int = 1) -> None:
+        """`nstep` physics steps (`_step_rig`); a MuJoCo warning raised meanwhile raises
+        dm_control's PhysicsError, as `MusclePhysics.step`."""
+        self._refuse_if_diverged()
+        warnings = np.array([w.number for w in self.data.warning])
+        try:
+            self._step_rig(nstep)
+            raised = np.array([w.number for w in self.data.warning]) > warnings
+            if raised.any():
+                names = [n for n, r in zip(mujoco.mjtWarning.__members__, raised) if r]
+                raise control.PhysicsError("Physics state is invalid. Warning(s) raised: "
+                                           + ", ".join(names))
         except control.PhysicsError as err:
             self.diverged = str(err)
             raise
@@ -203,7 +302,8 @@ class TrackingTask(control.Task):
                  sine_freq: float | None = None,
                  sine_freq_range: tuple[float, float] = SINE_FREQ_RANGE,
                  randomize: ParameterRanges | None = None, reward: str = "tolerance",
-                 time_limit: float = 10.0, controller: str = "pi", dt: float = 1e-3) -> None:
+                 time_limit: float = 10.0, controller: str = "pi", dt: float = 1e-3,
+                 control_timestep: float = 0.01) -> None:
         if action not in ACTIONS:
             raise ParameterError(f"action = {action!r}; valid actions: {', '.join(ACTIONS)}")
         if reference not in REFERENCES:
@@ -249,9 +349,16 @@ class TrackingTask(control.Task):
         self._pi_ff = 0.0
         self._next: tuple[float | None, float | None] = (None, None)
         pn, c = params.pneumatics, params.controller
+        # the paper's PI on Po at the control step, under action="residual"
+        self._control_timestep = control_timestep
+        self._pi: PIControl | None = None  # made for each episode's parameters
+        self._po_lo, self._po_hi = pn.p_min, c.po_cap  # the Po command's range [Pa]
         if action == "po":
             self._lo, self._hi = np.array([pn.p_min]), np.array([c.po_cap])
             self._name = "po_cmd_pa"
+        elif action == "residual":
+            self._lo, self._hi = np.array([-c.po_cap]), np.array([c.po_cap])
+            self._name = "po_residual_pa"
         else:
             self._lo, self._hi = np.array([pn.p_min, pn.p_min]), np.array([pn.p_max, c.po_cap])
             self._name = "pi_cmd_pa,po_cmd_pa"
@@ -303,11 +410,13 @@ class TrackingTask(control.Task):
             self._levels = self._random.uniform(*self._target_range, size=self._n_levels)
         if self._controller.needs_target_ahead:
             t = np.arange(round(self._time_limit / self._dt) + 1) * self._dt
-            x_ref = np.array([self.target_at(s) for s in t])
+            x_ref = self.targets_at(t)
             self._drive = self._controller.feedforward(self._params, physics.load(), x_ref,
                                                        self._dt)
         else:
             self._pi_ff = self._feedforward(self.target_at(0.0), physics.load())
+        if self._action == "residual":
+            self._pi = PIControl.for_run(self._params, self._control_timestep)
 
     def _feedforward(self, target: float, load: float) -> float:
         """The controller's Pi [Pa] holding `target` [m] under `load` [N]."""
@@ -316,10 +425,17 @@ class TrackingTask(control.Task):
 
     def target_at(self, t: float) -> float:
         """Target contraction x_r [m] at episode time `t` [s]."""
+        return float(self.targets_at(np.array([t]))[0])
+
+    def targets_at(self, t: np.ndarray) -> np.ndarray:
+        """Target contractions x_r [m] at episode times `t` [s] (an array)."""
         if self._reference == "staircase":
-            k = int(t / STAIR_HOLD + 1e-9)  # t sums physics steps: 2.4999999 s is 2.5 s
-            return float(self._levels[min(k, self._n_levels - 1)])
-        return self.target if self._sine is None else float(self._sine.target(t))
+            # t sums physics steps: 2.4999999 s is 2.5 s
+            k = (t / STAIR_HOLD + 1e-9).astype(np.int64)
+            return self._levels[np.minimum(k, self._n_levels - 1)]
+        if self._sine is None:
+            return np.full(len(t), self.target)
+        return self._sine.target(t)
 
     def action_spec(self, physics: MusclePhysics) -> specs.BoundedArray:
         return specs.BoundedArray(shape=self._lo.shape, dtype=np.float64, minimum=self._lo,
@@ -331,17 +447,33 @@ class TrackingTask(control.Task):
             raise ParameterError(f"action = {action!r} must be {self._lo.size} finite "
                                  f"number(s) [Pa] ({self._name})")
         a = np.clip(a, self._lo, self._hi)
-        if self._drive is not None:  # the episode's drive, at this physics step
-            k = min(round(physics.time() / self._dt), len(self._drive[0]) - 1)
-            po = a[0] + self._drive[1][k] if self._controller.adds_drive_po else a[0]
-            physics.set_commands(self._drive[0][k], min(max(po, self._lo[0]), self._hi[0]))
-            return
-        if self._action == "po" and self._reference != "step":
-            self._pi_ff = self._feedforward(self.target_at(physics.time()), physics.load())
-        if self._action == "po":
-            physics.set_commands(self._pi_ff, a[0])
-        else:
+        if self._action == "both":
             physics.set_commands(a[0], a[1])
+            return
+        pi_cmd, po_drive = self.feedforward_at(np.array([physics.time()]), physics.load())
+        po = a[0]
+        if self._pi is not None:  # action="residual": the PI's Po plus the agent's
+            po = self._pi.update(physics.contraction(), self.target_at(physics.time())) + po
+        physics.set_commands(pi_cmd[0], min(max(po + po_drive[0], self._po_lo), self._po_hi))
+
+    def feedforward_at(self, t: np.ndarray, load: float) -> tuple[np.ndarray, np.ndarray]:
+        """(Pi command, Po added to the agent's) [Pa] at the start of control steps at
+        episode times `t` [s] under action "po" or "residual": what `before_step` commands
+        around the agent; `wpam_mj.environments.vector_env` takes a whole episode's at once."""
+        if self._drive is not None:  # the episode's drive, at these physics steps
+            k = np.minimum(np.rint(t / self._dt).astype(np.int64), len(self._drive[0]) - 1)
+            po = self._drive[1][k] if self._controller.adds_drive_po else np.zeros(len(t))
+            return self._drive[0][k], po
+        if self._reference == "step":
+            return np.full(len(t), self._pi_ff), np.zeros(len(t))
+        return (self._controller.feedforward(self._params, load, self.targets_at(t),
+                                             self._dt)[0],
+                np.zeros(len(t)))
+
+    @property
+    def pi_controller(self) -> PIControl | None:
+        """The PI that the agent's action corrects (action="residual"), else None."""
+        return self._pi
 
     def observation_spec(self, physics: MusclePhysics) -> collections.OrderedDict:
         if self._flat:  # as control.flatten_observation: the values in OBSERVATIONS order
@@ -361,11 +493,30 @@ class TrackingTask(control.Task):
 
     def get_reward(self, physics: MusclePhysics) -> float:
         error = physics.contraction() - self.target_at(physics.time())
+        return float(self.rewards(np.array([error]))[0])
+
+    def rewards(self, error: np.ndarray) -> np.ndarray:
+        """Rewards of tracking errors x - x_r [m] (an array; the module docstring)."""
         if self._reward == "tracking":
-            return max(0.0, 1.0 - abs(error) / TRACKING_SCALE)
-        return float(rewards.tolerance(error, bounds=(-REWARD_BOUND, REWARD_BOUND),
-                                       margin=REWARD_MARGIN, sigmoid="gaussian",
-                                       value_at_margin=0.1))
+            return np.maximum(0.0, 1.0 - np.abs(error) / TRACKING_SCALE)
+        return rewards.tolerance(error, bounds=(-REWARD_BOUND, REWARD_BOUND),
+                                 margin=REWARD_MARGIN, sigmoid="gaussian",
+                                 value_at_margin=0.1)
+
+    @property
+    def action(self) -> str:
+        """The action kind, one of `ACTIONS`."""
+        return self._action
+
+    @property
+    def action_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(low, high) of the action [Pa], which `before_step` clips to."""
+        return self._lo, self._hi
+
+    @property
+    def po_range(self) -> tuple[float, float]:
+        """(low, high) [Pa] of the Po command under action "po" or "residual"."""
+        return self._po_lo, self._po_hi
 
     def get_termination(self, physics: MusclePhysics) -> None:
         return None  # episodes end at the time limit only
@@ -385,7 +536,8 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
 
     Args:
       params: muscle parameters (default: the calibrated ``wpam`` preset).
-      action: "po" (Po command) or "both" (Pi and Po commands), see the module docstring.
+      action: "po" (Po command), "both" (Pi and Po commands) or "residual" (a correction
+        to the paper's PI on Po), see the module docstring.
       time_limit: episode length [s].
       control_timestep: time between actions [s], a whole multiple of `dt`.
       dt: physics step [s].
@@ -409,6 +561,22 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
       controller: a control mode (`wpam_mj.control.controllers.CONTROLS`) whose feedforward
         shapes the commands around the agent's Po (action="po"; see the module docstring).
     """
+    check_dm_control()
+    physics, task, time_limit, n_sub = build(
+        MusclePhysics, params, action=action, time_limit=time_limit,
+        control_timestep=control_timestep, dt=dt, seed=seed, target=target, load=load,
+        target_range=target_range, load_range=load_range, flat_observation=flat_observation,
+        reference=reference, sine_freq=sine_freq, sine_freq_range=sine_freq_range,
+        randomize=randomize, reward=reward, controller=controller)
+    return control.Environment(physics, task, time_limit=time_limit, n_sub_steps=n_sub,
+                               flat_observation=flat_observation)
+
+
+def build(physics_class: type[MusclePhysics] | type[RigPhysics], params: Params | None,
+          *, time_limit: float, control_timestep: float, dt: float, seed: int | None,
+          randomize, **task_kwargs) -> tuple:
+    """`make_env`'s arguments validated: (physics of `physics_class`, its `TrackingTask`,
+    time limit [s], physics steps per control step)."""
     params = preset() if params is None else params
     randomize = ranges_of(randomize, params)
     time_limit = check_range("time_limit", time_limit, *TIME_LIMIT_RANGE, "s")
@@ -416,15 +584,28 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
                                    *CONTROL_TIMESTEP_RANGE, "s")
     dt = check_dt(dt)
     n_sub = check_whole_steps("control_timestep", control_timestep, dt)
-    physics = MusclePhysics.create(params, dt)
-    task = TrackingTask(params, action=action, target=target, load=load,
-                        target_range=target_range, load_range=load_range, random=seed,
-                        flat_observation=flat_observation, reference=reference,
-                        sine_freq=sine_freq, sine_freq_range=sine_freq_range,
-                        randomize=randomize, reward=reward, time_limit=time_limit,
-                        controller=controller, dt=dt)
-    return control.Environment(physics, task, time_limit=time_limit, n_sub_steps=n_sub,
-                               flat_observation=flat_observation)
+    physics = physics_class.create(params, dt)
+    task = TrackingTask(params, random=seed, randomize=randomize, time_limit=time_limit,
+                        dt=dt, control_timestep=control_timestep, **task_kwargs)
+    return physics, task, time_limit, n_sub
+
+
+# The mujoco versions dm-control runs on: 1.0.50, its newest, fails on mujoco 4 (every
+# Physics construction: MjModel has no attribute 'flex_vertedge').
+DM_CONTROL_MUJOCO = ">= 3.17, < 4"
+
+
+def dm_control_runs() -> bool:
+    """Whether dm_control runs on the installed mujoco (`DM_CONTROL_MUJOCO`)."""
+    return int(mujoco.__version__.split(".")[0]) < 4
+
+
+def check_dm_control() -> None:
+    """Refuse, in one line, a mujoco that dm_control does not run on."""
+    if not dm_control_runs():
+        raise RuntimeError(f"the dm_control environment needs mujoco {DM_CONTROL_MUJOCO} "
+                           f"(dm-control fails on mujoco {mujoco.__version__}); the default "
+                           "install has it, and the Gymnasium ids run on both")
 
 
 SEED_RANGE = (0, 2**32 - 1)  # numpy.random.RandomState's seed range

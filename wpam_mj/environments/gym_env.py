@@ -24,6 +24,8 @@ Observation: Box float64 of shape (6,), SI units, in
 Action: Box float64 [Pa], clipped to its bounds:
     action="po"   (1,): Po command in [p_min, po_cap]; Pi is the equilibrium feedforward
     action="both" (2,): Pi command in [p_min, p_max], Po command in [p_min, po_cap]
+    action="residual" (1,): Po correction in [-po_cap, po_cap] to the paper's PI, which
+                  runs in the environment at the control step (`dm_env_task`)
 Normalised spaces (normalize=True; the learning variants): float32 everywhere.
     Action: Box [-1, 1], each command as a fraction of its upper bound (Po: a * po_cap),
     clipped to its SI bounds, so a <= p_min / bound (Po: 0.0625) is the regulator minimum.
@@ -63,7 +65,7 @@ from dm_control.rl import control
 from gymnasium import Env, spaces
 
 from wpam_mj.environments.dm_env_task import (LOAD_RANGE, REWARD_BOUND, SINE_FREQ_RANGE,
-                                              TARGET_RANGE, MusclePhysics, TrackingTask, make_env)
+                                              TARGET_RANGE, RigPhysics, TrackingTask, build)
 from wpam_mj.physics.geometry import BraidGeometry
 from wpam_mj.simulation.model import check_dt
 from wpam_mj.physics.params import MM, ParameterError, Params, preset
@@ -144,7 +146,15 @@ class Scaling:
 
     def observation(self, obs_si: np.ndarray) -> np.ndarray:
         """SI observation (6,) -> normalised (7,) float32 in [-1, 1]."""
-        full = np.append(obs_si, obs_si[0] - obs_si[4])
+        return self.observations(obs_si[np.newaxis])[0]
+
+    def observations(self, obs_si: np.ndarray) -> np.ndarray:
+        """SI observations (N, 6) -> normalised (N, 7) float32 in [-1, 1]."""
+        return self.normalised(np.column_stack((obs_si, obs_si[:, 0] - obs_si[:, 4])))
+
+    def normalised(self, full: np.ndarray) -> np.ndarray:
+        """SI observations with the tracking error x - x_r appended, (N, 7) -> normalised
+        float32 in [-1, 1]."""
         return np.clip((full - self._centre) / self._half, -1.0, 1.0).astype(np.float32)
 
 
@@ -153,7 +163,8 @@ class WPAMEnv(Env):
 
     Args:
       params: muscle parameters, or a preset name (default: the calibrated ``wpam``).
-      action: "po" (Po command) or "both" (Pi and Po commands).
+      action: "po" (Po command), "both" (Pi and Po commands) or "residual" (a Po
+        correction to the paper's PI).
       reference: "step" (constant target), "sine" (25 mm about 25 mm at f) or
         "staircase" (a new random level every `dm_env_task.STAIR_HOLD` s, up or down).
       reward: "tolerance" or "tracking" (module docstring).
@@ -197,20 +208,23 @@ class WPAMEnv(Env):
                                  + ", ".join(self.metadata["render_modes"]))
         if not isinstance(normalize, (bool, np.bool_)):
             raise ParameterError(f"normalize = {normalize!r} must be True or False")
-        self._env = make_env(params, action=action, time_limit=time_limit,
-                             control_timestep=int(frame_skip) * dt, dt=dt, target=target,
-                             load=load, target_range=target_range, load_range=load_range,
-                             flat_observation=True, reference=reference,
-                             sine_freq=sine_freq, sine_freq_range=sine_freq_range,
-                             randomize=randomize, reward=reward, controller=controller)
+        self._physics, self._task, time_limit, self.frame_skip = build(
+            RigPhysics, params, action=action, time_limit=time_limit,
+            control_timestep=int(frame_skip) * dt, dt=dt, seed=None, target=target, load=load,
+            target_range=target_range, load_range=load_range, flat_observation=True,
+            reference=reference, sine_freq=sine_freq, sine_freq_range=sine_freq_range,
+            randomize=randomize, reward=reward, controller=controller)
         self._params = params
-        self.episode_steps = math.ceil(time_limit / self._env.control_timestep() - 1e-9)
+        self.episode_steps = math.ceil(time_limit / self.control_timestep - 1e-9)
+        # episodes end after this many steps (dm_control's step limit, rounded up)
+        self.step_limit = math.ceil(time_limit / self.control_timestep)
+        self._steps = 0
         self.render_mode = render_mode
         self._render_size = render_size
         self._frames = None  # wpam_mj.visualisation.scene.StateFrames, made on the first render
-        self.metadata = {**self.metadata, "render_fps": 1.0 / self._env.control_timestep()}
+        self.metadata = {**self.metadata, "render_fps": 1.0 / self.control_timestep}
 
-        spec = self._env.action_spec()
+        spec = self._task.action_spec(self._physics)
         lo, hi = (load, load) if load is not None else load_range
         loads = (lo * (1 - 1e-9), hi * (1 + 1e-9))  # observed as mass * g: allow its rounding
         self.scaling = Scaling(params, spec.minimum, spec.maximum, loads) if normalize \
@@ -231,19 +245,19 @@ class WPAMEnv(Env):
                            dtype=np.float64))
 
     @property
-    def physics(self) -> MusclePhysics:
-        """The MuJoCo physics and pneumatic state (shared with the dm_control env)."""
-        return self._env.physics
+    def physics(self) -> RigPhysics:
+        """The MuJoCo physics and pneumatic state (the dm_control env's, without it)."""
+        return self._physics
 
     @property
     def control_timestep(self) -> float:
         """Time between actions [s] (frame_skip * dt)."""
-        return self._env.control_timestep()
+        return self._physics.timestep() * self.frame_skip
 
     @property
     def task(self) -> TrackingTask:
         """The tracking task: targets, loads, reward, observations."""
-        return self._env.task
+        return self._task
 
     def reset(self, *, seed: int | None = None,
               options: dict | None = None) -> tuple[np.ndarray, dict]:
@@ -252,8 +266,13 @@ class WPAMEnv(Env):
         if seed is not None:
             self.task.random.seed(seed)
         self.task.fix_next_episode(**fixed)
-        timestep = self._env.reset()
-        self._obs = self._observation(timestep)
+        # as dm_control's Environment.reset: the physics at rest, the task's episode, then
+        # the derived quantities of that state
+        self._steps = 0
+        self._physics.reset()
+        self.task.initialize_episode(self._physics)
+        self._physics.after_reset()
+        self._obs = self._observation()
         self._ended = None
         if self._frames is not None:
             self._frames.set_load(self.physics.load())
@@ -263,16 +282,19 @@ class WPAMEnv(Env):
         if self._ended is not None:
             raise RuntimeError(f"cannot step: {self._ended}; call reset() first")
         command = action if self.scaling is None else self.scaling.action(action)
-        try:
-            timestep = self._env.step(command)
+        try:  # as dm_control's Environment.step
+            self.task.before_step(command, self._physics)
+            self._physics.step(self.frame_skip)
         except control.PhysicsError as err:
             self._ended = f"the episode ended, the state diverged ({err})"
             return self._obs.copy(), 0.0, True, False, {**self._info(), "diverged": str(err)}
-        self._obs = self._observation(timestep)
-        truncated = timestep.last()
+        reward = self.task.get_reward(self._physics)
+        self._obs = self._observation()
+        self._steps += 1
+        truncated = self._steps >= self.step_limit
         if truncated:
             self._ended = "the episode ended at its time limit"
-        return self._obs.copy(), float(timestep.reward), False, truncated, self._info()
+        return self._obs.copy(), reward, False, truncated, self._info()
 
     def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":
@@ -290,8 +312,8 @@ class WPAMEnv(Env):
             self._frames.close()
             self._frames = None
 
-    def _observation(self, timestep) -> np.ndarray:
-        obs = np.asarray(timestep.observation[control.FLAT_OBSERVATION_KEY], dtype=np.float64)
+    def _observation(self) -> np.ndarray:
+        obs = np.concatenate(list(self.task.get_observation(self._physics).values()))
         return obs if self.scaling is None else self.scaling.observation(obs)
 
     def _info(self) -> dict:

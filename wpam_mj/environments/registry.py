@@ -11,6 +11,8 @@ Light on purpose: `wpam_mj/__init__.py` imports it, so nothing heavy is imported
     wpam_mj/WPAMTrackSine-v0    as WPAMTrack-v0 with the paper's sine targets (0.1-1 Hz)
     wpam_mj/WPAMTrackRandomized-v0  as WPAMTrack-v0 with the fitted plant parameters
                                 drawn within +-10 % each episode (`randomize=0.1`)
+    wpam_mj/WPAMTrackResidual-v0  as WPAMTrack-v0, the action a Po correction to the
+                                paper's PI (action="residual"): the task PPO and SAC learn
 
 Every id takes the keyword arguments of `wpam_mj.environments.gym_env.WPAMEnv` (e.g. randomize=FILE
 from `wpam fit --randomize-out`), has `max_episode_steps` = 1000 (10 s of 10 ms steps;
@@ -28,6 +30,7 @@ VARIANTS: dict[str, dict] = {
     "wpam_mj/WPAMTrackBoth-v0": {**_TRACK, "action": "both"},
     "wpam_mj/WPAMTrackSine-v0": {**_TRACK, "reference": "sine"},
     "wpam_mj/WPAMTrackRandomized-v0": {**_TRACK, "randomize": 0.1},
+    "wpam_mj/WPAMTrackResidual-v0": {**_TRACK, "action": "residual"},
 }
 
 

@@ -1,67 +1,138 @@
 """Many W-PAM environments stepped in one call: the ids' `vector_entry_point`.
 
-    envs = gymnasium.make_vec("wpam_mj/WPAMTrack-v0", num_envs=8)
+    envs = gymnasium.make_vec("wpam_mj/WPAMTrack-v0", num_envs=16)   # engine="batch"
     obs, infos = envs.reset(seed=0)          # env i seeded with 0 + i, as SyncVectorEnv
     obs, rewards, terminated, truncated, infos = envs.step(envs.action_space.sample())
 
-Same results as `gymnasium.vector.SyncVectorEnv` over N `WPAMEnv` (next-step autoreset,
-the registered `max_episode_steps`, infos batched the same way; tests/test_gym_env.py).
-The physics of the N environments is advanced by a `Stepper`, the one seam between the
-batch and the engine: `SerialStepper` steps each environment in turn today; a stepper
-that advances all N MuJoCo states at once (`mujoco.batch`, once the muscle is a MuJoCo
-actuator plugin) replaces it without touching the rest of this module.
+Same results, bit for bit, as `gymnasium.vector.SyncVectorEnv` over N `WPAMEnv`
+(next-step autoreset, the registered `max_episode_steps`, infos batched the same way;
+tests/test_vector_env.py). Two engines step the physics:
+
+  "batch"  all N MuJoCo states in one `mujoco.batch` call on `nthread` threads, the
+           muscle being the compiled plugin (docs/plugin.md). The step path is array
+           code only: the commands come from tables each environment's task fills at
+           its reset (Pi feedforward, target, drive) and, under action="residual", a
+           PI on arrays (`PIArrays`, `PoFeedback`'s arithmetic in the same order); the
+           observations, rewards, truncations and infos are computed on (N,) arrays
+           from the batch's tendon lengths and plugin states. Resets (explicit or
+           automatic) run each environment's own `WPAMEnv.reset` (its task draws
+           targets and loads with its seeded RandomState, as one environment does),
+           then copy that state into the batch: so a reset, and everything after it,
+           is the serial environment's.
+  "serial" each environment's `WPAMEnv.step` in turn (the reference, and the engine
+           where the compiled plugin is unavailable).
+"auto" takes "batch" when the plugin is available. During a batched episode the
+environments' own MuJoCo data is not advanced: `envs.envs[i]` keeps its reset state.
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
-from typing import Protocol
 
+import mujoco
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
+from mujoco import batch as mjbatch
 
+from wpam_mj.environments.dm_env_task import REWARD_BOUND
 from wpam_mj.environments.gym_env import WPAMEnv, check_episode_steps
-from wpam_mj.physics.params import ParameterError
+from wpam_mj.physics.params import MM, ParameterError
+from wpam_mj.simulation import plugin
+from wpam_mj.simulation.loop_contract import state_failure
 
-Transition = tuple[np.ndarray, float, bool, bool, dict]
-
-
-class Stepper(Protocol):
-    """Advances the environments at `indices` by one step each, with their actions."""
-
-    def step(self, envs: Sequence[WPAMEnv], indices: Sequence[int],
-             actions: Sequence[np.ndarray]) -> list[Transition]: ...
+ENGINES = ("auto", "batch", "serial")
+INFO_KEYS = ("time_s", "x_m", "target_m", "error_m", "pi_cmd_pa", "po_cmd_pa", "is_success")
+_STATE = mujoco.mjtState.mjSTATE_INTEGRATION
+_WARNING_NUMBER = 1  # mjWarningStat: (lastinfo, number)
 
 
-class SerialStepper:
-    """One environment after the other (the per-env engine of today)."""
+def default_threads(num_envs: int) -> int:
+    """Batch threads by default: one per CPU this process may run on, at most num_envs."""
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") \
+        else os.cpu_count() or 1
+    return max(1, min(num_envs, cpus))
 
-    def step(self, envs: Sequence[WPAMEnv], indices: Sequence[int],
-             actions: Sequence[np.ndarray]) -> list[Transition]:
-        return [envs[i].step(a) for i, a in zip(indices, actions)]
+
+class PIArrays:
+    """The paper's PI on Po (`wpam_mj.control.controllers.PoFeedback.evaluate` and
+    `commit`, the same operations in the same order) for N environments at once."""
+
+    def __init__(self, n: int) -> None:
+        self.kp, self.ki, self.kd, self.tf, self.dt, self.pa_per_unit, self.lo, self.hi = (
+            np.zeros(n) for _ in range(8))
+        self.integral, self.derivative, self.e_prev = np.zeros(n), np.zeros(n), np.zeros(n)
+        self.has_prev = np.zeros(n, dtype=bool)
+
+    def load(self, i: int, pi) -> None:
+        """Environment i takes the constants and state of the PoFeedback `pi`."""
+        for name in ("kp", "ki", "kd", "tf", "dt", "pa_per_unit", "lo", "hi", "integral",
+                     "derivative"):
+            getattr(self, name)[i] = getattr(pi, name)
+        self.has_prev[i] = pi.e_prev is not None
+        self.e_prev[i] = 0.0 if pi.e_prev is None else pi.e_prev
+
+    def update(self, x: np.ndarray, x_ref: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Po commands [Pa] of environments `rows` at contractions x and targets x_ref [m]
+        (arrays over `rows`), advancing their state."""
+        integral0 = self.integral[rows]
+        e = (x - x_ref) / MM
+        e_prev = np.where(self.has_prev[rows], self.e_prev[rows], e)
+        tf, dt = self.tf[rows], self.dt[rows]
+        derivative = (tf * self.derivative[rows] + (e - e_prev)) / (tf + dt)
+        integral = integral0 + e * dt
+        u = (self.kp[rows] * e + self.ki[rows] * integral + self.kd[rows] * derivative) \
+            * self.pa_per_unit[rows] + 0.0
+        lo, hi = self.lo[rows], self.hi[rows]
+        above, below = u > hi, u < lo
+        keep = (above & (e >= 0.0)) | (below & (e <= 0.0))  # conditional integration
+        self.integral[rows] = np.where(keep, integral0, integral)
+        self.derivative[rows], self.e_prev[rows], self.has_prev[rows] = derivative, e, True
+        return np.where(above, hi, np.where(below, lo, u))
 
 
 class WPAMVectorEnv(VectorEnv):
-    """`num_envs` `WPAMEnv(**kwargs)`; each env ends its episodes at its time_limit, which
-    `max_episode_steps` (gymnasium.make_vec passes the registered one) may not cut short."""
+    """`num_envs` `WPAMEnv(**kwargs)` stepped by `engine` ("auto", "batch" or "serial";
+    the module docstring) on `nthread` batch threads (default: `default_threads`). Each
+    environment ends its episodes at its time_limit, which `max_episode_steps`
+    (gymnasium.make_vec passes the registered one) may not cut short."""
 
     metadata = {"autoreset_mode": AutoresetMode.NEXT_STEP, "render_modes": []}
 
-    def __init__(self, num_envs: int = 1, *, max_episode_steps: int | None = None,
-                 stepper: Stepper | None = None, **kwargs) -> None:
+    def __init__(self, num_envs: int = 1, *, engine: str = "auto", nthread: int | None = None,
+                 autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+                 max_episode_steps: int | None = None, **kwargs) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) \
                 or num_envs < 1:
             raise ParameterError(f"num_envs = {num_envs!r} must be an integer >= 1")
+        if engine not in ENGINES:
+            raise ParameterError(f"engine = {engine!r}; valid engines: {', '.join(ENGINES)}")
+        if nthread is not None and (isinstance(nthread, bool) or not isinstance(
+                nthread, (int, np.integer)) or nthread < 1):
+            raise ParameterError(f"nthread = {nthread!r} must be an integer >= 1")
+        modes = (AutoresetMode.NEXT_STEP, AutoresetMode.SAME_STEP)
+        if autoreset_mode not in modes + tuple(m.value for m in modes):
+            raise ParameterError(f"autoreset_mode = {autoreset_mode!r}; valid: "
+                                 + ", ".join(m.value for m in modes))
+        self.autoreset_mode = AutoresetMode(autoreset_mode)
+        self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
+        if engine == "batch" and not plugin.available():
+            raise ParameterError(f"engine = 'batch' needs the compiled plugin, which is "
+                                 f"unavailable ({plugin.unavailable_reason()}); use "
+                                 "engine='serial'")
         self.envs = [WPAMEnv(**kwargs) for _ in range(num_envs)]
         self.num_envs = int(num_envs)
         self.single_action_space = self.envs[0].action_space
         self.single_observation_space = self.envs[0].observation_space
         self.action_space = batch_space(self.single_action_space, self.num_envs)
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
-        self._stepper = stepper or SerialStepper()
         check_episode_steps(self.envs[0].episode_steps, max_episode_steps)
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
+        self.engine = "batch" if engine == "batch" or (
+            engine == "auto" and plugin.available()) else "serial"
+        self._batch = _BatchedEpisodes(self.envs, nthread or default_threads(num_envs)) \
+            if self.engine == "batch" else None
 
     def reset(self, *, seed: int | Sequence[int | None] | None = None,
               options: dict | None = None) -> tuple[np.ndarray, dict]:
@@ -76,22 +147,62 @@ class WPAMVectorEnv(VectorEnv):
             o, info = env.reset(seed=s, options=options)
             obs.append(o)
             infos = self._add_info(infos, info, i)
+        obs = np.stack(obs)
+        if self._batch is not None:
+            self._batch.restart(np.arange(self.num_envs))
+            self._batch.obs[:] = obs
         self._autoreset[:] = False
-        return np.stack(obs), infos
+        return obs, infos
 
     def step(self, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
-        actions = np.asarray(actions)
+        if self._batch is None:
+            obs, rewards, terminated, truncated, infos = self._step_serial(np.asarray(actions))
+        else:
+            obs, rewards, terminated, truncated, infos = self._batch.step(actions,
+                                                                          self._autoreset)
+        ended = terminated | truncated
+        if self.autoreset_mode == AutoresetMode.SAME_STEP and ended.any():
+            obs, infos = self._reset_ended(np.flatnonzero(ended), obs, infos)
+            ended[:] = False
+        self._autoreset = ended
+        return obs, rewards, terminated, truncated, infos
+
+    def _reset_ended(self, ids: np.ndarray, obs: np.ndarray, infos: dict):
+        """Same-step autoreset (as SyncVectorEnv's): the episodes `ids` ended at this step
+        start again now; their last observation and info go to infos["final_obs"] and
+        infos["final_info"]."""
+        final: dict = {}
+        for i in ids:
+            info_i = {key: infos[key][i] for key in infos
+                      if not key.startswith("_") and infos[f"_{key}"][i]}
+            final = self._add_info(final, {"final_obs": obs[i].copy(), "final_info": info_i},
+                                   int(i))
+        obs = obs.copy()
+        for i in ids:
+            obs[i], reset_info = self.envs[i].reset()
+            for key in [k for k in infos if not k.startswith("_")]:
+                if key not in reset_info:
+                    infos[f"_{key}"] = infos[f"_{key}"].copy()
+                    infos[f"_{key}"][i] = False
+            for key, value in reset_info.items():
+                infos[key][i] = value
+        if self._batch is not None:
+            self._batch.restart(ids)
+            self._batch.obs[ids] = obs[ids]
+        return obs, {**infos, **final}
+
+    def _step_serial(self, actions: np.ndarray):
         n = self.num_envs
         obs = [None] * n
         rewards = np.zeros(n)
         terminated, truncated = np.zeros(n, dtype=bool), np.zeros(n, dtype=bool)
         infos_each: list[dict] = [{}] * n
-        for i in np.flatnonzero(self._autoreset):  # next-step autoreset
-            obs[i], infos_each[i] = self.envs[i].reset()
-        stepping = np.flatnonzero(~self._autoreset)
-        results = self._stepper.step(self.envs, stepping, [actions[i] for i in stepping])
-        for i, (o, r, term, trunc, info) in zip(stepping, results):
-            obs[i], rewards[i], terminated[i], truncated[i], infos_each[i] = o, r, term, trunc, info
+        for i in range(n):
+            if self._autoreset[i]:  # next-step autoreset
+                obs[i], infos_each[i] = self.envs[i].reset()
+            else:
+                obs[i], rewards[i], terminated[i], truncated[i], infos_each[i] = \
+                    self.envs[i].step(actions[i])
         infos: dict = {}
         for i, info in enumerate(infos_each):
             infos = self._add_info(infos, info, i)
@@ -101,3 +212,163 @@ class WPAMVectorEnv(VectorEnv):
     def close_extras(self, **kwargs) -> None:
         for env in self.envs:
             env.close()
+
+
+class _BatchedEpisodes:
+    """The N environments' episodes on one `mujoco.batch`: per-environment tables made at
+    reset, array code on the step path (see the module docstring)."""
+
+    def __init__(self, envs: list[WPAMEnv], nthread: int) -> None:
+        self.envs = envs
+        n = len(envs)
+        env = envs[0]
+        self.rig = env.physics.rig
+        self.sim = mjbatch.Batch(env.physics.model, n, nthread=nthread)
+        self.rows = np.arange(n)
+        self.action = env.task.action
+        self.scaling = env.scaling
+        self.n_sub = env.frame_skip
+        self.steps = env.step_limit
+        self.reward = env.task.rewards
+        # episode time at the start of each control step: MuJoCo adds dt per physics step
+        t = np.cumsum(np.full(self.steps * self.n_sub, env.physics.timestep()))
+        self.times = np.concatenate([[0.0], t[self.n_sub - 1::self.n_sub]])
+        lo, hi = env.task.action_bounds
+        self.a_lo, self.a_hi = lo, hi
+        self.po_lo, self.po_hi = env.task.po_range
+        self.k = np.zeros(n, dtype=np.int64)  # control steps into the episode
+        self.targets = np.zeros((n, self.steps + 1))
+        self.pi_ff = np.zeros((n, self.steps))
+        self.po_ff = np.zeros((n, self.steps))
+        self.length0, self.atmosphere, self.load = np.zeros(n), np.zeros(n), np.zeros(n)
+        self.x = np.zeros(n)  # contraction [m] at the start of the next step
+        self.obs = np.zeros((n, *env.observation_space.shape), env.observation_space.dtype)
+        self.pid = PIArrays(n) if self.action == "residual" else None
+        self.ten_length = self.sim.bind("ten_length")
+        self.ten_velocity = self.sim.bind("ten_velocity")
+        self.plugin_state = self.sim.bind("plugin_state")
+        self.ctrl = self.sim.bind("ctrl")
+        adr = self.rig.state
+        self.p_i, self.p_o = adr + plugin.FIELD["p_i"], adr + plugin.FIELD["p_o"]
+        self.status = adr + plugin.FIELD["status"]
+
+    def restart(self, ids: np.ndarray) -> None:
+        """Environments `ids` have just been reset: their state, model and tables in."""
+        for i in ids:
+            env = self.envs[i]
+            physics, task = env.physics, env.task
+            mujoco.mj_getState(physics.model, physics.data, self.sim.state[i], _STATE)
+            self.sim.warning[i] = 0  # warnings are no part of the state: as a reset data
+            self.k[i] = 0
+            self.length0[i] = physics.rig.length0
+            self.atmosphere[i] = physics.rig.atmosphere
+            self.load[i] = physics.load()
+            self.x[i] = physics.contraction()
+            self.targets[i] = task.targets_at(self.times)
+            if self.action != "both":
+                self.pi_ff[i], self.po_ff[i] = task.feedforward_at(self.times[:-1],
+                                                                   self.load[i])
+            if self.pid is not None:
+                self.pid.load(i, task.pi_controller)
+        models = [env.physics.model for env in self.envs]
+        if any(m.npluginstate != models[0].npluginstate for m in models):
+            raise ParameterError("engine='batch' needs one plugin state size for every "
+                                 "environment (a randomized dead time changes it); use "
+                                 "engine='serial'")
+        self.sim.set_models(models)  # set again: a reset edits the load's mass
+
+    def step(self, actions, autoreset: np.ndarray):
+        n = len(self.envs)
+        a = np.asarray(actions, dtype=np.float64)
+        if a.size != n * len(self.a_lo) or not np.isfinite(a).all():
+            raise ParameterError(f"actions must be ({n}, {len(self.a_lo)}) finite numbers; "
+                                 f"got shape {np.shape(actions)}")
+        a = a.reshape(n, -1)
+        command = a * self.a_hi if self.scaling is not None else a
+        command = np.minimum(np.maximum(command, self.a_lo), self.a_hi)
+        resetting = np.flatnonzero(autoreset) if autoreset.any() else ()
+        reset_info = [self.envs[i].reset() for i in resetting]
+        # the stepped environments: all (a slice: views, no copies) or those not resetting
+        rows, at = slice(None), self.rows
+        if len(resetting):
+            self.restart(resetting)
+            rows = at = np.flatnonzero(~autoreset)
+        k = self.k[rows]
+        if self.action == "both":
+            pi_cmd, po = command[rows, 0], command[rows, 1]
+        else:
+            pi_cmd, po = self.pi_ff[at, k], command[rows, 0]
+            if self.pid is not None:
+                po = self.pid.update(self.x[rows], self.targets[at, k], rows) + po
+            po = np.minimum(np.maximum(po + self.po_ff[at, k], self.po_lo), self.po_hi)
+        channels = self.rig.channels
+        self.ctrl[rows, channels[0]] = pi_cmd
+        self.ctrl[rows, channels[1]] = po
+        diverged = self._advance(rows, at)
+        k += 1
+        self.k[rows] = k
+        tendon = self.rig.tendon
+        x = self.length0[rows] - self.ten_length[rows, tendon]
+        state = self.plugin_state[rows]
+        target = self.targets[at, k]
+        error = x - target
+        # the SI observation (OBSERVATIONS order) and the tracking error
+        full = np.empty((len(x), 7))
+        full[:, 0], full[:, 4], full[:, 5], full[:, 6] = x, target, self.load[rows], error
+        np.negative(self.ten_velocity[rows, tendon], out=full[:, 1])
+        atmosphere = self.atmosphere[rows]
+        np.subtract(state[:, self.p_i], atmosphere, out=full[:, 2])
+        np.subtract(state[:, self.p_o], atmosphere, out=full[:, 3])
+        obs = full[:, :6] if self.scaling is None else self.scaling.normalised(full)
+        self.x[rows] = x
+        rewards, terminated = np.zeros(n), np.zeros(n, dtype=bool)
+        truncated = np.zeros(n, dtype=bool)
+        rewards[rows] = self.reward(error)
+        truncated[rows] = k >= self.steps
+        info = {"time_s": self.sim.time[rows], "x_m": x, "target_m": target,
+                "error_m": error, "pi_cmd_pa": pi_cmd, "po_cmd_pa": po,
+                "is_success": np.abs(error) <= REWARD_BOUND}
+        every = np.ones(n, dtype=bool)
+        every.flags.writeable = False  # one mask for every key: each environment has each
+        infos = {}
+        for key in INFO_KEYS:
+            values = info[key]  # each a new array but time_s, a view of the state
+            if len(resetting) or key == "time_s":
+                values = np.empty(n, dtype=values.dtype)
+                values[rows] = info[key]
+            infos[key], infos[f"_{key}"] = values, every
+        if diverged:  # rare: terminated, reward 0, the last valid observation kept
+            j = np.array(list(diverged))
+            ended = at[j]
+            obs[j] = self.obs[ended]
+            rewards[ended], terminated[ended], truncated[ended] = 0.0, True, False
+            infos["diverged"] = np.full(n, None, dtype=object)
+            infos["_diverged"] = np.zeros(n, dtype=bool)
+            infos["diverged"][ended] = list(diverged.values())
+            infos["_diverged"][ended] = True
+        self.obs[rows] = obs
+        for i, (o, info_i) in zip(resetting, reset_info):
+            self.obs[i] = o
+            for key in INFO_KEYS:
+                infos[key][i] = info_i[key]
+        return self.obs.copy(), rewards, terminated, truncated, infos
+
+    def _advance(self, rows, at: np.ndarray) -> dict[int, str]:
+        """One control step of the simulations `rows` (a slice or the indices `at`);
+        {position in rows: why} for those that diverged (the plugin's status, a MuJoCo
+        warning or error; `restart` zeroes a simulation's warning counters)."""
+        diverged: dict[int, str] = {}
+        try:
+            self.sim.step(None if isinstance(rows, slice) else rows, nstep=self.n_sub,
+                          stage=mujoco.mjtStage.mjSTAGE_VEL)
+        except mjbatch.SimulationError as err:
+            for i in err.ids:
+                diverged[int(np.flatnonzero(at == i)[0])] = self.sim.error(int(i))
+        failed = self.plugin_state[rows, self.status] != 0
+        warnings = self.sim.warning[rows, :, _WARNING_NUMBER]
+        if failed.any() or warnings.any():
+            for j in np.flatnonzero(failed | warnings.any(axis=1)):
+                state = self.plugin_state[at[j], self.rig.state:]
+                diverged.setdefault(int(j), state_failure(state) if failed[j]
+                                    else "MuJoCo warned of an invalid physics state")
+        return dict(sorted(diverged.items()))
