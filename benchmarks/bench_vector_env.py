@@ -6,7 +6,7 @@ for --steps vector steps after a reset, autoresets included when an episode ends
 counts environment steps per second of wall time (best of --repeats, rows interleaved).
 The batched engine's results are checked equal, bit for bit, to the serial engine's
 over the same steps (tests/test_vector_env.py checks this against SyncVectorEnv too).
-Targets (issue 30): >= 20,000 environment steps/s with 16 environments on two cores, two
+Targets: >= 20,000 environment steps/s with 16 environments on two cores, two
 batch threads >= 1.8x one. On a shared machine read them beside the load average and the
 parallel capacity printed with them: with another tenant on the cores, threads cannot
 scale.

@@ -296,7 +296,7 @@ except ValueError:
 
 
 def test_a_users_model_runs_on_the_python_engine_without_a_compiler(tmp_path):
-    """Issue 28: without a compiler a user's own MJCF loads through python_model, and
+    """Without a compiler a user's own MJCF loads through python_model, and
     compiling it directly says in one line what to call instead."""
     proc = _run(tmp_path, USER_MODEL, WPAM_MJ_NO_COMPILE="1")
     assert proc.returncode == 0, proc.stderr

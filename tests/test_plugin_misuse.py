@@ -1,6 +1,6 @@
 """The plugin in models nobody here wrote, and under misuse: a muscle only pulls, is defined
 at every tendon length, and no input, option edit or copy of its data crashes the host,
-poisons the state with NaN or starts MuJoCo's reset loop (issues 28 and 29).
+poisons the state with NaN or starts MuJoCo's reset loop.
 
 Each case names what it guards against; cases that could take the interpreter down run in
 a child process, so a crash fails the test instead of ending the run.
