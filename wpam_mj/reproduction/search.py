@@ -49,15 +49,11 @@ from wpam_mj.reproduction import findings
 from wpam_mj.fitting import estimation
 from wpam_mj.infra.pool import executor_for
 from wpam_mj.reproduction.calibrate import FREE, PaperTargets
-from wpam_mj.physics.params import MPA, Params, ParameterError, check_range, preset
+from wpam_mj.physics.params import Params, ParameterError, check_range, preset
 from wpam_mj.experiments.protocol import SHIPPED, Protocol
 from wpam_mj.reproduction.static_fit import STATIC_FIT, static_fit
 from wpam_mj.infra.files import write_text_atomic
 
-PHYSICAL = tuple(n for n in FREE if n not in (*STATIC_FIT, "controller.feedforward_friction",
-                                              "controller.po_feedforward"))
-PHI_RANGE = (0.0, 1.05)  # params' plausible range of controller.feedforward_friction
-PO_FF_RANGE_MPA = (0.005, 0.04)  # params' plausible range of controller.po_feedforward
 PO_RISE_SCALE_MPA = 0.01
 STEP_PP_MM = 0.2  # a converged plateau (Fig. 14: "quickly converges"); our reading
 TRACK_MM = 5.0  # half a 10 mm step: a PI staircase worse than this does not follow it
@@ -67,36 +63,9 @@ SEARCH_DT = 1e-3  # s, the physics step of every evaluation (as reproduce)
 POPSIZE, MAXITER = 3, 8  # `wpam search`'s defaults: 21 points a generation, 9 generations
 
 
-@dataclass(frozen=True)
-class Dim:
-    """One coordinate: a parameter "section.field", searched on
-    [lo, hi] (log: as log(value)) through u in [0, 1]."""
-
-    name: str
-    lo: float
-    hi: float
-    log: bool = False
-
-    def value(self, u: float) -> float:
-        if self.log:
-            return math.exp(math.log(self.lo) + u * (math.log(self.hi) - math.log(self.lo)))
-        return self.lo + u * (self.hi - self.lo)
-
-    def coordinate(self, value: float) -> float:
-        if self.log:
-            return (math.log(value) - math.log(self.lo)) / (math.log(self.hi) - math.log(self.lo))
-        return (value - self.lo) / (self.hi - self.lo)
-
-
-def _dim(name: str) -> Dim:
-    f = estimation.FreeParameter.of(name)
-    return Dim(name, f.lo, f.hi, f.log)
-
-
-
-SPACE = (*(_dim(n) for n in PHYSICAL),
-         Dim("controller.feedforward_friction", *PHI_RANGE),
-         Dim("controller.po_feedforward", PO_FF_RANGE_MPA[0] * MPA, PO_FF_RANGE_MPA[1] * MPA))
+# The searched coordinates: every fitted parameter but those the static fit places, each
+# on its plausible range (conductances in log scale), as `wpam calibrate` frees them.
+SPACE = tuple(estimation.FreeParameter.of(n) for n in FREE if n not in STATIC_FIT)
 
 
 @dataclass(frozen=True)
@@ -123,7 +92,7 @@ def _point_task(arg: tuple) -> Point | None:
     """The point at (u, base) with its fit by `fit` (default `static_fit`), None where
     its parameters are refused (a worker task)."""
     u, base, fit = arg
-    v = {d.name: d.value(x) for d, x in zip(SPACE, u)}
+    v = {d.name: d.from_z(x) for d, x in zip(SPACE, u)}
     try:
         params, protocol, err = fit(base.with_values(v), SHIPPED)
     except (ParameterError, ArithmeticError):
@@ -145,7 +114,7 @@ def point_of(u: Sequence[float], base: Params) -> Point:
 
 def coordinates_of(params: Params) -> np.ndarray:
     """The searched coordinates of a parameter set."""
-    return np.clip([d.coordinate(params.value(d.name)) for d in SPACE], 0.0, 1.0)
+    return np.array([d.to_z(params.value(d.name)) for d in SPACE])
 
 
 # ---- scoring: the cost and every finding's signed margin
