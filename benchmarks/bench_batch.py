@@ -18,10 +18,9 @@ import time
 
 import numpy as np
 
-from common import Figure, parallel_capacity, print_table
+from common import Figure, parallel_capacity, plugin_missing, print_table
 from wpam_mj.infra.pool import WorkerPool
 from wpam_mj import preset
-from wpam_mj.simulation import plugin
 from wpam_mj.experiments.drives import drive_for_targets, step_targets
 from wpam_mj.simulation.simulate import Run, simulate, simulate_many
 
@@ -85,8 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=20.0, help="seconds per run")
     parser.add_argument("--repeats", type=int, default=3, help="best of (default 3)")
     args = parser.parse_args(argv)
-    if not plugin.available():
-        print(f"plugin unavailable: {plugin.unavailable_reason()}")
+    if plugin_missing():
         return 1
     best, same = measure(make_runs(args.runs, args.duration), args.repeats)
     print(f"{args.runs} PI runs of {args.duration:g} s, dt {DT * 1e3:g} ms, best of "

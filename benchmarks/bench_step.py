@@ -37,7 +37,7 @@ from pathlib import Path
 import mujoco
 import numpy as np
 
-from common import Figure, print_table
+from common import Figure, plugin_missing, print_table
 from wpam_mj import Drive, preset
 from wpam_mj.simulation import plugin
 from wpam_mj.control.controllers import pi_feedforward
@@ -160,8 +160,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--instructions", action="store_true",
                         help="also count the plugin's instructions per step with callgrind")
     args = parser.parse_args(argv)
-    if not plugin.available():
-        print(f"plugin unavailable: {plugin.unavailable_reason()}")
+    if plugin_missing():
         return 1
     best = measure(args.steps, args.python_steps, args.repeats)
     ref = best[REFERENCE]

@@ -24,8 +24,7 @@ import gymnasium
 import numpy as np
 
 import wpam_mj  # noqa: F401 (registers the ids)
-from common import Figure, describe, print_table
-from wpam_mj.simulation import plugin
+from common import Figure, describe, plugin_missing, print_table
 
 ENV_ID = "wpam_mj/WPAMTrack-v0"
 TARGET_RATE = 20_000  # environment steps/s, 16 envs, two cores
@@ -79,8 +78,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--steps", type=int, default=2000, help="vector steps per row")
     parser.add_argument("--repeats", type=int, default=3, help="best of (default 3)")
     args = parser.parse_args(argv)
-    if not plugin.available():
-        print(f"plugin unavailable: {plugin.unavailable_reason()}")
+    if plugin_missing():
         return 1
     best, same = measure(args.envs, args.steps, args.repeats)
     print(f"{args.envs} environments of {ENV_ID}, {args.steps} vector steps, best of "

@@ -66,3 +66,14 @@ def parallel_capacity(repeats: int = 3) -> float:
 def describe() -> str:
     return (f"machine: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f}, "
             f"parallel capacity {parallel_capacity():.2f} of 2 cores")
+
+
+def plugin_missing() -> bool:
+    """True (after one line saying why) when the compiled plugin a benchmark times is not
+    available."""
+    from wpam_mj.simulation import plugin  # noqa: PLC0415 (only the plugin benchmarks ask)
+
+    if plugin.available():
+        return False
+    print(f"plugin unavailable: {plugin.unavailable_reason()}")
+    return True

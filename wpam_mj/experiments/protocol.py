@@ -83,7 +83,7 @@ class Protocol:
 # protocol readings"):
 #   * one Pi ramp for every load, as Fig. 8 draws the three loads on one set of axes; its
 #     top is a reading the paper does not state, fitted with the plant by `wpam search`
-#     inside `wpam_mj.reproduction.search.RAMP_TOP_RANGE_MPA`;
+#     inside `wpam_mj.reproduction.static_fit.RAMP_TOP_RANGE_MPA`;
 #   * every lobe of a loop counted ("branches"): the paper defines the absence of
 #     hysteresis as x uniquely determined by Pi (§3), so the area measures how far x(Pi)
 #     is from one-valued, the integral of |x_down - x_up| dPi; a signed closed-curve
