@@ -103,6 +103,41 @@ def test_the_archive_maps_which_findings_conflict(tmp_path):
     assert findings_map.figure(pm, tmp_path / "map.png", "test").stat().st_size > 1000
 
 
+def test_the_rest_map_finds_the_finding_the_others_leave_open(tmp_path):
+    """With every other finding held, the stand-in's gain spread misses (its Kf must be
+    above 0.8 for the row and below 0.7 for the spread): the rest map says so, and says
+    the row holds wherever the others do once Kf is low."""
+    records = _search(tmp_path).records
+    rest = findings_map.rest_margins(records)
+    assert rest["gain_spread"] < 0.0
+    assert "With every other finding held" in findings_map.rest_verdict(records)
+
+
+def test_the_checks_objective_counts_each_shortfall_once_and_caps_it():
+    margins = dict.fromkeys(search.FINDINGS, 1.0)
+    met = search.Record((0.5,), 7.0, margins, {})
+    assert search.shortfall(met) == 0.0  # calibrate's cost may still be 7
+    one = search.Record((0.5,), 7.0, {**margins, "gain_spread": -0.4}, {})
+    assert search.shortfall(one) == pytest.approx(0.4 + paper.CALIBRATION_HEADROOM)
+    far = search.Record((0.5,), 7.0, {**margins, "steps_settle": -50.0}, {})
+    assert search.shortfall(far) == search.SHORTFALL_CAP
+    failed = search.Record((0.5,), search.FAILED_COST, None, None)
+    assert search.shortfall(failed) == search.FAILED_COST
+
+
+def test_a_search_on_the_checks_objective_is_seeded_and_converges_on_it(tmp_path):
+    first = _search(tmp_path / "a", objective="checks")
+    assert first.best == _search(tmp_path / "b", objective="checks").best
+    conv = search.convergence(first.records, "checks")
+    assert conv[-1][1] == min(search.shortfall(r) for r in first.records)
+    assert all(a[1] >= b[1] for a, b in zip(conv, conv[1:]))
+    with pytest.raises(ParameterError, match="objective = 'count' must be one of"):
+        _search(tmp_path / "c", objective="count")
+    written = search.write_outputs(tmp_path / "a", first.records, preset("wpam"),
+                                   objective="checks")
+    assert {p.name for p in written} >= {"best.toml", "convergence.png", "feasibility.md"}
+
+
 def test_convergence_is_the_running_best_in_scoring_order(tmp_path):
     records = _search(tmp_path).records
     conv = search.convergence(records)

@@ -42,6 +42,10 @@ def add_parsers(add) -> None:
                    help="generations after the first population (default: 8: at most 190 "
                         "points, those the screen rejects scored in milliseconds; "
                         "docs/physics.md gives the time)")
+    p.add_argument("--objective", choices=("cost", "checks"), default="cost",
+                   help="what the search minimises: calibrate's cost (default), or the "
+                        "summed shortfall of the paper's checks and settled PI steps "
+                        "(docs/physics.md); either replays any journal")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted search in --out: journaled points are "
                         "replayed, not run again (a finished search replays in seconds)")
@@ -116,13 +120,15 @@ def _cmd_search(args: argparse.Namespace) -> int:
     out = writable_dir(Path("out") / "search" if args.out is None else args.out)
     from wpam_mj.reproduction import search  # noqa: PLC0415 (scipy, matplotlib: slow imports)
     if args.map_only:
-        written = search.write_outputs(out, search.load_records(out), run.params)
+        written = search.write_outputs(out, search.load_records(out), run.params,
+                                       objective=args.objective)
     else:
         sizes = {k: v for k, v in (("popsize", args.popsize), ("maxiter", args.maxiter))
                  if v is not None}
         jobs = run.jobs if args.scheduler is None else Cluster(args.scheduler)
         written = search.write_search(out, base=run.params, seed=args.seed, jobs=jobs,
-                                      resume=args.resume, progress=run.progress, **sizes)
+                                      resume=args.resume, progress=run.progress,
+                                      objective=args.objective, **sizes)
     for path in written:
         print(f"wrote {path}")
     return 0

@@ -69,11 +69,35 @@ def verdict(pm: np.ndarray) -> str:
     return "\n".join(lines)
 
 
-def best_compromise(records: Sequence[Record]) -> Record:
-    """The tracking point of least cost: calibrate's one cost weighs by how much each
-    finding is missed, where a count of findings met would take a Table 2 cell 20x
-    off the paper for one more frequency-response finding."""
-    return min((r for r in records if r.tracks), key=lambda r: r.cost)
+def rest_margins(records: Sequence[Record]) -> dict[str, float]:
+    """Per finding: its best margin among the points at which every other finding holds
+    (NaN: no point holds all the others). Negative: among the points searched, that
+    finding conflicts with the rest taken together, by that much at least."""
+    m = margin_matrix(records)
+    out = {}
+    for i, f in enumerate(FINDINGS):
+        rest = np.all(np.delete(m, i, axis=1) >= 0.0, axis=1)
+        out[f] = float(m[rest, i].max()) if rest.any() else math.nan
+    return out
+
+
+def rest_verdict(records: Sequence[Record]) -> str:
+    """`rest_margins` as text: which findings the others, held together, leave open."""
+    lines = ["With every other finding held (best margin of the finding; points holding "
+             "all the others):"]
+    m = margin_matrix(records)
+    for i, (f, v) in enumerate(rest_margins(records).items()):
+        n = int(np.all(np.delete(m, i, axis=1) >= 0.0, axis=1).sum())
+        lines.append(f"- {FINDING_TEXT[f]}: " + ("no point holds all the others"
+                                                  if math.isnan(v) else f"{v:+.2f} ({n})"))
+    return "\n".join(lines)
+
+
+def best_compromise(records: Sequence[Record], objective=lambda r: r.cost) -> Record:
+    """The tracking point of least `objective` (default calibrate's one cost, which
+    weighs by how much each finding is missed, where a count of findings met would take
+    a Table 2 cell 20x off the paper for one more frequency-response finding)."""
+    return min((r for r in records if r.tracks), key=objective)
 
 
 def most_findings(records: Sequence[Record]) -> Record:
@@ -131,14 +155,14 @@ def figure(pm: np.ndarray, path: Path, title: str) -> Path:
 
 
 def convergence_csv(conv: Sequence[tuple[int, float, int]]) -> str:
-    """`search.convergence` as CSV: points scored, least cost and most of `wpam
+    """`search.convergence` as CSV: points scored, least objective and most of `wpam
     reproduce`'s checks met so far."""
     return "points_scored,best_cost,most_checks_met\n" + "".join(
         f"{i},{c!r},{h}\n" for i, c, h in conv)
 
 
 def convergence_figure(runs: dict[str, Sequence[tuple[int, float, int]]], path: Path,
-                       title: str) -> Path:
+                       title: str, objective: str = "calibrate's cost 1/2 |r|^2") -> Path:
     """Least cost (log scale) and most findings met against points scored, one line per
     search (`runs`: label -> `search.convergence`), as PNG."""
     import matplotlib  # noqa: PLC0415 (plotting only here)
@@ -151,7 +175,7 @@ def convergence_figure(runs: dict[str, Sequence[tuple[int, float, int]]], path: 
         top.step(i, np.minimum(cost, 1e3), where="post", label=label)
         bottom.step(i, held, where="post", label=label)
     top.set_yscale("log")
-    top.set_ylabel("least cost so far (1/2 |r|^2)")
+    top.set_ylabel(f"least so far: {objective}", fontsize=8)
     bottom.set_ylabel(f"most checks met (of {len(PAPER_CHECKS)})")
     bottom.set_xlabel("points scored")
     bottom.axhline(6, color="grey", lw=0.8, ls=":")

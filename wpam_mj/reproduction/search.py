@@ -44,7 +44,7 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import differential_evolution
 
-from wpam_mj.paper import TABLE2_PO_RTOL
+from wpam_mj.paper import CALIBRATION_HEADROOM, TABLE2_PO_RTOL
 from wpam_mj.reproduction import findings
 from wpam_mj.fitting import estimation
 from wpam_mj.infra.pool import executor_for
@@ -177,6 +177,28 @@ class Record:
         return cls(tuple(d["u"]), d["cost"], d["margins"], d["figures"])
 
 
+# ---- objectives: what DE minimises (journals keep margins, so either replays any journal)
+
+SHORTFALL_CAP = 3.0  # scale units: one far miss counts as three near ones, no more
+
+
+def shortfall(rec: Record) -> float:
+    """The "checks" objective: how far the point falls short of every check of `wpam
+    reproduce` and of settled PI steps, each shortfall in units of its margin's scale
+    measured from CALIBRATION_HEADROOM past its limit and capped at SHORTFALL_CAP (0:
+    all met with headroom). Unlike calibrate's cost it asks no more of a finding than
+    its check does, so a point's value falls only by meeting checks."""
+    if rec.margins is None:
+        return rec.cost  # failed or screened out: the same large cost as "cost"
+    return sum(min(max(0.0, CALIBRATION_HEADROOM - rec.margins[f]), SHORTFALL_CAP)
+               for f in (*PAPER_CHECKS, "steps_settle"))
+
+
+OBJECTIVES = {"cost": lambda rec: rec.cost, "checks": shortfall}
+OBJECTIVE_TEXT = {"cost": "calibrate's cost 1/2 |r|^2",
+                  "checks": "summed shortfall of the checks and settled steps"}
+
+
 def _figures(scores) -> dict:
     """The numbers a reader checks a point by (display units)."""
     return {"table2_po_row": list(scores.table2_po_row),
@@ -259,8 +281,9 @@ class Evaluator:
 
     def __init__(self, base: Params, journal: Journal, executor: Executor | None,
                  targets=None, progress: bool = False, planned: int = 0,
-                 fit=None) -> None:
+                 fit=None, objective: str = "cost") -> None:
         self.base, self.journal, self.executor = base, journal, executor
+        self.objective = OBJECTIVES[objective]  # Record -> the value DE minimises
         self.fit = fit or static_fit  # (params, protocol) -> (params, static error)
         # targets(protocol) -> `Targets`-like (a cheap stand-in in the smoke test)
         self.targets = targets or (lambda protocol: Targets(SEARCH_DT, protocol))
@@ -289,7 +312,7 @@ class Evaluator:
     def costs(self, func, us) -> list[float]:
         """The map-like `workers` of `differential_evolution` (func: its own wrapper of
         `cost`, replaced here by the batched, journaled evaluation)."""
-        return [r.cost for r in self.records([list(u) for u in us])]
+        return [self.objective(r) for r in self.records([list(u) for u in us])]
 
     def _run(self, us: list) -> list[Record]:
         points = self._points(us)
@@ -328,17 +351,18 @@ class Evaluator:
         if not self.progress:
             return
         elapsed = time.perf_counter() - self.started
-        best = min((r.cost for r in self.journal.records.values()), default=math.inf)
+        best = min((self.objective(r) for r in self.journal.records.values()),
+                   default=math.inf)
         rate = elapsed / self.ran if self.ran else 0.0
         left = max(0, self.planned - self.seen) * rate
         print(f"[search] {self.seen}/{self.planned} points ({self.ran} run, "
-              f"{elapsed / 60:.1f} min), best cost {best:.4f}, ~{left / 60:.1f} min left",
+              f"{elapsed / 60:.1f} min), best {best:.4f}, ~{left / 60:.1f} min left",
               file=sys.stderr, flush=True)
 
 
 def cost(u, evaluator: Evaluator) -> float:
-    """One point's cost (what DE would call without `workers`)."""
-    return evaluator.records([list(u)])[0].cost
+    """One point's objective (what DE would call without `workers`)."""
+    return evaluator.objective(evaluator.records([list(u)])[0])
 
 
 # ---- the search
@@ -362,15 +386,18 @@ def planned_evaluations(popsize: int, maxiter: int) -> int:
 def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
            popsize: int = POPSIZE, maxiter: int = MAXITER, jobs: int = 2,
            resume: bool = False, progress: bool = True, targets=None,
-           fit=None) -> SearchResult:
+           fit=None, objective: str = "cost") -> SearchResult:
     """Run DE over SPACE, every coordinate drawn from its whole range (a Latin hypercube,
     not started from any known point): `base` (default: the wpam preset) gives only the
     parameters that are not searched. Journals to `out`/journal.jsonl (None: in memory).
 
     popsize: DE's multiplier (population popsize * len(SPACE)); maxiter: generations;
     targets: protocol -> `Targets` (default: the paper's, at SEARCH_DT); fit: the static
-    screen (default `static_fit`).
+    screen (default `static_fit`); objective: what DE minimises (OBJECTIVES).
     """
+    if objective not in OBJECTIVES:
+        raise ParameterError(f"objective = {objective!r} must be one of "
+                             f"{', '.join(OBJECTIVES)}")
     check_range("popsize", popsize, 1, 100)
     check_range("maxiter", maxiter, 0, 1000)
     check_range("seed", seed, 0, 2**32 - 1)
@@ -382,7 +409,7 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
     started = time.perf_counter()
     with executor_for(jobs) as ex:
         ev = Evaluator(base, journal, ex, targets, progress,
-                       planned_evaluations(popsize, maxiter), fit)
+                       planned_evaluations(popsize, maxiter), fit, objective)
         res = differential_evolution(
             cost, [(0.0, 1.0)] * len(SPACE), args=(ev,), seed=seed, popsize=popsize,
             maxiter=maxiter, tol=0.0, polish=False, init="latinhypercube",
@@ -393,12 +420,13 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
                         str(res.message))
 
 
-def convergence(records: Sequence[Record]) -> list[tuple[int, float, int]]:
-    """(points scored, least cost so far, most findings met so far) after each point, in
-    the order the search scored them."""
+def convergence(records: Sequence[Record],
+                objective: str = "cost") -> list[tuple[int, float, int]]:
+    """(points scored, least objective so far, most findings met so far) after each
+    point, in the order the search scored them."""
     out, cost, held = [], math.inf, 0
     for i, r in enumerate(records, 1):
-        cost, held = min(cost, r.cost), max(held, r.held)
+        cost, held = min(cost, OBJECTIVES[objective](r)), max(held, r.held)
         out.append((i, cost, held))
     return out
 
@@ -436,7 +464,8 @@ def write_search(out: Path, **kw) -> list[Path]:
     timing = (f"{r.evaluations} points in {r.seconds / 60:.1f} min wall, "
               f"{(_cpu_seconds() - cpu0) / 60:.1f} CPU-min (load average {load0:.2f} at "
               f"the start, {os.getloadavg()[0]:.2f} at the end); {r.message}")
-    return write_outputs(out, r.records, kw.get("base") or preset("wpam"), timing)
+    return write_outputs(out, r.records, kw.get("base") or preset("wpam"), timing,
+                         kw.get("objective", "cost"))
 
 
 def _cpu_seconds() -> float:
@@ -448,29 +477,31 @@ def _cpu_seconds() -> float:
 
 
 def write_outputs(out: Path, records: Sequence[Record], base: Params,
-                  timing: str = "") -> list[Path]:
-    """The best compromise of `records` (best.toml, best.txt), how the search converged
-    (convergence.csv, convergence.png) and their feasibility map (feasibility.md,
-    feasibility.png) in `out`."""
+                  timing: str = "", objective: str = "cost") -> list[Path]:
+    """The best compromise of `records` under `objective` (best.toml, best.txt), how the
+    search converged (convergence.csv, convergence.png) and their feasibility map
+    (feasibility.md, feasibility.png) in `out`."""
     from wpam_mj.reproduction import findings_map  # noqa: PLC0415 (it imports this module)
 
-    conv = convergence(records)
+    conv = convergence(records, objective)
     written = [write_text_atomic(out / "convergence.csv", findings_map.convergence_csv(conv)),
                findings_map.convergence_figure(
                    {out.name: conv}, out / "convergence.png",
                    f"Convergence of the search: {len(records)} points, "
-                   f"{sum(r.margins is not None for r in records)} simulated")]
+                   f"{sum(r.margins is not None for r in records)} simulated",
+                   OBJECTIVE_TEXT[objective])]
     if not any(r.tracks for r in records):
         return written  # nothing simulated tracks its targets: no map to draw
     pm = findings_map.pair_margins(records)
-    best = findings_map.best_compromise(records)
+    best = findings_map.best_compromise(records, OBJECTIVES[objective])
     most = findings_map.most_findings(records)
     return written + [write_text_atomic(out / "best.toml", point_toml(point_of(best.u, base))),
             write_text_atomic(out / "best.txt", summary(timing, best, base) + "\n"
                               + "the point meeting the most findings:\n"
                               + summary("", most, base)),
             write_text_atomic(out / "feasibility.md", findings_map.markdown(pm, records)
-                              + "\n\n" + findings_map.verdict(pm) + "\n"),
+                              + "\n\n" + findings_map.verdict(pm) + "\n\n"
+                              + findings_map.rest_verdict(records) + "\n"),
             findings_map.figure(pm, out / "feasibility.png",
                                 f"Feasibility of the paper's findings: {len(records)} "
                                 "points of the credible box and protocol readings")]
