@@ -1,6 +1,7 @@
 """The global search of the credible box, as `wpam search` (a thin wrapper for background runs).
 
     nice -n 10 python scripts/global_search.py --out out/search --seed 20 [--resume]
+        [--objective checks]
 
 Journals every point to OUT/journal.jsonl (resumable), prints progress with the time
 left, and writes OUT/best.toml, best.txt, convergence.csv, convergence.png,
@@ -23,9 +24,11 @@ def main() -> None:
     ap.add_argument("--maxiter", type=int, default=search.MAXITER)
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--resume", action="store_true")
+    ap.add_argument("--objective", choices=tuple(search.OBJECTIVES), default="cost")
     a = ap.parse_args()
     for path in search.write_search(a.out, seed=a.seed, popsize=a.popsize,
-                                    maxiter=a.maxiter, jobs=a.jobs, resume=a.resume):
+                                    maxiter=a.maxiter, jobs=a.jobs, resume=a.resume,
+                                    objective=a.objective):
         print(f"wrote {path}")
 
 

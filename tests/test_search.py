@@ -111,6 +111,9 @@ def test_the_rest_map_finds_the_finding_the_others_leave_open(tmp_path):
     rest = findings_map.rest_margins(records)
     assert rest["gain_spread"] < 0.0
     assert "With every other finding held" in findings_map.rest_verdict(records)
+    n, most, missed = findings_map.held_with(records, "gain_spread")
+    assert n == sum(r.margins["gain_spread"] >= 0.0 for r in records if r.tracks) > 0
+    assert "table2_po_row" in missed and most == len(search.PAPER_CHECKS) - len(missed)
 
 
 def test_the_checks_objective_counts_each_shortfall_once_and_caps_it():

@@ -93,6 +93,19 @@ def rest_verdict(records: Sequence[Record]) -> str:
     return "\n".join(lines)
 
 
+def held_with(records: Sequence[Record], kept: str) -> tuple[int, int, list[str]]:
+    """Among the tracking points at which finding `kept` holds: how many there are, the
+    most of `wpam reproduce`'s checks one of them meets, and the checks that point (the
+    least shortfall among those meeting most) misses. (0, 0, []) when none holds it."""
+    from wpam_mj.reproduction.search import shortfall  # noqa: PLC0415 (it imports this module)
+
+    ok = [r for r in records if r.tracks and r.margins[kept] >= 0.0]
+    if not ok:
+        return 0, 0, []
+    best = min(ok, key=lambda r: (-r.held, shortfall(r)))
+    return len(ok), best.held, [f for f in PAPER_CHECKS if best.margins[f] < 0.0]
+
+
 def best_compromise(records: Sequence[Record], objective=lambda r: r.cost) -> Record:
     """The tracking point of least `objective` (default calibrate's one cost, which
     weighs by how much each finding is missed, where a count of findings met would take
