@@ -1,9 +1,11 @@
 """What the searches' journals say together: per journal and pooled, the points that track
 their steps, those whose PI steps settle, the most of `wpam reproduce`'s checks met at all
 and with settled steps (and what that point misses), and each finding's best margin with
-every other finding held (docs/physics.md, "Where the physics cannot reach the paper").
+every other finding held (docs/physics.md, "Where the physics cannot reach the paper");
+with --figure, their convergence on one yardstick, the checks' summed shortfall
+(`search.shortfall`, whatever objective each search minimised), and the most checks met.
 
-    python scripts/search_evidence.py out/search-20 out/search-21 ...
+    python scripts/search_evidence.py out/search-20 out/search-21 ... [--figure F.png]
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ def _line(name: str, records: list) -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("dirs", type=Path, nargs="+", help="folders holding a journal.jsonl")
+    ap.add_argument("--figure", type=Path, help="convergence of every journal (PNG)")
     a = ap.parse_args()
     runs = {d.name: search.load_records(d) for d in a.dirs}
     pooled = [r for rs in runs.values() for r in rs]
@@ -34,6 +37,12 @@ def main() -> None:
         print(_line(name, records))
     print()
     print(findings_map.rest_verdict(pooled))
+    if a.figure:
+        conv = {name: search.convergence(rs, "checks") for name, rs in runs.items()}
+        findings_map.convergence_figure(
+            conv, a.figure, f"Convergence of {len(runs)} searches ({len(pooled)} points)",
+            search.OBJECTIVE_TEXT["checks"])
+        print(f"wrote {a.figure}")
 
 
 if __name__ == "__main__":

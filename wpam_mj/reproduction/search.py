@@ -195,8 +195,7 @@ def shortfall(rec: Record) -> float:
 
 
 OBJECTIVES = {"cost": lambda rec: rec.cost, "checks": shortfall}
-OBJECTIVE_TEXT = {"cost": "calibrate's cost 1/2 |r|^2",
-                  "checks": "summed shortfall of the checks and settled steps"}
+OBJECTIVE_TEXT = {"cost": "calibrate's cost 1/2 |r|^2", "checks": "checks' summed shortfall"}
 
 
 def _figures(scores) -> dict:
@@ -422,11 +421,13 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
 
 def convergence(records: Sequence[Record],
                 objective: str = "cost") -> list[tuple[int, float, int]]:
-    """(points scored, least objective so far, most findings met so far) after each
+    """(points scored, least objective so far, most checks met so far by a point whose
+    PI staircase tracks its targets: `Record.tracks`, as the map counts them) after each
     point, in the order the search scored them."""
     out, cost, held = [], math.inf, 0
     for i, r in enumerate(records, 1):
-        cost, held = min(cost, OBJECTIVES[objective](r)), max(held, r.held)
+        cost = min(cost, OBJECTIVES[objective](r))
+        held = max(held, r.held if r.tracks else 0)
         out.append((i, cost, held))
     return out
 
