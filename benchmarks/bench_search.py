@@ -50,7 +50,7 @@ def screened_points(n: int) -> list[search.Point]:
     base, points = preset("wpam"), []
     sample = qmc.LatinHypercube(d=len(search.SPACE), seed=SEED).random(8 * n)
     for u in sample:
-        p = search._point_task((tuple(float(x) for x in u), base, search.static_fit))
+        p = search._point_task((tuple(float(x) for x in u), base, search.GLOBAL))
         if p is not None and p.static_error <= search.TABLE2_PO_RTOL:
             points.append(p)
             if len(points) == n:

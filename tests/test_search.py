@@ -185,10 +185,26 @@ def test_the_static_fit_brings_a_scrambled_point_back_to_the_row():
 def test_coordinates_round_trip():
     base = preset("wpam")
     u = search.coordinates_of(base)
-    point = search._point_task((tuple(u), base, _fit))
+    point = search._point_task((tuple(u), base, search.Region(search.GLOBAL.names, _fit)))
     assert point.protocol == SHIPPED
     for d in search.SPACE:
         assert point.params.value(d.name) == pytest.approx(base.value(d.name), rel=1e-12)
+
+
+def test_a_local_search_varies_only_the_readings_it_frees_and_starts_at_the_base(tmp_path):
+    base = preset("wpam")
+    free = ("pneumatics.outer_conductance", "controller.po_feedforward")
+    r = _search(tmp_path, free=free, radius=0.1)
+    z0 = search.coordinates_of(base, search.local_region(free))
+    assert r.records[0].u == pytest.approx(tuple(z0))  # DE's first member: the base point
+    for rec in r.records:
+        assert len(rec.u) == 2 and all(abs(u - z) <= 0.1 + 1e-12 for u, z in zip(rec.u, z0))
+    point = search.point_of(r.best.u, base, search.Region(free, _fit))
+    changed = {n for n in search.FREE if point.params.value(n) != base.value(n)}
+    assert changed <= set(free)
+    for bad in ("muscle.friction_coeff", "controller.kp"):
+        with pytest.raises(ParameterError, match=f"--free {bad}"):
+            search.local_region([bad])
 
 
 def test_the_command_line_states_the_search_defaults():

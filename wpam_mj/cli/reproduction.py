@@ -46,6 +46,14 @@ def add_parsers(add) -> None:
                    help="what the search minimises: calibrate's cost (default), or the "
                         "summed shortfall of the paper's checks and settled PI steps "
                         "(docs/physics.md); either replays any journal")
+    p.add_argument("--free", metavar="NAMES",
+                   help="a local search instead: only these dynamic readings (comma-"
+                        "separated, e.g. pneumatics.outer_conductance,controller."
+                        "po_feedforward), around the --config point, without the static "
+                        "fit (the Po row's plant stays the point's)")
+    p.add_argument("--radius", type=float, default=0.25, metavar="R",
+                   help="with --free: the box is +-R of each range around the point "
+                        "(default: 0.25)")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted search in --out: journaled points are "
                         "replayed, not run again (a finished search replays in seconds)")
@@ -119,16 +127,22 @@ def _cmd_search(args: argparse.Namespace) -> int:
     run = run_options(args)  # the search's shipped point: the preset plus --config
     out = writable_dir(Path("out") / "search" if args.out is None else args.out)
     from wpam_mj.reproduction import search  # noqa: PLC0415 (scipy, matplotlib: slow imports)
+    free = None if args.free is None else [n.strip() for n in args.free.split(",")]
+    if free is not None and not all(free):
+        raise ParameterError(f"--free {args.free!r}: give parameter names separated by "
+                             "commas")
     if args.map_only:
+        region = search.GLOBAL if free is None else search.local_region(free)
         written = search.write_outputs(out, search.load_records(out), run.params,
-                                       objective=args.objective)
+                                       objective=args.objective, region=region)
     else:
         sizes = {k: v for k, v in (("popsize", args.popsize), ("maxiter", args.maxiter))
                  if v is not None}
         jobs = run.jobs if args.scheduler is None else Cluster(args.scheduler)
         written = search.write_search(out, base=run.params, seed=args.seed, jobs=jobs,
                                       resume=args.resume, progress=run.progress,
-                                      objective=args.objective, **sizes)
+                                      objective=args.objective, free=free,
+                                      radius=args.radius, **sizes)
     for path in written:
         print(f"wrote {path}")
     return 0

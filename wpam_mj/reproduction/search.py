@@ -39,7 +39,7 @@ import time
 from concurrent.futures import Executor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 from scipy.optimize import differential_evolution
@@ -68,42 +68,68 @@ POPSIZE, MAXITER = 3, 8  # `wpam search`'s defaults: 21 points a generation, 9 g
 SPACE = tuple(estimation.FreeParameter.of(n) for n in FREE if n not in STATIC_FIT)
 
 
+def keep_static(params: Params, protocol: Protocol) -> tuple[Params, Protocol, float]:
+    """No static fit: the static plant and the ramp top stay the base point's (a local
+    search of the dynamic readings; the Po row is then checked by simulation alone)."""
+    return params, protocol, 0.0
+
+
+@dataclass(frozen=True)
+class Region:
+    """What a search varies: `names`, each on its plausible range scaled to [0, 1]
+    (`estimation.FreeParameter`), and the `fit` every point gets, (params, protocol) ->
+    (params, protocol, static error)."""
+
+    names: tuple[str, ...]
+    fit: Callable = static_fit
+
+    @property
+    def dims(self) -> tuple[estimation.FreeParameter, ...]:
+        return tuple(estimation.FreeParameter.of(n) for n in self.names)
+
+
+# `wpam search`'s default: the whole box, every point on the Po row's strip
+GLOBAL = Region(tuple(d.name for d in SPACE))
+
+
 @dataclass(frozen=True)
 class Point:
     """A parameter set and a protocol; `static_error` is the worst relative error of the
-    quasi-static Table 2 "Po = 0.04" row its static fit reached (`static_fit`)."""
+    quasi-static Table 2 "Po = 0.04" row its static fit reached (`static_fit`);
+    `searched`: the names its search varied."""
 
     params: Params
     protocol: Protocol
     static_error: float = 0.0
+    searched: tuple[str, ...] = GLOBAL.names
 
     def values(self) -> dict[str, object]:
         """Every searched and statically fitted value by name, and the ramp top."""
-        out: dict[str, object] = {d.name: self.params.value(d.name) for d in SPACE}
+        out: dict[str, object] = {n: self.params.value(n) for n in self.searched}
         out.update({n: self.params.value(n) for n in STATIC_FIT})
         out["protocol.ramp_top"] = self.protocol.ramp_top
         return out
 
 
-_POINTS: dict[tuple, Point | None] = {}  # (u, base, fit) -> point: each fitted once
+_POINTS: dict[tuple, Point | None] = {}  # (u, base, region) -> point: each fitted once
 
 
 def _point_task(arg: tuple) -> Point | None:
-    """The point at (u, base) with its fit by `fit` (default `static_fit`), None where
-    its parameters are refused (a worker task)."""
-    u, base, fit = arg
-    v = {d.name: d.from_z(x) for d, x in zip(SPACE, u)}
+    """The point at (u, base) in `region`, with the region's fit, None where its
+    parameters are refused (a worker task)."""
+    u, base, region = arg
+    v = {d.name: d.from_z(x) for d, x in zip(region.dims, u)}
     try:
-        params, protocol, err = fit(base.with_values(v), SHIPPED)
+        params, protocol, err = region.fit(base.with_values(v), SHIPPED)
     except (ParameterError, ArithmeticError):
         return None
-    return Point(params, protocol, err)
+    return Point(params, protocol, err, region.names)
 
 
-def point_of(u: Sequence[float], base: Params) -> Point:
-    """The point at coordinates `u` (one per SPACE dim, in [0, 1]) on top of `base`,
-    with its static fit (computed once per point)."""
-    key = (tuple(float(x) for x in u), base, static_fit)
+def point_of(u: Sequence[float], base: Params, region: Region = GLOBAL) -> Point:
+    """The point at coordinates `u` (one per dim of `region`, in [0, 1]) on top of
+    `base`, with its fit (computed once per point)."""
+    key = (tuple(float(x) for x in u), base, region)
     if key not in _POINTS:
         _POINTS[key] = _point_task(key)
     point = _POINTS[key]
@@ -112,9 +138,9 @@ def point_of(u: Sequence[float], base: Params) -> Point:
     return point
 
 
-def coordinates_of(params: Params) -> np.ndarray:
+def coordinates_of(params: Params, region: Region = GLOBAL) -> np.ndarray:
     """The searched coordinates of a parameter set."""
-    return np.array([d.to_z(params.value(d.name)) for d in SPACE])
+    return np.array([d.to_z(params.value(d.name)) for d in region.dims])
 
 
 # ---- scoring: the cost and every finding's signed margin
@@ -280,10 +306,10 @@ class Evaluator:
 
     def __init__(self, base: Params, journal: Journal, executor: Executor | None,
                  targets=None, progress: bool = False, planned: int = 0,
-                 fit=None, objective: str = "cost") -> None:
+                 region: Region = GLOBAL, objective: str = "cost") -> None:
         self.base, self.journal, self.executor = base, journal, executor
+        self.region = region
         self.objective = OBJECTIVES[objective]  # Record -> the value DE minimises
-        self.fit = fit or static_fit  # (params, protocol) -> (params, static error)
         # targets(protocol) -> `Targets`-like (a cheap stand-in in the smoke test)
         self.targets = targets or (lambda protocol: Targets(SEARCH_DT, protocol))
         self.progress, self.planned = progress, planned
@@ -338,7 +364,7 @@ class Evaluator:
 
     def _points(self, us: list) -> list[Point | None]:
         """Each coordinate's point with its static fit, the fits run on the workers."""
-        keys = [(tuple(float(x) for x in u), self.base, self.fit) for u in us]
+        keys = [(tuple(float(x) for x in u), self.base, self.region) for u in us]
         todo = [k for k in dict.fromkeys(keys) if k not in _POINTS]
         fitted = (map(_point_task, todo) if self.executor is None
                   else self.executor.map(_point_task, todo))
@@ -374,25 +400,45 @@ class SearchResult:
     evaluations: int
     seconds: float
     message: str
+    region: Region = GLOBAL
 
 
-def planned_evaluations(popsize: int, maxiter: int) -> int:
+def planned_evaluations(popsize: int, maxiter: int, dims: int = len(SPACE)) -> int:
     """Points scored: DE's initial population, `maxiter` generations of it and its best
     once more (some of them screened out by their static fit, in milliseconds)."""
-    return popsize * len(SPACE) * (maxiter + 1) + 1
+    return popsize * dims * (maxiter + 1) + 1
+
+
+def local_region(names: Sequence[str]) -> Region:
+    """The dynamic readings `names` alone, without a static fit (`keep_static`)."""
+    names = tuple(dict.fromkeys(names))
+    for n in names:
+        if n not in FREE:
+            raise ParameterError(f"--free {n}: a search varies the fitted parameters, one "
+                                 f"of {', '.join(FREE)}")
+        if n in STATIC_FIT or n in ("braid.braid_angle", "muscle.output_coeff",
+                                    "muscle.friction_const"):
+            raise ParameterError(f"--free {n}: a local search keeps the static plant "
+                                 "(it sets the Po row); free only "
+                                 + ", ".join(f for f in FREE if f.startswith(
+                                     ("pneumatics.", "controller."))))
+    return Region(names, keep_static)
 
 
 def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
            popsize: int = POPSIZE, maxiter: int = MAXITER, jobs: int = 2,
            resume: bool = False, progress: bool = True, targets=None,
-           fit=None, objective: str = "cost") -> SearchResult:
+           fit=None, objective: str = "cost", free: Sequence[str] | None = None,
+           radius: float = 0.25) -> SearchResult:
     """Run DE over SPACE, every coordinate drawn from its whole range (a Latin hypercube,
     not started from any known point): `base` (default: the wpam preset) gives only the
     parameters that are not searched. Journals to `out`/journal.jsonl (None: in memory).
 
-    popsize: DE's multiplier (population popsize * len(SPACE)); maxiter: generations;
+    popsize: DE's multiplier (population popsize * dims); maxiter: generations;
     targets: protocol -> `Targets` (default: the paper's, at SEARCH_DT); fit: the static
     screen (default `static_fit`); objective: what DE minimises (OBJECTIVES).
+    free: a local search instead (`local_region`): only these dynamic readings, in a box
+    of +-`radius` (of each range) around `base`, whose point DE's first population holds.
     """
     if objective not in OBJECTIVES:
         raise ParameterError(f"objective = {objective!r} must be one of "
@@ -401,6 +447,13 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
     check_range("maxiter", maxiter, 0, 1000)
     check_range("seed", seed, 0, 2**32 - 1)
     base = base if base is not None else preset("wpam")
+    region = GLOBAL if free is None else local_region(free)
+    region = region if fit is None else Region(region.names, fit)
+    bounds, x0 = [(0.0, 1.0)] * len(region.names), None
+    if free is not None:
+        check_range("radius", radius, 0.0, 1.0, lo_open=True)
+        x0 = coordinates_of(base, region)
+        bounds = [(max(0.0, z - radius), min(1.0, z + radius)) for z in x0]
     path = None if out is None else Path(out) / "journal.jsonl"
     if resume and (path is None or not path.exists()):
         raise ParameterError(f"--resume: no journal {path} of an interrupted search")
@@ -408,15 +461,15 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
     started = time.perf_counter()
     with executor_for(jobs) as ex:
         ev = Evaluator(base, journal, ex, targets, progress,
-                       planned_evaluations(popsize, maxiter), fit, objective)
+                       planned_evaluations(popsize, maxiter, len(bounds)), region, objective)
         res = differential_evolution(
-            cost, [(0.0, 1.0)] * len(SPACE), args=(ev,), seed=seed, popsize=popsize,
+            cost, bounds, args=(ev,), seed=seed, popsize=popsize, x0=x0,
             maxiter=maxiter, tol=0.0, polish=False, init="latinhypercube",
             updating="deferred", workers=ev.costs)
         (best,) = ev.records([list(res.x)])
     records = tuple(journal.records[k] for k in ev.asked)
     return SearchResult(best, records, len(records), time.perf_counter() - started,
-                        str(res.message))
+                        str(res.message), region)
 
 
 def convergence(records: Sequence[Record],
@@ -437,19 +490,20 @@ def load_records(out: Path) -> list[Record]:
     return list(Journal(Path(out) / "journal.jsonl", keep=True).records.values())
 
 
-def describe_point(u: Sequence[float], base: Params) -> str:
+def describe_point(u: Sequence[float], base: Params, region: Region = GLOBAL) -> str:
     """The point's values, one per line (display units)."""
-    p = point_of(u, base)
+    p = point_of(u, base, region)
     lines = [f"  {k:<34s} {v:.6g}" if isinstance(v, float) else f"  {k:<34s} {v}"
              for k, v in p.values().items()]
     return "\n".join(lines + [f"  protocol: {p.protocol.describe()}"])
 
 
-def at_bounds(u: Sequence[float], base: Params, tol: float = 1e-3) -> list[str]:
+def at_bounds(u: Sequence[float], base: Params, region: Region = GLOBAL,
+              tol: float = 1e-3) -> list[str]:
     """The searched and statically fitted values within `tol` (of their range) of a
     bound of their range."""
-    point = point_of(u, base)
-    near = [d.name for d, x in zip(SPACE, u) if x <= tol or x >= 1.0 - tol]
+    point = point_of(u, base, region)
+    near = [d.name for d, x in zip(region.dims, u) if x <= tol or x >= 1.0 - tol]
     for name in STATIC_FIT:
         z = estimation.FreeParameter.of(name).to_z(point.params.value(name))
         if z <= tol or z >= 1.0 - tol:
@@ -466,7 +520,7 @@ def write_search(out: Path, **kw) -> list[Path]:
               f"{(_cpu_seconds() - cpu0) / 60:.1f} CPU-min (load average {load0:.2f} at "
               f"the start, {os.getloadavg()[0]:.2f} at the end); {r.message}")
     return write_outputs(out, r.records, kw.get("base") or preset("wpam"), timing,
-                         kw.get("objective", "cost"))
+                         kw.get("objective", "cost"), r.region)
 
 
 def _cpu_seconds() -> float:
@@ -478,7 +532,8 @@ def _cpu_seconds() -> float:
 
 
 def write_outputs(out: Path, records: Sequence[Record], base: Params,
-                  timing: str = "", objective: str = "cost") -> list[Path]:
+                  timing: str = "", objective: str = "cost",
+                  region: Region = GLOBAL) -> list[Path]:
     """The best compromise of `records` under `objective` (best.toml, best.txt), how the
     search converged (convergence.csv, convergence.png) and their feasibility map
     (feasibility.md, feasibility.png) in `out`."""
@@ -496,10 +551,11 @@ def write_outputs(out: Path, records: Sequence[Record], base: Params,
     pm = findings_map.pair_margins(records)
     best = findings_map.best_compromise(records, OBJECTIVES[objective])
     most = findings_map.most_findings(records)
-    return written + [write_text_atomic(out / "best.toml", point_toml(point_of(best.u, base))),
-            write_text_atomic(out / "best.txt", summary(timing, best, base) + "\n"
+    return written + [
+            write_text_atomic(out / "best.toml", point_toml(point_of(best.u, base, region))),
+            write_text_atomic(out / "best.txt", summary(timing, best, base, region) + "\n"
                               + "the point meeting the most findings:\n"
-                              + summary("", most, base)),
+                              + summary("", most, base, region)),
             write_text_atomic(out / "feasibility.md", findings_map.markdown(pm, records)
                               + "\n\n" + findings_map.verdict(pm) + "\n\n"
                               + findings_map.rest_verdict(records) + "\n"),
@@ -522,13 +578,13 @@ def point_toml(point: Point) -> str:
     return "\n".join(out)
 
 
-def summary(timing: str, best: Record, base: Params) -> str:
+def summary(timing: str, best: Record, base: Params, region: Region = GLOBAL) -> str:
     """A point of the search and its findings (plain text)."""
     return (f"{timing}\n" * bool(timing)
             + f"cost {best.cost:.4f}, {best.held} of the {len(PAPER_CHECKS)} checks of "
             "`wpam reproduce` met\n"
-            + describe_point(best.u, base)
-            + f"\nat a bound: {', '.join(at_bounds(best.u, base)) or 'none'}"
+            + describe_point(best.u, base, region)
+            + f"\nat a bound: {', '.join(at_bounds(best.u, base, region)) or 'none'}"
             + "\nmargins:\n" + "\n".join(f"  {k:<24s} {v:+.3f}"
                                          for k, v in (best.margins or {}).items())
             + f"\nfigures: {json.dumps(best.figures)}\n")
