@@ -3,9 +3,11 @@ their steps, those whose PI steps settle, the most of `wpam reproduce`'s checks 
 and with settled steps (and what that point misses), and each finding's best margin with
 every other finding held (docs/physics.md, "Where the physics cannot reach the paper");
 with --figure, their convergence on one yardstick, the checks' summed shortfall
-(`search.shortfall`, whatever objective each search minimised), and the most checks met.
+(`search.shortfall`, whatever objective each search minimised), and the most checks met;
+with --map, the feasibility map of all their points together.
 
-    python scripts/search_evidence.py out/search-20 out/search-21 ... [--figure F.png]
+    python scripts/search_evidence.py out/search-20 out/search-21 ... \
+        [--figure convergence.png] [--map feasibility.png]
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("dirs", type=Path, nargs="+", help="folders holding a journal.jsonl")
     ap.add_argument("--figure", type=Path, help="convergence of every journal (PNG)")
+    ap.add_argument("--map", type=Path, help="feasibility map of the pooled points (PNG)")
     a = ap.parse_args()
     runs = {d.name: search.load_records(d) for d in a.dirs}
     pooled = [r for rs in runs.values() for r in rs]
@@ -43,6 +46,12 @@ def main() -> None:
             conv, a.figure, f"Convergence of {len(runs)} searches ({len(pooled)} points)",
             search.OBJECTIVE_TEXT["checks"])
         print(f"wrote {a.figure}")
+    if a.map:
+        pm = findings_map.pair_margins(pooled)
+        print("\n" + findings_map.verdict(pm))
+        findings_map.figure(pm, a.map, f"Feasibility of the paper's findings: {len(pooled)} "
+                            f"points of {len(runs)} searches")
+        print(f"wrote {a.map}")
 
 
 if __name__ == "__main__":

@@ -37,7 +37,8 @@ def add_parsers(add) -> None:
                         "feasibility.png")
     p.add_argument("--seed", type=int, default=20, help="seed of the search (default: 20)")
     p.add_argument("--popsize", type=int, default=None, metavar="K",
-                   help="population K x 7 points (default: 3)")
+                   help="population K x the searched coordinates (7; with --free, their count) "
+                        "(default: 3)")
     p.add_argument("--maxiter", type=int, default=None, metavar="N",
                    help="generations after the first population (default: 8: at most 190 "
                         "points, those the screen rejects scored in milliseconds; "
