@@ -147,6 +147,9 @@ def test_convergence_is_the_running_best_in_scoring_order(tmp_path):
     assert [c[0] for c in conv] == list(range(1, len(records) + 1))
     assert all(a[1] >= b[1] and a[2] <= b[2] for a, b in zip(conv, conv[1:]))
     assert conv[-1][2] == max(r.held for r in records if r.tracks)
+    seconds = [c[3] for c in conv]  # the wall clock each point was scored at
+    assert all(t >= 0.0 for t in seconds) and seconds == sorted(seconds)
+    assert findings_map.convergence_csv(conv).splitlines()[0].endswith(",seconds")
     # a point whose staircase does not follow its targets meets checks vacuously: not counted
     idle = search.Record((0.5,), 0.0, dict.fromkeys(search.FINDINGS, 1.0),
                          {"step_error_mm": {"pi": [search.TRACK_MM + 1.0]}})

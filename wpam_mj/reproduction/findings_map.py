@@ -167,14 +167,15 @@ def figure(pm: np.ndarray, path: Path, title: str) -> Path:
     return path
 
 
-def convergence_csv(conv: Sequence[tuple[int, float, int]]) -> str:
+def convergence_csv(conv: Sequence[tuple[int, float, int, float]]) -> str:
     """`search.convergence` as CSV: points scored, least objective and most of `wpam
-    reproduce`'s checks met so far."""
-    return "points_scored,best_cost,most_checks_met\n" + "".join(
-        f"{i},{c!r},{h}\n" for i, c, h in conv)
+    reproduce`'s checks met so far, and the wall seconds into the search (blank: not
+    recorded)."""
+    return "points_scored,best_cost,most_checks_met,seconds\n" + "".join(
+        f"{i},{c!r},{h},{'' if math.isnan(t) else f'{t:.1f}'}\n" for i, c, h, t in conv)
 
 
-def convergence_figure(runs: dict[str, Sequence[tuple[int, float, int]]], path: Path,
+def convergence_figure(runs: dict[str, Sequence[tuple[int, float, int, float]]], path: Path,
                        title: str, objective: str = "calibrate's cost 1/2 |r|^2") -> Path:
     """Least cost (log scale) and most findings met against points scored, one line per
     search (`runs`: label -> `search.convergence`), as PNG."""
@@ -184,7 +185,7 @@ def convergence_figure(runs: dict[str, Sequence[tuple[int, float, int]]], path: 
 
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
     for label, conv in runs.items():
-        i, cost, held = (np.array(v) for v in zip(*conv))
+        i, cost, held, _ = (np.array(v) for v in zip(*conv))
         top.step(i, np.minimum(cost, 1e3), where="post", label=label)
         bottom.step(i, held, where="post", label=label)
     top.set_yscale("log")

@@ -37,7 +37,7 @@ import resource
 import sys
 import time
 from concurrent.futures import Executor
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Callable, Sequence
 
@@ -179,6 +179,8 @@ class Record:
     cost: float
     margins: dict[str, float] | None
     figures: dict | None
+    # wall seconds into the search when it was scored (None: not recorded)
+    seconds: float | None = field(default=None, compare=False)
 
     @property
     def tracks(self) -> bool:
@@ -196,11 +198,11 @@ class Record:
 
     def as_json(self) -> dict:
         return {"u": list(self.u), "cost": self.cost, "margins": self.margins,
-                "figures": self.figures}
+                "figures": self.figures, "seconds": self.seconds}
 
     @classmethod
     def from_json(cls, d: dict) -> "Record":
-        return cls(tuple(d["u"]), d["cost"], d["margins"], d["figures"])
+        return cls(tuple(d["u"]), d["cost"], d["margins"], d["figures"], d.get("seconds"))
 
 
 # ---- objectives: what DE minimises (journals keep margins, so either replays any journal)
@@ -316,7 +318,9 @@ class Evaluator:
         # points run together: enough runs to keep every worker busy, few enough that
         # an interruption loses little
         self.chunk = 4
-        self.ran, self.seen, self.started = 0, 0, time.perf_counter()
+        # a resumed search's clock goes on from its journal's last point
+        done = max((r.seconds or 0.0 for r in journal.records.values()), default=0.0)
+        self.ran, self.seen, self.started = 0, 0, time.perf_counter() - done
         self.asked: dict[str, None] = {}  # keys scored, in order (a journal may hold more)
 
     def records(self, us: Sequence[Sequence[float]]) -> list[Record]:
@@ -328,7 +332,7 @@ class Evaluator:
         for i in range(0, len(pending), self.chunk):  # journaled chunk by chunk
             chunk = pending[i:i + self.chunk]
             for k, rec in zip(chunk, self._run([todo[k] for k in chunk])):
-                self.journal.add(k, rec)
+                self.journal.add(k, replace(rec, seconds=time.perf_counter() - self.started))
             self.seen += len(chunk)
             self.ran += len(chunk)
             self._report()
@@ -473,15 +477,16 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
 
 
 def convergence(records: Sequence[Record],
-                objective: str = "cost") -> list[tuple[int, float, int]]:
+                objective: str = "cost") -> list[tuple[int, float, int, float]]:
     """(points scored, least objective so far, most checks met so far by a point whose
-    PI staircase tracks its targets: `Record.tracks`, as the map counts them) after each
-    point, in the order the search scored them."""
+    PI staircase tracks its targets: `Record.tracks`, as the map counts them, wall
+    seconds into the search: NaN where the journal did not record it) after each point,
+    in the order the search scored them."""
     out, cost, held = [], math.inf, 0
     for i, r in enumerate(records, 1):
         cost = min(cost, OBJECTIVES[objective](r))
         held = max(held, r.held if r.tracks else 0)
-        out.append((i, cost, held))
+        out.append((i, cost, held, math.nan if r.seconds is None else r.seconds))
     return out
 
 
