@@ -208,6 +208,26 @@ except OSError as err:
 """
 
 
+def test_stopping_a_pool_with_cancelled_tasks_queued_raises_in_no_thread(monkeypatch):
+    """Python 3.11's pool manager, finding its workers gone, set an exception on every
+    queued task's future and raised InvalidStateError on the cancelled ones: a traceback
+    from a thread after `wpam reproduce` had printed its one line (1 run in 10)."""
+    import threading  # noqa: PLC0415
+
+    raised = []
+    monkeypatch.setattr(threading, "excepthook", lambda args: raised.append(args.exc_value))
+    pool = WorkerPool(1)
+    futures = [pool.submit(time.sleep, 30)] + [pool.submit(time.sleep, 0) for _ in range(20)]
+    time.sleep(0.5)  # the first task runs; the rest wait beyond the call queue
+    for f in futures[1:]:
+        f.cancel()
+    manager = pool._executor_manager_thread
+    pool.stop()
+    manager.join(10.0)
+    assert not manager.is_alive() and raised == []
+    assert sum(f.cancelled() for f in futures) >= 18 and all(f.done() for f in futures)
+
+
 def test_a_pool_left_on_a_full_disk_with_large_tasks_queued_exits_at_once():
     """wpam reproduce --jobs 2 into a full disk hung at exit: the call queue's feeder was
     blocked writing a large task to stopped workers, and the interpreter joined it."""

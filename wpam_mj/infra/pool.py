@@ -108,6 +108,12 @@ class WorkerPool(ProcessPoolExecutor):
         not joined, so that neither this pool's manager nor the interpreter's exit waits
         for it forever."""
         self._call_queue.cancel_join_thread()
+        # Queued tasks are dropped now. Python 3.11's manager thread, finding the workers
+        # gone, sets an exception on every pending task's future and raises on those
+        # cancelled (fixed in 3.12): a cancelled task gets a future that takes it silently.
+        for item in list(self._pending_work_items.values()):
+            if item.future.cancel():
+                item.future = _Dropped()
         workers = list((self._processes or {}).values())
         for proc in workers:
             proc.terminate()
@@ -117,6 +123,17 @@ class WorkerPool(ProcessPoolExecutor):
                 proc.kill()
                 proc.join()
         super().shutdown(wait=False, cancel_futures=True)
+
+
+class _Dropped(Future):
+    """A cancelled task's stand-in future: the broken pool's error has no one to tell."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.cancel()
+
+    def set_exception(self, exception) -> None:
+        pass
 
 
 def _execute(task):
