@@ -5,6 +5,7 @@ The fit itself runs for minutes (`wpam calibrate`); the search is the engine of
 `wpam fit`, checked in tests/test_fitting.py (including resuming from a journal)."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -58,6 +59,21 @@ def test_the_shipped_point_holds_its_findings_and_explains_the_rest(shipped_runs
         assert explained != c.passed, c.finding
     margins = finding_margins(scores, table2)
     assert margins["steps_settle"] > 0 and margins["po_rises_with_load"] > 0
+
+
+def test_the_seventh_check_costs_the_staircases_po_rising_with_load():
+    """Golden, the trade docs/physics.md writes down: examples/seven_of_eight.toml (the
+    shipped static plant, other lines and feedforward readings) passes every check but
+    equal gains with settled PI steps, and its staircases' plateau-mean Po falls from 50
+    to 100 N, which the shipped plant keeps rising."""
+    path = Path(__file__).resolve().parents[1] / "examples" / "seven_of_eight.toml"
+    params, model = apply_overrides(preset("wpam"), load_toml(path)), PaperTargets()
+    results = [t.run() for t in model.tasks(params)]
+    scores, table2 = model.scores_and_table2(params, results)
+    checks = [*findings.table2_checks(table2), *scores.sweep_checks]
+    assert {c.name for c in checks if not c.passed} == {"gain_spread"}
+    margins = finding_margins(scores, table2)
+    assert margins["steps_settle"] > 0 and margins["po_rises_with_load"] < 0
 
 
 def test_residuals_are_the_log_errors_of_table2_and_hinges_of_the_targets(shipped):

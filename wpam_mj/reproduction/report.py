@@ -126,18 +126,18 @@ def report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResult
 GIVEN_UP = {
     "gain_falls_lag_grows": (
         "at 150 N the gain peaks at 1.019 at 0.2 Hz (1.004 at 0.1 Hz). A local search of the "
-        "line conductances and the feedforward's readings around this plant (`wpam search "
-        "--free ...`) meets it with both Table 2 rows, but there the 150 N PI plateaus do "
-        "not settle (split about 1 mm and more against the 0.71 mm Table 2 allows)."),
+        "lines and the feedforward's readings around this plant meets it with both Table 2 "
+        "rows and settled steps (examples/seven_of_eight.toml), at the cost of the PI "
+        "staircases' plateau-mean Po rising with load, which this plant keeps."),
     "gain_spread": (
         "at 0.5 Hz the light load leaves the bottom of each cycle later and tops out lower "
-        "(gains 0.741/0.799/0.811). Points of the searches with a Po line 2-3x more "
-        "conductive meet it, never together with Table 2's feedback row or settled PI steps "
-        "among the points searched (docs/physics.md)."),
+        "(gains 0.741/0.799/0.811). Points of the searches meet it, never together with "
+        "Table 2's feedback row, settled PI steps or Po rising with load among the 1,359 "
+        "points searched (docs/physics.md)."),
     "lag_order_low_freq": (
-        "50 N lags 100 N by 0.3-0.8 deg: Po rests on the regulator's minimum. The local "
-        "search meets it with both Table 2 rows, with unsettled 150 N PI plateaus; with "
-        "settled steps no point searched meets more than 6 of the 8 checks."),
+        "50 N lags 100 N by 0.3-0.8 deg: Po rests on the regulator's minimum. The same "
+        "local-search point meets it (examples/seven_of_eight.toml) by giving up Po rising "
+        "with load in the staircases; keeping that, no point searched meets more than 6."),
 }
 
 
