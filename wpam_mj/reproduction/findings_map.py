@@ -69,25 +69,29 @@ def verdict(pm: np.ndarray) -> str:
     return "\n".join(lines)
 
 
-def rest_margins(records: Sequence[Record]) -> dict[str, float]:
+def _rest(records: Sequence[Record]) -> dict[str, tuple[float, int]]:
     """Per finding: its best margin among the points at which every other finding holds
-    (NaN: no point holds all the others). Negative: among the points searched, that
-    finding conflicts with the rest taken together, by that much at least."""
+    (NaN: no point holds all the others), and how many such points there are."""
     m = margin_matrix(records)
     out = {}
     for i, f in enumerate(FINDINGS):
         rest = np.all(np.delete(m, i, axis=1) >= 0.0, axis=1)
-        out[f] = float(m[rest, i].max()) if rest.any() else math.nan
+        out[f] = (float(m[rest, i].max()) if rest.any() else math.nan, int(rest.sum()))
     return out
+
+
+def rest_margins(records: Sequence[Record]) -> dict[str, float]:
+    """Per finding: its best margin among the points at which every other finding holds
+    (NaN: no point holds all the others). Negative: among the points searched, that
+    finding conflicts with the rest taken together, by that much at least."""
+    return {f: v for f, (v, _) in _rest(records).items()}
 
 
 def rest_verdict(records: Sequence[Record]) -> str:
     """`rest_margins` as text: which findings the others, held together, leave open."""
     lines = ["With every other finding held (best margin of the finding; points holding "
              "all the others):"]
-    m = margin_matrix(records)
-    for i, (f, v) in enumerate(rest_margins(records).items()):
-        n = int(np.all(np.delete(m, i, axis=1) >= 0.0, axis=1).sum())
+    for f, (v, n) in _rest(records).items():
         lines.append(f"- {FINDING_TEXT[f]}: " + ("no point holds all the others"
                                                   if math.isnan(v) else f"{v:+.2f} ({n})"))
     return "\n".join(lines)

@@ -413,6 +413,11 @@ def planned_evaluations(popsize: int, maxiter: int, dims: int = len(SPACE)) -> i
     return popsize * dims * (maxiter + 1) + 1
 
 
+# What a local search may vary: the lines and the feedforward's readings; the rest of
+# FREE is the static plant, which sets the Po row
+LOCAL_READINGS = tuple(n for n in FREE if n.startswith(("pneumatics.", "controller.")))
+
+
 def local_region(names: Sequence[str]) -> Region:
     """The dynamic readings `names` alone, without a static fit (`keep_static`)."""
     names = tuple(dict.fromkeys(names))
@@ -420,12 +425,10 @@ def local_region(names: Sequence[str]) -> Region:
         if n not in FREE:
             raise ParameterError(f"--free {n}: a search varies the fitted parameters, one "
                                  f"of {', '.join(FREE)}")
-        if n in STATIC_FIT or n in ("braid.braid_angle", "muscle.output_coeff",
-                                    "muscle.friction_const"):
+        if n not in LOCAL_READINGS:
             raise ParameterError(f"--free {n}: a local search keeps the static plant "
-                                 "(it sets the Po row); free only "
-                                 + ", ".join(f for f in FREE if f.startswith(
-                                     ("pneumatics.", "controller."))))
+                                 f"(it sets the Po row); free only "
+                                 f"{', '.join(LOCAL_READINGS)}")
     return Region(names, keep_static)
 
 
