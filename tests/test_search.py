@@ -126,6 +126,10 @@ def test_the_checks_objective_counts_each_shortfall_once_and_caps_it():
     assert search.shortfall(far) == search.SHORTFALL_CAP
     failed = search.Record((0.5,), search.FAILED_COST, None, None)
     assert search.shortfall(failed) == search.FAILED_COST
+    falls = search.Record((0.5,), 7.0, {**margins, "po_rises_with_load": -0.5}, {})
+    assert search.shortfall(falls) == 0.0  # "checks" may trade Po's rise away ...
+    assert search.findings_shortfall(falls) == pytest.approx(  # ... "findings" may not
+        0.5 + paper.CALIBRATION_HEADROOM)
 
 
 def test_a_search_on_the_checks_objective_is_seeded_and_converges_on_it(tmp_path):

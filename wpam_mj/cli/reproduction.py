@@ -43,10 +43,11 @@ def add_parsers(add) -> None:
                    help="generations after the first population (default: 8: at most 190 "
                         "points, those the screen rejects scored in milliseconds; "
                         "docs/physics.md gives the time)")
-    p.add_argument("--objective", choices=("cost", "checks"), default="cost",
-                   help="what the search minimises: calibrate's cost (default), or the "
-                        "summed shortfall of the paper's checks and settled PI steps "
-                        "(docs/physics.md); either replays any journal")
+    p.add_argument("--objective", choices=("cost", "checks", "findings"), default="cost",
+                   help="what the search minimises: calibrate's cost (default), the summed "
+                        "shortfall of the paper's checks and settled PI steps (checks), or "
+                        "of those and Po rising with load (findings) (docs/physics.md); "
+                        "each replays any journal")
     p.add_argument("--free", metavar="NAMES",
                    help="a local search instead: only these dynamic readings (comma-"
                         "separated, e.g. pneumatics.outer_conductance,controller."

@@ -210,20 +210,29 @@ class Record:
 SHORTFALL_CAP = 3.0  # scale units: one far miss counts as three near ones, no more
 
 
-def shortfall(rec: Record) -> float:
+def shortfall(rec: Record, wanted: Sequence[str] = (*PAPER_CHECKS, "steps_settle")) -> float:
     """The "checks" objective: how far the point falls short of every check of `wpam
-    reproduce` and of settled PI steps, each shortfall in units of its margin's scale
-    measured from CALIBRATION_HEADROOM past its limit and capped at SHORTFALL_CAP (0:
-    all met with headroom). Unlike calibrate's cost it asks no more of a finding than
-    its check does, so a point's value falls only by meeting checks."""
+    reproduce` and of settled PI steps (or of the findings `wanted`), each shortfall in
+    units of its margin's scale measured from CALIBRATION_HEADROOM past its limit and
+    capped at SHORTFALL_CAP (0: all met with headroom). Unlike calibrate's cost it asks
+    no more of a finding than its check does, so a point's value falls only by meeting
+    checks."""
     if rec.margins is None:
         return rec.cost  # failed or screened out: the same large cost as "cost"
     return sum(min(max(0.0, CALIBRATION_HEADROOM - rec.margins[f]), SHORTFALL_CAP)
-               for f in (*PAPER_CHECKS, "steps_settle"))
+               for f in wanted)
 
 
-OBJECTIVES = {"cost": lambda rec: rec.cost, "checks": shortfall}
-OBJECTIVE_TEXT = {"cost": "calibrate's cost 1/2 |r|^2", "checks": "checks' summed shortfall"}
+def findings_shortfall(rec: Record) -> float:
+    """The "findings" objective: the checks' shortfall with every finding of FINDINGS
+    asked, Po rising with load among them (what "checks" may trade away)."""
+    return shortfall(rec, FINDINGS)
+
+
+OBJECTIVES = {"cost": lambda rec: rec.cost, "checks": shortfall,
+              "findings": findings_shortfall}
+OBJECTIVE_TEXT = {"cost": "calibrate's cost 1/2 |r|^2", "checks": "checks' summed shortfall",
+                  "findings": "findings' summed shortfall"}
 
 
 def _figures(scores) -> dict:
