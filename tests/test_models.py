@@ -31,10 +31,14 @@ def test_every_model_compiles_and_steps_a_second_without_warnings(path):
     assert np.all(np.isfinite(recorded))
 
 
-def test_the_arm_tracks_angle_steps_within_half_a_degree_without_hunting():
+def test_the_arm_tracks_angle_steps_within_a_degree_without_hunting():
+    """Each muscle's dry friction lets a step land anywhere in a band a few mm wide at the
+    paper's Kp (docs/physics.md, "Why the PI steps stall"); 1 deg is 2.1 mm of contraction
+    on the 120 mm pulley. Measured on the shipped lines: at most 0.83 deg (scripts/
+    arm_tracking.py; 0.43 deg with the lines shipped before, 21-27 % more conductive)."""
     _, plateaus = arm.step_response(arm.Pair.load())
     for p in plateaus:
-        assert abs(p.error_deg) < 0.5, p
+        assert abs(p.error_deg) < 1.0, p
         assert p.peak_to_peak_deg < 0.05, p  # settled: no limit cycle
 
 

@@ -161,15 +161,22 @@ def test_convergence_is_the_running_best_in_scoring_order(tmp_path):
     assert conv[-1][1] == min(r.cost for r in records)
 
 
-def test_the_quasi_static_row_agrees_with_the_simulated_one():
-    """The screen's premise: on the shipped slow ramps the equilibrium model's play
-    operator gives the simulated Table 2 "Po = 0.04" row within a few per cent."""
+def test_the_quasi_static_row_is_the_slow_ramp_limit_of_the_simulated_one():
+    """The screen's premise: the equilibrium model's play operator gives the simulated
+    Table 2 "Po = 0.04" row in the limit of slow ramps (the muscle's air has time to follow
+    its regulators): 240 s ramps come within 2 % of it, closer than the shipped 60 s ones,
+    which stay within the screen's tolerance with room to spare (a few per cent)."""
     params = preset("wpam")
     quasi = quasi_static_po_row(params, SHIPPED)
     for load in paper.LOADS_N:
-        areas = [ProtocolStaticTask(params, load, po, 1e-3, SHIPPED).run().area
-                 for po in (0.0, paper.PO_DOWN_STATIC_MPA * 1e6)]
-        assert quasi[load] == pytest.approx(areas[1] / areas[0], rel=0.05), load
+        errors = []
+        for protocol in (SHIPPED, dataclasses.replace(SHIPPED, ramp_time=240.0)):
+            areas = [ProtocolStaticTask(params, load, po, 1e-3, protocol).run().area
+                     for po in (0.0, paper.PO_DOWN_STATIC_MPA * 1e6)]
+            errors.append(abs(areas[1] / areas[0] / quasi[load] - 1.0))
+        shipped, slow = errors
+        assert slow < 0.02 and slow <= shipped + 1e-3, (load, errors)
+        assert shipped < paper.TABLE2_PO_RTOL / 2, (load, errors)
 
 
 def test_the_static_fit_brings_a_scrambled_point_back_to_the_row():
