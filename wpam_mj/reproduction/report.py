@@ -122,11 +122,11 @@ def report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResult
 
 # Why the shipped parameters give up a finding, by the finding's name: what was measured
 # on the shipped plant and by the searches of docs/physics.md ("Where the physics cannot
-# reach the paper": nine journals, `python scripts/search_evidence.py`).
+# reach the paper": ten journals, `python scripts/search_evidence.py`).
 GIVEN_UP = {
     "gain_spread": (
         "near the limit velocity the loads' gains part: 0.620/0.658/0.645 at 0.5 Hz and "
-        "0.244/0.225/0.235 at 1 Hz (PID), 8.4 % apart. Of the 1,678 points searched, this "
+        "0.244/0.225/0.235 at 1 Hz (PID), 8.4 % apart. Of the 1,867 points searched, this "
         "plant is the one that holds every other finding; points that meet equal gains "
         "never hold Table 2's feedback row (best -0.15), settled PI steps (-0.27) or Po "
         "rising with load (-0.11) with it (docs/physics.md)."),
