@@ -125,11 +125,12 @@ def report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResult
 # reach the paper": ten journals, `python scripts/search_evidence.py`).
 GIVEN_UP = {
     "gain_spread": (
-        "near the limit velocity the loads' gains part: 0.620/0.658/0.645 at 0.5 Hz and "
-        "0.244/0.225/0.235 at 1 Hz (PID), 8.4 % apart. Of the 1,867 points searched, this "
-        "plant is the one that holds every other finding; points that meet equal gains "
-        "never hold Table 2's feedback row (best -0.15), settled PI steps (-0.27) or Po "
-        "rising with load (-0.11) with it (docs/physics.md)."),
+        "on the shipped plant the loads' gains part near the limit velocity: "
+        "0.620/0.658/0.645 at 0.5 Hz (PI) and 0.244/0.225/0.235 at 1 Hz (PID), 8.4 % "
+        "apart. Of the 1,867 points searched, the shipped plant is the one that holds "
+        "every other finding; points that meet equal gains never hold Table 2's feedback "
+        "row (best -0.15), settled PI steps (-0.27) or Po rising with load (-0.11) with it "
+        "(docs/physics.md)."),
 }
 
 
