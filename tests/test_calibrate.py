@@ -5,7 +5,6 @@ The fit itself runs for minutes (`wpam calibrate`); the search is the engine of
 `wpam fit`, checked in tests/test_fitting.py (including resuming from a journal)."""
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
