@@ -160,7 +160,7 @@ def test_a_sweep_point_whose_load_never_moved_is_flagged_in_csv_json_and_text(he
     assert main(["sweep", "--loads", "100", "--freqs", "1", "--controllers", "pi",
                  "--config", "slow.toml", "--out", "o", *FAST]) == 0
     out = capsys.readouterr().out
-    assert "note: sweep 100 N 1 Hz pi: the load never moved" in out
+    assert "note: sweep 100 N 1 Hz pi, analysed cycles: the load never moved" in out
     assert json.loads((here / "o" / "sweep.json").read_text())[0]["load_moved"] is False
     header, row = (here / "o" / "sweep.csv").read_text().splitlines()
     assert header.endswith(",load_moved") and row.endswith(",False")

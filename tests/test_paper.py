@@ -66,6 +66,26 @@ def test_a_failing_margin_names_its_load_and_frequency():
     assert lag_load.passed is False and "PID 0.2 Hz" in lag_load.detail
 
 
+def test_a_load_that_does_not_follow_fails_equal_gains_by_a_number_and_is_named():
+    """At 1 Hz the 150 N load sticks in the analysed cycles (a gain of ~0, as slow lines
+    give): the spread counts its gain as the least the analysis resolves, a 0.5 mm span
+    of the 25 mm sine (0.01), so the check fails by a finite, readable amount and says
+    which load did not move, instead of dividing by ~0."""
+    base = _papers_picture()
+    stuck = (150.0, 1.0, "pi")
+    points = tuple(SweepPoint(p.load, p.freq, p.controller, 3e-17, 0.6, p.po_max,
+                              load_moved=False) if (p.load, p.freq, p.controller) == stuck
+                   else p for p in base.points)
+    (spread,) = [c for c in findings.sweep_checks(SweepResult(points=points), CAP)
+                 if c.name == "gain_spread"]
+    worst = min(spread.margins, key=lambda m: m.margin)
+    assert (worst.freq, worst.controller) == (1.0, "pi")
+    assert worst.value == pytest.approx(0.5 / 0.01 - 1.0)  # gain 1/(1+1) over 0.01
+    assert spread.passed is False
+    assert "150 N did not move in the analysed cycles" in spread.detail, spread.detail
+    assert "4900.0%" in spread.detail
+
+
 def test_calibration_residuals_are_the_margins():
     """Zero where every finding holds with headroom; the Po-cap residual grows as the
     regulator's Po falls short of the cap, in units of a tenth of the cap."""

@@ -60,6 +60,8 @@ def check_liftable(params: Params, loads: Iterable[float], name: str = "load",
     return loads
 
 
-def load_moved(result: SimResult) -> bool:
-    """Whether the contraction spanned at least `MOVE_MIN_MM` during the run."""
-    return bool(np.ptp(result.x) >= MOVE_MIN_MM * MM)
+def load_moved(result: SimResult, window=None) -> bool:
+    """Whether the contraction spanned at least `MOVE_MIN_MM` during the run (or over the
+    samples `window` selects: a sine's analysed cycles, where its gain and lag come from)."""
+    x = result.x if window is None else result.x[window]
+    return bool(x.size and np.ptp(x) >= MOVE_MIN_MM * MM)

@@ -195,7 +195,7 @@ class SineTask(SimulationTask):
                            po_max=float(r.po_reg[window].max()),
                            po_chamber_max=float(r.po[window].max()),
                            po_cmd_max=float(r.po_cmd[window].max()),
-                           load_moved=load_moved(r))
+                           load_moved=load_moved(r, window))
         return point, (r if self.keep else None)
 
 

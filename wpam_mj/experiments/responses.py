@@ -182,7 +182,8 @@ class SweepPoint:
     Po read by the regulator's own gauge over the analysed cycles [Pa] (what the paper
     plots, §2.3); po_chamber_max: highest Po inside the outer chamber, behind the line
     restriction [Pa]; po_cmd_max: highest Po command (capped at po_cap) [Pa]; load_moved:
-    whether x spanned `feasibility.MOVE_MIN_MM` (else the gain and lag mean nothing).
+    whether x spanned `feasibility.MOVE_MIN_MM` over the analysed cycles (else the gain
+    and lag mean nothing).
     """
 
     load: float

@@ -61,8 +61,9 @@ def sweep_csv_text(sw: SweepResult) -> str:
 
 
 def still_points(sw: SweepResult) -> list[str]:
-    """The sweep points whose load never moved, as "100 N 0.5 Hz pi"."""
-    return [f"{p.load:g} N {p.freq:g} Hz {p.controller}" for p in sw.points
+    """The sweep points whose load did not move in the analysed cycles, as
+    "100 N 0.5 Hz pi, analysed cycles"."""
+    return [f"{p.load:g} N {p.freq:g} Hz {p.controller}, analysed cycles" for p in sw.points
             if not p.load_moved]
 
 

@@ -20,7 +20,8 @@ from wpam_mj.paper import (CALIBRATION_HEADROOM, FEEDBACK_150_OVER_100_MIN, FEED
                            FIG18_FREQ_HZ, FIG18_LOAD_N, GAIN_LOAD_RTOL, GAIN_RISE_TOL,
                            LAG_FALL_TOL_DEG, PO_CAP_RTOL, PO_DOWN_STATIC_MPA,
                            PO_SLOW_LIGHT_MAX_FRAC, TABLE2_PO_RTOL)
-from wpam_mj.units import MPA
+from wpam_mj.experiments.feasibility import MOVE_MIN_MM
+from wpam_mj.units import MM, MPA
 
 # ---- margins and checks
 
@@ -145,6 +146,13 @@ def _falls_and_grows_detail(sw, po_cap, margins):
             f"{LAG_FALL_TOL_DEG:g} deg between neighbouring frequencies")
 
 
+def _resolved_gain(sw) -> float:
+    """The least gain the analysis resolves as motion: a sine whose output spans
+    `MOVE_MIN_MM` (a load that moves less did not move, `feasibility.load_moved`), so a
+    stuck load's gain of ~0 gives a spread that is large but a number, not 1e16."""
+    return MOVE_MIN_MM * MM / (2.0 * sw.amplitude)
+
+
 def _gain_spread(sw, po_cap):
     if len(sw.loads) < 2:
         return None
@@ -153,17 +161,24 @@ def _gain_spread(sw, po_cap):
         for f in sw.freqs:
             g = [p.gain for p in sw.points if p.controller == c and p.freq == f]
             if len(g) >= 2:
-                out.append(Margin(max(g) / min(g) - 1.0, GAIN_LOAD_RTOL, -1, 0.1, freq=f,
-                                  controller=c))
+                out.append(Margin(max(g) / max(min(g), _resolved_gain(sw)) - 1.0,
+                                  GAIN_LOAD_RTOL, -1, 0.1, freq=f, controller=c))
     return out
 
 
 def _gain_spread_detail(sw, po_cap, margins):
-    worst, where = 0.0, "no finite gain to compare"  # all NaN: no spread to place
+    worst, at = 0.0, None  # all NaN: no spread to place
     for m in margins:  # the last of the largest, as a reader scanning the table finds it
         if m.value >= worst:
-            worst, where = m.value, f"{m.controller.upper()} {m.freq:g} Hz"
-    return f"largest spread max/min - 1 = {worst:.1%} ({where})"
+            worst, at = m.value, m
+    if at is None:
+        return "largest spread max/min - 1 = 0.0% (no finite gain to compare)"
+    still = [f"{p.load:g} N" for p in sw.points if p.freq == at.freq
+             and p.controller == at.controller and not p.load_moved]
+    note = (f"; {', '.join(still)} did not move in the analysed cycles (gain counted as "
+            f"{_resolved_gain(sw):.3f}, the least resolved)") if still else ""
+    return (f"largest spread max/min - 1 = {worst:.1%} ({at.controller.upper()} "
+            f"{at.freq:g} Hz{note})")
 
 
 def _low_lags(sw, f, c):
