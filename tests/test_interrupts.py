@@ -7,11 +7,13 @@ ten passes in a row with the machine busy)."""
 
 from __future__ import annotations
 
+import concurrent.futures
 import os
 import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -305,3 +307,29 @@ def test_reproduce_with_two_jobs_into_a_full_disk_exits_with_one_line(tmp_path):
     assert proc.returncode == 1
     assert proc.stderr == "wpam: error: [Errno 28] No space left on device\n"
     assert time.monotonic() - start < 60
+
+
+def test_a_signal_that_lands_on_another_thread_ends_the_main_threads_wait_at_once():
+    """The kernel may deliver a stop signal to any thread; Python runs the handler in the
+    main thread, which an unbounded wait on a lock never lets run until the work ends
+    (seen: SIGHUP acted on 4.3 s late on a busy machine; with `concurrent.futures.wait`
+    here the exception comes only when the worker is released, 3 s on)."""
+    release, ident = threading.Event(), []
+
+    def busy() -> None:
+        ident.append(threading.get_ident())
+        release.wait(3.0)
+
+    with concurrent.futures.ThreadPoolExecutor(1) as threads:
+        fut = threads.submit(busy)
+        try:
+            with termination.handle_signals():
+                assert _wait_until(lambda: bool(ident), 10.0)
+                threading.Timer(0.2, signal.pthread_kill, (ident[0], signal.SIGTERM)).start()
+                sent = time.monotonic()
+                with pytest.raises(termination.Terminated):
+                    termination.wait([fut])
+                took = time.monotonic() - sent
+        finally:
+            release.set()
+    assert took < EXIT_WITHIN_S, f"{took:.2f} s from the signal to the exception"

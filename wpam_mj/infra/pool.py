@@ -27,7 +27,7 @@ import ctypes
 import os
 import signal
 import sys
-from concurrent.futures import FIRST_EXCEPTION, Executor, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_EXCEPTION, Executor, Future, ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Callable, Iterator, Sequence
@@ -196,7 +196,7 @@ class TaskPool:
 
     def results(self, futures: Sequence[Future]) -> list:
         """The results of `futures` (from `submit`), in order; raises the first failure."""
-        done, _ = wait(futures, return_when=FIRST_EXCEPTION)
+        done, _ = termination.wait(futures, FIRST_EXCEPTION)
         for fut in done:
             if fut.exception() is not None:
                 for other in self._submitted:

@@ -29,8 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import struct
-from concurrent.futures import (FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor,
-                                wait)
+from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
@@ -153,7 +152,7 @@ def run_chunks(chunks: Sequence[Sequence], where: Workers | Executor | None,
             for i, chunk in enumerate(chunks):
                 pending[target.executor.submit(_ship, list(chunk))] = i
         while pending:
-            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            done, _ = termination.wait(pending, FIRST_COMPLETED)
             for fut in sorted(done, key=pending.__getitem__):
                 finish(pending.pop(fut), fut.result())
     finally:
@@ -192,6 +191,7 @@ def execute(tasks: Sequence, where: Workers | Executor | None = None, *,
                 outcome[k] = o
 
         run_chunks([[tasks[k] for k in c] for c in chunks], where, finish)
+        termination.wait(pooled.values())
         for k, fut in pooled.items():
             (outcome[k],) = fut.result()
     finally:

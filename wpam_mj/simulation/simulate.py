@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import sys
 import threading
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import mujoco
@@ -272,7 +272,9 @@ def simulate_each(runs: list[Run], *,
     if small:
         small.sort(key=lambda ids: -len(runs[ids[0]].inputs) * len(ids))  # longest first
         with ThreadPoolExecutor(nthread) as threads:
-            for fut in [threads.submit(batch, ids, 1) for ids in small]:
+            futures = [threads.submit(batch, ids, 1) for ids in small]
+            termination.wait(futures, FIRST_EXCEPTION)
+            for fut in futures:
                 fut.result()
     out: list[SimResult | SimulationDiverged] = []
     for i, run in enumerate(runs):
