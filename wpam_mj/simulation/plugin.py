@@ -12,7 +12,9 @@ Nothing is copied by hand between Python and C: `tables_header()` writes every p
 the rule table of `wpam_mj.physics.rules` (the instance's numbers, the derived quantities,
 the rules between quantities), the state layout `STATE_FIELDS` and its status bits, the
 control modes `CONTROLS` and the physical constants of `wpam_mj.physics.pneumatics` as C
-tables (floats as exact hex literals), and the library reports their hash, which must match.
+tables (floats as exact hex literals), and the muscle's physics, `wpam_mj.physics.kernel`,
+as C (`wpam_mj.physics.kernel_codegen.c_source`); the library reports the hash of it all,
+which must match, so a change of the kernel rebuilds the plugin.
 
 Set ``WPAM_MJ_NO_COMPILE=1`` to skip the build (`available()` is then False and the Python
 engine runs).
@@ -28,10 +30,10 @@ from pathlib import Path
 
 import mujoco
 
+from wpam_mj.physics import kernel_codegen
 from wpam_mj.physics import params as prm
-from wpam_mj.physics import pneumatics as pn
 from wpam_mj.physics import rules
-from wpam_mj.units import MM, MPA
+from wpam_mj.units import MPA
 
 NAME = "wpam_mj.muscle"
 SOURCE = Path(__file__).with_name("muscle_plugin.c")
@@ -218,15 +220,13 @@ def tables_header() -> str:
               f"#define WPAM_MAX_CHANNELS {MAX_CHANNELS}",
               "#define WPAM_INTEGRATORS " + ", ".join(f'"{n}"' for n in INTEGRATORS),
               "#define WPAM_INSTANCE_KEYS " + " ".join(f'"{k}",' for k in INSTANCE_KEYS),
-              f"#define WPAM_RT0 {_c(pn.RT0)}", f"#define WPAM_RHO_0 {_c(pn.RHO_0)}",
-              f"#define WPAM_R_LAMINAR {_c(pn.R_LAMINAR)}", f"#define WPAM_MM {_c(MM)}",
               f"#define WPAM_MPA {_c(MPA)}",
               f"#define WPAM_MAX_QUEUE_STEPS {_c(rules.MAX_QUEUE_STEPS)}",
               f"#define WPAM_STROKE_TOLERANCE {_c(STROKE_TOLERANCE)}",
               f"#define WPAM_STATUS_STROKE {STATUS_STROKE}",
               f"#define WPAM_STATUS_PRESSURE {STATUS_PRESSURE}",
               f"#define WPAM_STATUS_MODEL {STATUS_MODEL}"]
-    body = "\n".join(lines) + "\n"
+    body = "\n".join(lines) + "\n" + kernel_codegen.c_source()  # the physics
     digest = hashlib.sha256(body.encode()).hexdigest()[:16]
     return body + f'#define WPAM_TABLES_HASH "{digest}"\n'
 
