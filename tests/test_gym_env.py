@@ -292,9 +292,10 @@ def test_reset_options_fix_one_episode_and_refuse_the_unknown() -> None:
 
 
 def test_params_by_preset_name_or_refused_in_one_line() -> None:
-    env = gymnasium.make(ENV_ID, params="rlam")
-    assert env.unwrapped.physics.params.preset == "rlam"
-    for params, message in (("wpm", "unknown preset 'wpm'"), (3, "params = 3 must be")):
+    env = gymnasium.make(ENV_ID, params="wpam")
+    assert env.unwrapped.physics.params.preset == "wpam"
+    for params, message in (("wpm", "unknown preset 'wpm'"), (3, "params = 3 must be"),
+                            ("rlam", "the rlam preset has no outer chamber for the Po command")):
         with pytest.raises(ParameterError, match=re.escape(message)):
             gymnasium.make(ENV_ID, params=params)
 

@@ -183,8 +183,8 @@ class PythonMuscle:
             if math.isfinite(c):
                 self.inputs[i] = c
             values.append(self.inputs[i])
-        if not self.feedback:
-            return math.nan, values[0], values[1]
+        if not self.feedback:  # no Po channel on a muscle without an outer chamber
+            return math.nan, values[0], values[1] if len(values) > 1 else 0.0
         x_ref = self.muscle.geometry.in_stroke(values[0])
         if len(values) > 1:
             pi_cmd = values[1]
@@ -280,10 +280,15 @@ def _channel_error(spec: mujoco.MjSpec, instance: str, config: InstanceConfig,
     """The plugin's bind_channels on the spec: the line of the first channel error."""
     prefix = f"wpam_mj.muscle instance '{instance}': "
     control = plugin.control_mode(config.control)
-    n = len(acts)
-    if not control.required <= n <= len(control.channels):
-        return (f"{prefix}control = '{control.name}' takes {control.required} to "
-                f"{len(control.channels)} actuators (input channels), {n} name the instance")
+    n, nmax = len(acts), len(control.channels_for(config.params.outer_chamber))
+    nmin = min(control.required, nmax)
+    if n > nmax < len(control.channels):
+        return (f"{prefix}preset '{config.params.preset}' has no outer chamber, so no Po "
+                f"channel: control = '{control.name}' takes at most {nmax} actuator(s) on "
+                f"it, {n} name the instance; remove actuator '{acts[nmax].name or '(unnamed)'}'")
+    if not nmin <= n <= nmax:
+        return (f"{prefix}control = '{control.name}' takes {nmin} to {nmax} actuators "
+                f"(input channels), {n} name the instance")
     if acts[0].trntype != mujoco.mjtTrn.mjTRN_TENDON:
         return f"{prefix}its first actuator must act on a tendon (the muscle)"
     tendon = acts[0].target

@@ -95,6 +95,8 @@ typedef struct {
   int control;                /* C_* */
   int start_at_rest;          /* 1: the first step's commands were held before the run */
   int guided;                 /* 1: end fittings held on one axis (MuscleModel.tendon_force) */
+  int outer_chamber;          /* 0: no outer bag for Po to fill (MuscleType.outer_chamber) */
+  const char* preset;         /* the preset's name */
   double feedforward_load;    /* load the Pi feedforward holds [N] */
   double contraction0;        /* contraction in the model's reference pose [m] */
   /* what the model determines: the model and options it was derived for */
@@ -424,14 +426,19 @@ static int read_config(const mjModel* m, int instance, Instance* k, char* err, i
   }
   k->feedforward_load = q[Q_FEEDFORWARD_LOAD];
   k->contraction0 = q[Q_CONTRACTION0];
+  k->outer_chamber = PRESET_OUTER[preset];
+  k->preset = PRESETS[preset];
   derive_constants(k);
   return 0;
 }
 
 /* The input channels: every actuator naming the instance, in model order, all on the
-   muscle's tendon, which no other muscle pulls and whose friction row MuJoCo makes. */
+   muscle's tendon, which no other muscle pulls and whose friction row MuJoCo makes. A
+   muscle without an outer chamber takes no Po channel (Control.channels_for). */
 static int bind_channels(const mjModel* m, int instance, Instance* k, char* err, int nerr) {
+  static const int NMAX_BARE[] = {WPAM_CONTROL_NMAX_BARE};
   const char* name = instance_name(m, instance);
+  int nmin = CONTROL_NMIN[k->control], nmax = CONTROL_NMAX[k->control];
   int i, j;
   k->nchannel = 0;
   for (i = 0; i < m->nu; i++) {
@@ -439,11 +446,22 @@ static int bind_channels(const mjModel* m, int instance, Instance* k, char* err,
     if (k->nchannel < WPAM_MAX_CHANNELS) k->channel[k->nchannel] = i;
     k->nchannel++;
   }
-  if (k->nchannel < CONTROL_NMIN[k->control] || k->nchannel > CONTROL_NMAX[k->control]) {
+  if (!k->outer_chamber) {
+    nmax = NMAX_BARE[k->control];
+    nmin = nmax < nmin ? nmax : nmin;
+    if (k->nchannel > nmax && nmax < CONTROL_NMAX[k->control]) {
+      const char* extra = mj_id2name(m, mjOBJ_ACTUATOR, k->channel[nmax]);
+      snprintf(err, nerr, "wpam_mj.muscle instance '%s': preset '%s' has no outer chamber, "
+               "so no Po channel: control = '%s' takes at most %d actuator(s) on it, %d name "
+               "the instance; remove actuator '%s'", name, k->preset,
+               CONTROL_NAMES[k->control], nmax, k->nchannel, extra ? extra : "(unnamed)");
+      return -1;
+    }
+  }
+  if (k->nchannel < nmin || k->nchannel > nmax) {
     snprintf(err, nerr, "wpam_mj.muscle instance '%s': control = '%s' takes %d to %d "
              "actuators (input channels), %d name the instance", name,
-             CONTROL_NAMES[k->control], CONTROL_NMIN[k->control], CONTROL_NMAX[k->control],
-             k->nchannel);
+             CONTROL_NAMES[k->control], nmin, nmax, k->nchannel);
     return -1;
   }
   if (m->actuator_trntype[k->channel[0]] != mjTRN_TENDON) {

@@ -97,6 +97,12 @@ class Control:
     required: int
     feedback: bool
 
+    def channels_for(self, outer_chamber: bool) -> tuple[str, ...]:
+        """The channels a muscle takes in this mode: without an outer chamber (rlam,
+        mckibben) there is nothing for Po to fill, so no Po command channel."""
+        return self.channels if outer_chamber else tuple(c for c in self.channels
+                                                         if c != "po_cmd")
+
 
 # Channel meanings: pi_cmd, po_cmd: regulator commands [Pa gauge]; x_ref: target
 # contraction [m]; under feedback a pi_cmd channel replaces the in-plugin Pi feedforward
@@ -217,6 +223,8 @@ def tables_header() -> str:
                   f"ENTRY({c.name.upper()}, {c.name}, {c.required}, {len(c.channels)}, "
                   f"{int(c.feedback)})" for c in CONTROLS),
               f'#define WPAM_CONTROL_LIST "{", ".join(CONTROL_BY_NAME)}"',
+              "#define WPAM_CONTROL_NMAX_BARE " + ", ".join(
+                  str(len(c.channels_for(False))) for c in CONTROLS),
               f"#define WPAM_MAX_CHANNELS {MAX_CHANNELS}",
               "#define WPAM_INTEGRATORS " + ", ".join(f'"{n}"' for n in INTEGRATORS),
               "#define WPAM_INSTANCE_KEYS " + " ".join(f'"{k}",' for k in INSTANCE_KEYS),

@@ -101,7 +101,8 @@ class Run:
                                  "stay 0 (open loop with --po-down 0)")
         spec = rig_spec(params, load, dt, control=control, start_at_rest=drive.start_at_rest)
         inputs = np.column_stack([getattr(drive, name)
-                                  for name in plugin.control_mode(control).channels])
+                                  for name in plugin.control_mode(control).channels_for(
+                                      params.outer_chamber)])
         return cls(spec, inputs, k.record_every, load, dt, control, params.preset)
 
     def result(self, rec: np.ndarray, failure: tuple[int, str] | None) -> SimResult:

@@ -1,0 +1,93 @@
+"""What a user's own model does with the plugin where MuJoCo alone would not stop it: a Po
+channel on a muscle without an outer chamber, a tendon's frictionloss zeroed after compile,
+a tendon range that lets the braid stretch. Each is refused or flagged alike on both engines.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import pytest
+
+import wpam_mj  # noqa: F401 (registers the plugin)
+from wpam_mj.physics.params import ParameterError
+from wpam_mj.simulation import engine, plugin
+
+pytestmark = pytest.mark.skipif(plugin.compiler() is None or plugin.disabled(),
+                                reason="no C compiler (or WPAM_MJ_NO_COMPILE): no plugin")
+
+
+def hanging(preset: str = "wpam", channels: tuple[str, ...] = ("pi", "po"),
+            tendon: str = 'limited="true" range="0.3068 0.4"', instance: str = "") -> str:
+    """A muscle from a ceiling site to a 5 kg load on a slide: 0.4 m of tendon at qpos0."""
+    actuators = "\n".join(f'<plugin name="m_{c}" instance="m" tendon="m" ctrlrange="0 500000"/>'
+                          for c in channels)
+    return f"""
+<mujoco>
+  <option timestep="0.001" noslip_iterations="2"/>
+  <extension><plugin plugin="wpam_mj.muscle">
+    <instance name="m"><config key="preset" value="{preset}"/>{instance}</instance>
+  </plugin></extension>
+  <worldbody>
+    <site name="top" pos="0 0 1"/>
+    <body name="load" pos="0 0 0.6">
+      <joint name="slide" type="slide" axis="0 0 1" damping="50"/>
+      <geom type="sphere" size="0.03" mass="5"/>
+      <site name="hook"/>
+    </body>
+  </worldbody>
+  <tendon><spatial name="m" frictionloss="1" {tendon}>
+    <site site="top"/><site site="hook"/></spatial></tendon>
+  <actuator>{actuators}</actuator>
+</mujoco>"""
+
+
+def both_engines(xml: str) -> list[str]:
+    """The line each engine refuses `xml` with ("" where it compiles)."""
+    lines = []
+    try:
+        mujoco.MjModel.from_xml_string(xml)
+        lines.append("")
+    except ValueError as e:
+        lines.append(str(e).split("engine error: ")[-1].splitlines()[0])
+    try:
+        engine.python_model(mujoco.MjSpec.from_string(xml))
+        lines.append("")
+    except ParameterError as e:
+        lines.append(str(e))
+    return lines
+
+
+# ---------------------------------------------------------------- no outer chamber, no Po
+
+@pytest.mark.parametrize("preset", ["rlam", "mckibben"])
+def test_a_po_channel_on_a_muscle_without_an_outer_chamber_is_refused_on_both_engines(preset):
+    """Once such a muscle obeyed a Po command (McKibben at Pi 0.25 MPa: 52.2 N, with Po
+    0.1 MPa 45.6 N) that `simulate` refuses; now the channel itself is refused, naming the
+    preset and what is allowed, and the muscle takes its Pi command alone."""
+    plugin_line, python_line = both_engines(hanging(preset))
+    assert plugin_line == python_line == (
+        f"wpam_mj.muscle instance 'm': preset '{preset}' has no outer chamber, so no Po "
+        "channel: control = 'open' takes at most 1 actuator(s) on it, 2 name the instance; "
+        "remove actuator 'm_po'")
+    assert both_engines(hanging(preset, channels=("pi",))) == ["", ""]
+    assert "no outer chamber" in both_engines(hanging(preset, channels=("pi", "po", "x")))[0]
+    assert both_engines(hanging("wpam", channels=("pi",)))[0].endswith(
+        "control = 'open' takes 2 to 2 actuators (input channels), 1 name the instance")
+
+
+def test_a_muscle_without_a_po_channel_runs_alike_on_both_engines():
+    xml = hanging("mckibben", channels=("pi",))
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    data.ctrl[0] = 0.25e6
+    mujoco.mj_step(model, data, nstep=500)
+    pmodel, muscles = engine.python_model(mujoco.MjSpec.from_string(xml))
+    pdata = mujoco.MjData(pmodel)
+    pdata.ctrl[0] = 0.25e6
+    with engine.stepping(pmodel, muscles):
+        for _ in range(500):
+            mujoco.mj_step(pmodel, pdata)
+            muscles[0].advance()
+    state = plugin.state_of(model, data, "m")
+    assert state["po_cmd"] == 0.0 and state["pi"] > 0.0 and state["tension"] > 0.0
+    assert pdata.qpos[0] == data.qpos[0] and muscles[0].record["po_cmd"] == 0.0
