@@ -17,7 +17,7 @@ from wpam_mj.reproduction.calibrate import (FREE, KEPT, READINGS, WEIGHTS, Calib
 from wpam_mj.physics.params import (MPA, ParameterError, apply_overrides, load_toml,
                                     plausible_range, preset)
 from wpam_mj.reproduction.report import GIVEN_UP
-from wpam_mj.reproduction.search import finding_margins
+from wpam_mj.reproduction.search_scoring import finding_margins
 
 # what `wpam reproduce` passes on the shipped point (docs/physics.md, "The shipped plant")
 HELD = ("table2_po_row", "table2_feedback_row", "gain_falls_lag_grows", "lag_order_low_freq",
