@@ -5,6 +5,11 @@ a tendon range that lets the braid stretch. Each is refused or flagged alike on 
 
 from __future__ import annotations
 
+import functools
+import subprocess
+import sys
+import textwrap
+
 import mujoco
 import pytest
 
@@ -91,3 +96,88 @@ def test_a_muscle_without_a_po_channel_runs_alike_on_both_engines():
     state = plugin.state_of(model, data, "m")
     assert state["po_cmd"] == 0.0 and state["pi"] > 0.0 and state["tension"] > 0.0
     assert pdata.qpos[0] == data.qpos[0] and muscles[0].record["po_cmd"] == 0.0
+
+
+# ---------------------------------------------------------------- the friction row, after compile
+
+@pytest.fixture
+def elsewhere(tmp_path, monkeypatch):
+    """MuJoCo appends its warnings to MUJOCO_LOG.TXT in the working folder: not the repo's."""
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+@pytest.mark.parametrize("change, why", [
+    ("m.tendon_frictionloss[0] = 0", "tendon 'm' frictionloss = 0 after the model compiled"),
+    ("m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_FRICTIONLOSS",
+     "MuJoCo's frictionloss flag is disabled after the model compiled"),
+    ("m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT",
+     "MuJoCo's constraint flag is disabled after the model compiled"),
+])
+def test_a_muscle_left_without_its_friction_row_stops_with_one_warning(elsewhere, change, why):
+    """Zeroing the tendon's frictionloss after compile (refused at compile) once removed the
+    muscle's dry friction silently: MuJoCo makes the row the plugin writes the level into
+    only for a positive frictionloss, and with its constraint and frictionloss flags on.
+    Now the muscle stops with STATUS_MODEL and one MuJoCo warning, as for a changed time
+    step; changed back and reset, it runs again."""
+    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(f"""
+        import mujoco, numpy as np, wpam_mj
+        from wpam_mj.simulation import plugin
+        m = mujoco.MjModel.from_xml_string({hanging()!r})
+        d = mujoco.MjData(m)
+        d.ctrl[:] = (0.3e6, 0.0)
+        mujoco.mj_step(m, d, nstep=100)
+        loss, flags = m.tendon_frictionloss[0], m.opt.disableflags
+        {change}
+        mujoco.mj_step(m, d, nstep=100)
+        assert plugin.state_of(m, d, "m")["status"] == plugin.STATUS_MODEL
+        assert np.all(d.actuator_force == 0.0)
+        m.tendon_frictionloss[0], m.opt.disableflags = loss, flags
+        mujoco.mj_resetData(m, d)
+        d.ctrl[:] = (0.3e6, 0.0)
+        mujoco.mj_step(m, d, nstep=100)
+        assert plugin.state_of(m, d, "m")["status"] == 0 and d.actuator_force[0] < 0.0
+        print("ok")
+    """)], capture_output=True, text=True, timeout=300, cwd=elsewhere)
+    assert proc.returncode == 0 and proc.stdout.strip().endswith("ok"), proc.stderr[-2000:]
+    output = (proc.stdout + proc.stderr).splitlines()
+    warnings = [line for line in output if line.startswith("WARNING")]
+    assert len(warnings) == 1 and f"wpam_mj.muscle instance 'm': {why}" in warnings[0], warnings
+
+
+def test_the_python_engine_stops_a_muscle_without_its_friction_row_alike(capsys):
+    model, muscles = engine.python_model(mujoco.MjSpec.from_string(hanging()))
+    data = mujoco.MjData(model)
+    data.ctrl[:2] = (0.3e6, 0.0)
+    step = functools.partial(step_python, model, muscles, data)
+    step(100)
+    model.tendon_frictionloss[0] = 0.0
+    step(100)
+    assert muscles[0].status_bits == plugin.STATUS_MODEL
+    assert data.ctrl[muscles[0].force_actuator] == 0.0
+    err = capsys.readouterr().err
+    assert err.count("WARNING: wpam_mj.muscle instance 'm': tendon 'm' frictionloss = 0 after "
+                     "the model compiled") == 1, err
+    model.tendon_frictionloss[0] = 1.0
+    mujoco.mj_resetData(model, data)
+    for muscle in muscles:
+        muscle.reset()
+    step(100)
+    assert muscles[0].status_bits == 0 and data.ctrl[muscles[0].force_actuator] < 0.0
+
+
+@pytest.mark.parametrize("flag", ["frictionloss", "constraint"])
+def test_a_model_compiled_without_friction_rows_is_refused_on_both_engines(flag):
+    xml = hanging().replace("<option ", f'<option><flag {flag}="disable"/></option>\n  <option ')
+    plugin_line, python_line = both_engines(xml)
+    assert plugin_line == python_line == (
+        f"wpam_mj.muscle instance 'm': MuJoCo's {flag} flag is disabled, so no friction row "
+        "carries the muscle's dry friction; enable it")
+
+
+def step_python(model, muscles, data, n):
+    with engine.stepping(model, muscles):
+        for _ in range(n):
+            mujoco.mj_step(model, data)
+            for muscle in muscles:
+                muscle.advance()

@@ -195,19 +195,23 @@ class PythonMuscle:
         return x_ref, pi_cmd, values[2] if len(values) > 2 else 0.0
 
     def _options_changed(self, model: mujoco.MjModel) -> bool:
-        """The plugin's refusal of a timestep or integrator changed after compile: status,
-        and one warning line."""
+        """The plugin's refusal of a timestep or integrator changed after compile, or of a
+        model left without the muscle's friction row (`no_friction_row`): status, and one
+        warning line."""
         opt = model.opt
         if opt.timestep == self.dt and opt.integrator == self.integrator:
-            self.refused = False
-            return False
-        if not self.refused:
+            why = no_friction_row(model, self.config.name, self.tendon, after=True)
+            if why is None:
+                self.refused = False
+                return False
+        else:
             what = "timestep" if model.opt.timestep != self.dt else "integrator"
-            print(f"WARNING: wpam_mj.muscle instance '{self.config.name}': the {what} "
-                  f"changed after the model compiled (timestep {model.opt.timestep:.6g} s, "
-                  f"integrator {plugin.INTEGRATORS[int(model.opt.integrator)]}); the "
-                  "muscle stops until it is changed back or the model recompiled",
-                  file=sys.stderr)
+            why = (f"wpam_mj.muscle instance '{self.config.name}': the {what} changed after "
+                   f"the model compiled (timestep {model.opt.timestep:.6g} s, integrator "
+                   f"{plugin.INTEGRATORS[int(model.opt.integrator)]}); the muscle stops "
+                   "until it is changed back or the model recompiled")
+        if not self.refused:
+            print(f"WARNING: {why}", file=sys.stderr)
         self.refused = True
         self.status_bits |= plugin.STATUS_MODEL
         return True
@@ -255,6 +259,32 @@ class PythonMuscle:
 
 
 _FRICTION_TENDON = int(mujoco.mjtConstraint.mjCNSTR_FRICTION_TENDON)
+_NO_FRICTION_ROW = {"constraint": int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT),
+                    "frictionloss": int(mujoco.mjtDisableBit.mjDSBL_FRICTIONLOSS)}
+
+
+def no_friction_row(model: mujoco.MjModel, instance: str, tendon: int, *,
+                    after: bool) -> str | None:
+    """The plugin's no_friction_row: the line saying why MuJoCo makes no friction row for
+    the muscle's tendon (its frictionloss not positive, or MuJoCo's constraint or
+    frictionloss flag disabled), at compile or `after` it; None while it makes one."""
+    prefix = f"wpam_mj.muscle instance '{instance}': "
+    stop = "; the muscle stops until it is changed back and the data reset"
+    name = model.tendon(tendon).name
+    loss = float(model.tendon_frictionloss[tendon])
+    if not loss > 0.0:
+        if after:
+            return (f"{prefix}tendon '{name}' frictionloss = {loss:.6g} after the model "
+                    "compiled; it needs a positive one (any value; the plugin sets the level "
+                    f"every step){stop}")
+        return (f"{prefix}tendon '{name}' needs a positive frictionloss (any value; the "
+                "plugin sets the level every step)")
+    for flag, bit in _NO_FRICTION_ROW.items():
+        if model.opt.disableflags & bit:
+            return (f"{prefix}MuJoCo's {flag} flag is disabled"
+                    f"{' after the model compiled' if after else ''}, so no friction row "
+                    f"carries the muscle's dry friction{stop if after else '; enable it'}")
+    return None
 
 
 def set_friction_level(data: mujoco.MjData, tendon: int, friction: float,
@@ -341,11 +371,10 @@ def python_model(spec: mujoco.MjSpec) -> tuple[mujoco.MjModel, list[PythonMuscle
     model = spec.compile()
     muscles = []
     for instance, config in configs.items():
-        tendon = model.tendon(first_tendons[instance])
-        if model.tendon_frictionloss[tendon.id] <= 0.0:
-            raise ParameterError(f"wpam_mj.muscle instance '{instance}': tendon "
-                                 f"'{tendon.name}' needs a positive frictionloss (any value;"
-                                 " the plugin sets the level every step)")
+        why = no_friction_row(model, instance, model.tendon(first_tendons[instance]).id,
+                              after=False)
+        if why is not None:
+            raise ParameterError(why)
         muscles.append(PythonMuscle(model, config,
                                     [model.actuator(a.name).id for a in acts[instance]],
                                     model.actuator(f"{instance}_force").id))

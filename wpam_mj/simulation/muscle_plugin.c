@@ -432,6 +432,38 @@ static int read_config(const mjModel* m, int instance, Instance* k, char* err, i
   return 0;
 }
 
+/* 1, with the line in err, when MuJoCo makes no friction row for the muscle's tendon, the
+   row its dry friction acts through (set_friction_level): the tendon's frictionloss is not
+   positive, or MuJoCo's constraint or frictionloss flag is disabled. At compile
+   (after = 0) the model is refused; after it (a model field or flag edited, as MuJoCo's
+   viewer allows) the muscle stops, as for its time step (current_for). */
+static int no_friction_row(const mjModel* m, int instance, int tendon, int after, char* err,
+                           int nerr) {
+  const char* name = instance_name(m, instance);
+  const char* stop = "; the muscle stops until it is changed back and the data reset";
+  int flags = m->opt.disableflags;
+  if (m->tendon_frictionloss[tendon] <= 0.0) {
+    if (after)
+      snprintf(err, nerr, "wpam_mj.muscle instance '%s': tendon '%s' frictionloss = %.6g after "
+               "the model compiled; it needs a positive one (any value; the plugin sets the "
+               "level every step)%s", name, mj_id2name(m, mjOBJ_TENDON, tendon),
+               m->tendon_frictionloss[tendon], stop);
+    else
+      snprintf(err, nerr, "wpam_mj.muscle instance '%s': tendon '%s' needs a positive "
+               "frictionloss (any value; the plugin sets the level every step)", name,
+               mj_id2name(m, mjOBJ_TENDON, tendon));
+    return 1;
+  }
+  if (flags & (mjDSBL_CONSTRAINT | mjDSBL_FRICTIONLOSS)) {
+    snprintf(err, nerr, "wpam_mj.muscle instance '%s': MuJoCo's %s flag is disabled%s, so no "
+             "friction row carries the muscle's dry friction%s", name,
+             flags & mjDSBL_CONSTRAINT ? "constraint" : "frictionloss",
+             after ? " after the model compiled" : "", after ? stop : "; enable it");
+    return 1;
+  }
+  return 0;
+}
+
 /* The input channels: every actuator naming the instance, in model order, all on the
    muscle's tendon, which no other muscle pulls and whose friction row MuJoCo makes. A
    muscle without an outer chamber takes no Po channel (Control.channels_for). */
@@ -491,12 +523,7 @@ static int bind_channels(const mjModel* m, int instance, Instance* k, char* err,
       return -1;
     }
   }
-  if (m->tendon_frictionloss[k->tendon] <= 0.0) {
-    snprintf(err, nerr, "wpam_mj.muscle instance '%s': tendon '%s' needs a positive "
-             "frictionloss (any value; the plugin sets the level every step)", name,
-             mj_id2name(m, mjOBJ_TENDON, k->tendon));
-    return -1;
-  }
+  if (no_friction_row(m, instance, k->tendon, 0, err, nerr)) return -1;
   k->length0 = m->tendon_length0[k->tendon];
   return 0;
 }
@@ -617,17 +644,24 @@ static Instance* own_instance(const mjModel* m, mjData* d, int instance, double*
 }
 
 /* Whether k is current for model m and its options: the same model with its time step or
-   integrator edited after compile (MuJoCo's viewer allows it) is refused; another model
-   of the same state layout (mujoco.batch's set_models) is derived afresh. */
+   integrator edited after compile (MuJoCo's viewer allows it), or without the muscle's
+   friction row (no_friction_row), is refused; another model of the same state layout
+   (mujoco.batch's set_models) is derived afresh. */
 static int current_for(const mjModel* m, int instance, Instance* k, double* s) {
   static const char* const INTEGRATORS[] = {WPAM_INTEGRATORS};
   const int nintegrator = (int)(sizeof(INTEGRATORS) / sizeof(INTEGRATORS[0]));
   int integrator = m->opt.integrator;
   Instance fresh;
   char err[600];
-  if (k->model == m && k->dt == m->opt.timestep && k->integrator == integrator) {
+  int options = k->dt == m->opt.timestep && k->integrator == integrator;
+  if (k->model == m && options && !no_friction_row(m, instance, k->tendon, 1, err,
+                                                   sizeof(err))) {
     k->refused = 0; /* (changed back: the muscle steps again after mj_resetData) */
     return 1;
+  }
+  if (k->model == m && options) { /* err: why the friction row is missing */
+    refuse(k, s, err);
+    return 0;
   }
   if (k->model == m) {
     snprintf(err, sizeof(err), "wpam_mj.muscle instance '%s': the %s changed after the model "

@@ -64,7 +64,7 @@ INTEGRATORS = ("Euler", "RK4", "implicit", "implicitfast")
 # Bits of the "status" field (docs/plugin.md), 0 while the muscle is well:
 STATUS_STROKE = 1  # the contraction left the stroke [0, full bag] by more than the tolerance
 STATUS_PRESSURE = 2  # a chamber pressure left its range: the muscle stops
-STATUS_MODEL = 4  # the timestep or integrator changed after compile: the muscle stops
+STATUS_MODEL = 4  # the model changed under the muscle after compile: the muscle stops
 # How far past an end of its stroke the contraction may go before STATUS_STROKE [m]: a
 # soft joint or tendon limit at the end lets it by a little (on the rig's lower stop
 # 0.09 mm at 50 N; 1.0 mm at its harshest, a 1 N load under 0.5 MPa of Po).
@@ -82,8 +82,10 @@ def status_message(status: float, x: float, p_i: float, p_o: float) -> str:
     if bits & STATUS_PRESSURE:
         lines.append(f"chamber pressure Pi = {p_i!r} Pa, Po = {p_o!r} Pa (absolute)")
     if bits & STATUS_MODEL:
-        lines.append("the model's timestep or integrator changed after it compiled; the "
-                     "muscle stopped (change it back and reset, or recompile)")
+        lines.append("the model's timestep or integrator changed after it compiled, or its "
+                     "tendon's frictionloss or MuJoCo's friction flags left the muscle no "
+                     "friction row; the muscle stopped (change it back and reset, or "
+                     "recompile)")
     return "; ".join(lines)
 
 
