@@ -102,7 +102,11 @@ class WPAMVectorEnv(VectorEnv):
 
     def __init__(self, num_envs: int = 1, *, engine: str = "auto", nthread: int | None = None,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-                 max_episode_steps: int | None = None, **kwargs) -> None:
+                 max_episode_steps: int | None = None, backend: str = "mujoco",
+                 device: str = "cpu", **kwargs) -> None:
+        if backend != "mujoco":  # MuJoCo Warp (the gpu extra): wpam_mj.environments.warp_vector_env
+            from wpam_mj.environments import warp_vector_env  # noqa: PLC0415 (optional)
+            warp_vector_env.check_backend(backend)
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) \
                 or num_envs < 1:
             raise ParameterError(f"num_envs = {num_envs!r} must be an integer >= 1")
@@ -132,7 +136,10 @@ class WPAMVectorEnv(VectorEnv):
         self.engine = "batch" if engine == "batch" or (
             engine == "auto" and plugin.available()) else "serial"
         self._batch = _BatchedEpisodes(self.envs, nthread or default_threads(num_envs)) \
-            if self.engine == "batch" else None
+            if self.engine == "batch" and backend == "mujoco" else None
+        if backend == "warp":
+            self.engine = "warp"
+            self._batch = warp_vector_env.WarpEpisodes(self.envs, device)
 
     def reset(self, *, seed: int | Sequence[int | None] | None = None,
               options: dict | None = None) -> tuple[np.ndarray, dict]:
@@ -223,7 +230,6 @@ class _BatchedEpisodes:
         n = len(envs)
         env = envs[0]
         self.rig = env.physics.rig
-        self.sim = mjbatch.Batch(env.physics.model, n, nthread=nthread)
         self.rows = np.arange(n)
         self.action = env.task.action
         self.scaling = env.scaling
@@ -244,21 +250,37 @@ class _BatchedEpisodes:
         self.x = np.zeros(n)  # contraction [m] at the start of the next step
         self.obs = np.zeros((n, *env.observation_space.shape), env.observation_space.dtype)
         self.pid = PIArrays(n) if self.action == "residual" else None
+        self._open(env.physics.model, n, nthread)
+        adr = max(self.rig.state, 0)
+        self.p_i, self.p_o = adr + plugin.FIELD["p_i"], adr + plugin.FIELD["p_o"]
+        self.status = adr + plugin.FIELD["status"]
+
+    def _open(self, model: mujoco.MjModel, n: int, nthread: int) -> None:
+        """The n simulations, on `mujoco.batch` (MuJoCo Warp: `warp_vector_env`)."""
+        self.sim = mjbatch.Batch(model, n, nthread=nthread)
         self.ten_length = self.sim.bind("ten_length")
         self.ten_velocity = self.sim.bind("ten_velocity")
         self.plugin_state = self.sim.bind("plugin_state")
         self.ctrl = self.sim.bind("ctrl")
-        adr = self.rig.state
-        self.p_i, self.p_o = adr + plugin.FIELD["p_i"], adr + plugin.FIELD["p_o"]
-        self.status = adr + plugin.FIELD["status"]
+
+    def _load_states(self, ids: np.ndarray) -> None:
+        """Simulations `ids` take their environments' state and model (just reset)."""
+        for i in ids:
+            physics = self.envs[i].physics
+            mujoco.mj_getState(physics.model, physics.data, self.sim.state[i], _STATE)
+            self.sim.warning[i] = 0  # warnings are no part of the state: as a reset data
+        models = [env.physics.model for env in self.envs]
+        if any(m.npluginstate != models[0].npluginstate for m in models):
+            raise ParameterError("engine='batch' needs one plugin state size for every "
+                                 "environment (a randomized dead time changes it); use "
+                                 "engine='serial'")
+        self.sim.set_models(models)  # set again: a reset edits the load's mass
 
     def restart(self, ids: np.ndarray) -> None:
         """Environments `ids` have just been reset: their state, model and tables in."""
         for i in ids:
             env = self.envs[i]
             physics, task = env.physics, env.task
-            mujoco.mj_getState(physics.model, physics.data, self.sim.state[i], _STATE)
-            self.sim.warning[i] = 0  # warnings are no part of the state: as a reset data
             self.k[i] = 0
             self.length0[i] = physics.rig.length0
             self.atmosphere[i] = physics.rig.atmosphere
@@ -270,12 +292,7 @@ class _BatchedEpisodes:
                                                                    self.load[i])
             if self.pid is not None:
                 self.pid.load(i, task.pi_controller)
-        models = [env.physics.model for env in self.envs]
-        if any(m.npluginstate != models[0].npluginstate for m in models):
-            raise ParameterError("engine='batch' needs one plugin state size for every "
-                                 "environment (a randomized dead time changes it); use "
-                                 "engine='serial'")
-        self.sim.set_models(models)  # set again: a reset edits the load's mass
+        self._load_states(ids)
 
     def step(self, actions, autoreset: np.ndarray):
         n = len(self.envs)

@@ -53,16 +53,25 @@ def _batched_fields(mjw) -> list[str]:
 
 
 class WarpBatch:
-    """Worlds of one model layout, each its own MjSpec, stepped together on `device`."""
+    """Worlds of one model layout, each its own MjSpec, stepped together on `device`.
 
-    def __init__(self, specs: list[mujoco.MjSpec], device: str = "cpu") -> None:
+    per_world: model fields held per world whether or not they differ now (those a later
+    `load_world` changes); nsub: the physics steps of one `step_synced`."""
+
+    def __init__(self, specs: list[mujoco.MjSpec], device: str = "cpu", *,
+                 per_world: tuple[str, ...] | list[str] = (), nsub: int = 1) -> None:
         wp, mjw = warp_muscle.require_warp()
         self.wp, self.mjw = wp, mjw
         self.device = check_device(device)
-        built = [engine.python_model(spec) for spec in specs]
-        self.models = [model for model, _ in built]
+        self.nsub = nsub
+        built: dict[int, tuple] = {}  # one compile per distinct spec
+        for spec in specs:
+            if id(spec) not in built:
+                built[id(spec)] = engine.python_model(spec)
+        worlds = [built[id(spec)] for spec in specs]
+        self.models = [model for model, _ in worlds]
         mjm = self.models[0]
-        for model, muscles in built:
+        for model, muscles in built.values():
             if len(muscles) != 1:
                 raise ParameterError(f"backend = 'warp' runs one wpam_mj.muscle instance per "
                                      f"model; this one has {len(muscles)}")
@@ -74,54 +83,53 @@ class WarpBatch:
                 raise ParameterError("backend = 'warp': every world of a batch needs one "
                                      f"timestep; got {model.opt.timestep:g} and "
                                      f"{mjm.opt.timestep:g} s")
-        self.muscles = [muscles[0] for _, muscles in built]
+        self.muscles = [muscles[0] for _, muscles in worlds]
         first = self.muscles[0]
         self.nworld = len(specs)
         self.tendon, self.force_actuator = first.tendon, first.force_actuator
         self.channels = first.channels
         limits = [c or (-np.inf, np.inf) for c in first.ctrl_limits]
         lo, hi = [c[0] for c in limits], [c[1] for c in limits]
-        dt = float(mjm.opt.timestep)
-        self.dt = dt
-        values = [warp_muscle.world_values(m.config, m.length0, dt, len(m.channels))
-                  for m in self.muscles]
+        self.dt = float(mjm.opt.timestep)
+        cache: dict[int, dict] = {}
+        values = [cache.setdefault(id(m), warp_muscle.world_values(
+            m.config, m.length0, self.dt, len(m.channels))) for m in self.muscles]
         self.delay = int(max(v["delay_steps"] for v in values))
         self.width = len(plugin.STATE_FIELDS) + 2 * self.delay
         self._initial = self._initial_state(values)
+        self.kernels = warp_muscle.kernels()
         with wp.ScopedDevice(self.device):
-            self.model = self._put_model(mjm)
+            self.model = self._put_model(mjm, set(per_world))
             self.data = mjw.make_data(mjm, nworld=self.nworld)
             self.world = warp_muscle.world_struct(values, self.device)
             self.state = wp.array(self._initial, dtype=float)
             self._channels = wp.array(np.array(self.channels, dtype=np.int32), dtype=int)
             self._lo = wp.array(np.array(lo, dtype=np.float32), dtype=float)
             self._hi = wp.array(np.array(hi, dtype=np.float32), dtype=float)
-        self.kernels = warp_muscle.kernels()
         self.model.callback.control = self._compute
         self._graphs: dict[int, object] = {}
+        self._host: dict[str, np.ndarray] = {}
+        self._staged: set[str] = set()
 
-    def _put_model(self, mjm: mujoco.MjModel):
+    def _put_model(self, mjm: mujoco.MjModel, per_world: set[str]):
         """`mujoco_warp.put_model`, with every batched field that differs between the worlds'
-        models held per world."""
-        differing = {}
+        models, or is named in `per_world`, held per world."""
+        self.per_world = {}
         for name in _batched_fields(self.mjw):
-            if not hasattr(mjm, name) and not hasattr(mjm.opt, name):
+            if not hasattr(mjm, name):
                 continue
-            values = [np.asarray(getattr(m, name) if hasattr(m, name) else getattr(m.opt, name))
-                      for m in self.models]
-            if any(v.shape != values[0].shape or not np.array_equal(v, values[0])
-                   for v in values[1:]):
-                differing[name] = np.stack(values)
-        model = self.mjw.put_model(mjm, batch_sizes={n: self.nworld for n in differing})
-        for name, stacked in differing.items():
-            owner = model.opt if hasattr(model.opt, name) else model
-            arr = getattr(owner, name)
-            if stacked.size != arr.size * max(1, int(np.prod(arr.dtype._shape_))
-                                              if hasattr(arr.dtype, "_shape_") else 1):
+            values = [np.asarray(getattr(m, name)) for m in self.models]
+            if name in per_world or any(not np.array_equal(v, values[0]) for v in values[1:]):
+                self.per_world[name] = np.stack(values)
+        model = self.mjw.put_model(mjm, batch_sizes={n: self.nworld for n in self.per_world})
+        for name, stacked in self.per_world.items():
+            arr = getattr(model, name)
+            shape = arr.shape + tuple(getattr(arr.dtype, "_shape_", ()))
+            if stacked.size != int(np.prod(shape)):
                 raise ParameterError(f"backend = 'warp': model field {name} differs between "
                                      "worlds in a way MuJoCo Warp cannot hold per world")
-            setattr(owner, name, self.wp.array(stacked.reshape(arr.shape + tuple(
-                getattr(arr.dtype, "_shape_", ()))), dtype=arr.dtype, device=self.device))
+            setattr(model, name, self.wp.array(stacked.reshape(shape), dtype=arr.dtype,
+                                               device=self.device))
         return model
 
     def _initial_state(self, values: list[dict[str, float]]) -> np.ndarray:
@@ -136,6 +144,10 @@ class WarpBatch:
         s[:, F["rest_pending"]] = [v["start_at_rest"] for v in values]
         return s
 
+    def initial_row(self, i: int) -> np.ndarray:
+        """World i's muscle state at reset (the plugin's layout)."""
+        return self._initial[i].copy()
+
     def _compute(self, m, d) -> None:
         """The control callback: the muscle's compute, every world."""
         self.wp.launch(self.kernels.compute, dim=self.nworld, inputs=[
@@ -143,39 +155,116 @@ class WarpBatch:
             d.efc.id, d.efc.frictionloss, self._channels, self._lo, self._hi, self.tendon,
             self.force_actuator])
 
-    def _step_once(self) -> None:
-        self.mjw.step(self.model, self.data)
-        self.wp.launch(self.kernels.advance, dim=self.nworld, inputs=[self.world, self.state])
+    def _steps(self, nstep: int, forward: bool) -> None:
+        for _ in range(nstep):
+            self.mjw.step(self.model, self.data)
+            self.wp.launch(self.kernels.advance, dim=self.nworld, inputs=[self.world,
+                                                                           self.state])
+        if forward:  # positions and velocities of the new state (mj_step1's), for readers
+            self.mjw.fwd_position(self.model, self.data, factorize=False)
+            self.mjw.fwd_velocity(self.model, self.data)
 
-    def step(self, nstep: int = 1) -> None:
-        """`nstep` physics steps of every world (on CUDA, a captured graph per nstep)."""
+    def step(self, nstep: int = 1, *, forward: bool = False) -> None:
+        """`nstep` physics steps of every world (on CUDA, a captured graph per nstep);
+        with `forward`, then the tendon lengths and velocities of the new state."""
         wp = self.wp
         with wp.ScopedDevice(self.device):
             if not self.device.startswith("cuda"):
-                for _ in range(nstep):
-                    self._step_once()
+                self._steps(nstep, forward)
                 return
-            graph = self._graphs.get(nstep)
-            if graph is None:
-                self._step_once()  # compile and load every kernel before capturing
+            key = (nstep, forward)
+            if key not in self._graphs:
+                state = [wp.clone(a) for a in self._state_arrays()]
+                self._steps(nstep, forward)  # load every kernel before capturing
+                for a, saved in zip(self._state_arrays(), state):
+                    wp.copy(a, saved)  # the warm-up leaves no trace
                 with wp.ScopedCapture() as capture:
-                    for _ in range(nstep):
-                        self._step_once()
-                graph = self._graphs[nstep] = capture.graph
-                # (the warm-up step above is one step more: callers reset after building)
-            wp.capture_launch(graph)
+                    self._steps(nstep, forward)
+                self._graphs[key] = capture.graph
+            wp.capture_launch(self._graphs[key])
+
+    def _state_arrays(self) -> list:
+        d = self.data
+        return [d.qpos, d.qvel, d.act, d.time, d.qacc_warmstart, d.ctrl, self.state]
 
     def reset(self) -> None:
         """Every world at its model's initial state and its muscle at the plugin's reset."""
         with self.wp.ScopedDevice(self.device):
             self.mjw.reset_data(self.model, self.data)
             self.state.assign(self._initial)
+        for name, host in self._host.items():  # host mirrors follow
+            host[...] = self._array(name).numpy()
 
     def set_ctrl(self, values: np.ndarray) -> None:
         """The input channels of every world, (nworld, channels)."""
         ctrl = self.data.ctrl.numpy()
         ctrl[:, self.channels] = values
         self.data.ctrl.assign(ctrl)
+
+    # ---- host mirrors: numpy views on Warp's CPU device, copies kept in step on CUDA ----
+
+    def _array(self, name: str):
+        if name == "state":
+            return self.state
+        if name.startswith("world."):
+            return getattr(self.world, name[6:])
+        if name.startswith("model."):
+            return getattr(self.model, name[6:])
+        return getattr(self.data, name)
+
+    def _mirror(self, name: str) -> np.ndarray:
+        if name not in self._host:
+            self._host[name] = self._array(name).numpy()  # a view on the CPU device
+        return self._host[name]
+
+    def host_view(self) -> dict[str, np.ndarray]:
+        """Host arrays of what the vector environment reads and writes: ten_length,
+        ten_velocity, time, ctrl and the muscle state, (nworld, ...) each."""
+        return {name: self._mirror(name) for name in
+                ("ten_length", "ten_velocity", "time", "ctrl", "state")}
+
+    @property
+    def time(self) -> np.ndarray:
+        """Each world's time [s], on the host (as `mujoco.batch.Batch.time`)."""
+        return self._mirror("time")
+
+    def load_world(self, i: int, data: mujoco.MjData, model: mujoco.MjModel,
+                   state: np.ndarray, values: dict[str, float]) -> None:
+        """World i takes a MuJoCo data's integration state, a muscle state row, a model's
+        per-world fields and the muscle's `world_values` (sent by `upload`)."""
+        for name in ("qpos", "qvel", "act", "time", "qacc_warmstart"):
+            self._stage(name)[i] = getattr(data, name)
+        row = self._stage("state")[i]
+        row[:] = self._initial[i]
+        row[:len(state)] = state
+        for name in self.per_world:  # (a plugin model lacks the force motor: its rows first)
+            value = np.asarray(getattr(model, name))
+            self._stage(f"model.{name}")[i][:len(value)] = value.reshape(
+                (len(value), *self._stage(f"model.{name}").shape[2:]))
+        for name, value in values.items():
+            self._stage(f"world.{name}")[i] = value
+
+    def _stage(self, name: str) -> np.ndarray:
+        self._staged.add(name)
+        return self._mirror(name)
+
+    def upload(self) -> None:
+        """Send what `load_world` staged to the device (nothing to send on the CPU)."""
+        if self.device.startswith("cuda"):
+            for name in self._staged:
+                self._array(name).assign(self._host[name])
+        self._staged.clear()
+
+    def step_synced(self, nstep: int | None = None) -> None:
+        """`nsub` (or `nstep`) physics steps with the host's ctrl, then the host mirrors of
+        the state the vector environment reads."""
+        cuda = self.device.startswith("cuda")
+        if cuda:
+            self.data.ctrl.assign(self._host["ctrl"])
+        self.step(self.nsub if nstep is None else nstep, forward=True)
+        if cuda:
+            for name in ("ten_length", "ten_velocity", "time", "state"):
+                self._host[name][...] = self._array(name).numpy()
 
 
 def run_warp(runs: list, *, device: str = "cpu") -> list:
