@@ -14,7 +14,8 @@ import mujoco
 import pytest
 
 import wpam_mj  # noqa: F401 (registers the plugin)
-from wpam_mj.physics.params import ParameterError
+from wpam_mj.physics.geometry import BraidGeometry
+from wpam_mj.physics.params import ParameterError, preset
 from wpam_mj.simulation import engine, plugin
 
 pytestmark = pytest.mark.skipif(plugin.compiler() is None or plugin.disabled(),
@@ -181,3 +182,64 @@ def step_python(model, muscles, data, n):
             mujoco.mj_step(model, data)
             for muscle in muscles:
                 muscle.advance()
+
+
+# ---------------------------------------------------------------- the tendon's range
+
+LOOSE = 'limited="true" range="0.3068 1"'  # an upper bound far past the natural length
+
+
+def test_tendon_range_is_the_stroke_in_tendon_lengths():
+    """range = [natural length - x_max, natural length]; the natural length is the
+    tendon's length at qpos0 plus contraction0; x_max from the instance's braid."""
+    model = mujoco.MjModel.from_xml_string(hanging())  # 0.4 m of tendon at qpos0
+    r = plugin.tendon_range(model, "m")
+    x_max = BraidGeometry.from_params(preset("wpam").braid).max_contraction
+    assert (r.upper, r.max_contraction) == (model.tendon_length0[0], x_max)
+    assert r.lower == r.upper - x_max and r.mjcf == f'limited="true" range="{r.lower:.6g} 0.4"'
+    narrower = preset("wpam").with_values({"braid.max_diameter": 0.035})
+    model = mujoco.MjModel.from_xml_string(hanging(instance=(
+        '<config key="contraction0" value="0.02"/>'
+        '<config key="braid.max_diameter" value="0.035"/>'), channels=("pi", "po")))
+    r = plugin.tendon_range(model, 0)
+    assert r.upper == model.tendon_length0[0] + 0.02
+    assert r.max_contraction == BraidGeometry.from_params(narrower.braid).max_contraction != x_max
+
+
+def test_the_range_holds_a_load_at_the_natural_length_where_a_loose_one_lets_it_stretch(
+        elsewhere):
+    """A vented muscle under 5 kg: with the docs' old upper bound (1 m) gravity stretches
+    the inextensible braid tens of mm past its natural length, STATUS_STROKE and one MuJoCo
+    warning naming the range; with `tendon_range`'s, it stops within the tolerance."""
+    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(f"""
+        import mujoco, wpam_mj
+        from wpam_mj.simulation import plugin
+        for tendon in ({LOOSE!r}, None):
+            m = mujoco.MjModel.from_xml_string({hanging(tendon=LOOSE)!r})
+            if tendon is None:
+                m = mujoco.MjModel.from_xml_string({hanging(tendon=LOOSE)!r}.replace(
+                    {LOOSE!r}, plugin.tendon_range(m, "m").mjcf))
+            d = mujoco.MjData(m)
+            mujoco.mj_step(m, d, nstep=2000)
+            s = plugin.state_of(m, d, "m")
+            print("x", s["x"], s["status"])
+    """)], capture_output=True, text=True, timeout=300, cwd=elsewhere)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    output = (proc.stdout + proc.stderr).splitlines()
+    (loose_x, loose_status), (held_x, held_status) = [
+        tuple(map(float, line.split()[1:])) for line in output if line.startswith("x ")]
+    assert loose_x < -0.02 and loose_status == plugin.STATUS_STROKE
+    assert -plugin.STROKE_TOLERANCE < held_x <= 0.0 and held_status == 0
+    warnings = [line for line in output if line.startswith("WARNING")]
+    assert len(warnings) == 1 and "left the stroke [0, 0.0932457] m" in warnings[0], output
+    assert 'range="0.306754 0.4" (plugin.tendon_range)' in warnings[0]
+
+
+def test_the_python_engine_warns_once_when_a_muscle_leaves_its_stroke(capsys):
+    model, muscles = engine.python_model(mujoco.MjSpec.from_string(hanging(tendon=LOOSE)))
+    data = mujoco.MjData(model)
+    step_python(model, muscles, data, 2000)
+    assert muscles[0].status_bits == plugin.STATUS_STROKE and muscles[0].record["x"] < -0.02
+    err = capsys.readouterr().err
+    assert err.count("WARNING: wpam_mj.muscle instance 'm': contraction x = ") == 1, err
+    assert 'range="0.306754 0.4" (plugin.tendon_range)' in err

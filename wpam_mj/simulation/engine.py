@@ -216,6 +216,20 @@ class PythonMuscle:
         self.status_bits |= plugin.STATUS_MODEL
         return True
 
+    def _left_stroke(self, x: float) -> None:
+        """The plugin's left_stroke: STATUS_STROKE, and the first time since the reset one
+        warning line naming the tendon range that holds the muscle in its stroke."""
+        if not self.status_bits & plugin.STATUS_STROKE:
+            x_max = self.muscle.geometry.max_contraction
+            natural = self.length0 + self.config.contraction0  # the tendon's length at x = 0
+            print(f"WARNING: wpam_mj.muscle instance '{self.config.name}': contraction x = "
+                  f"{x:.6g} m left the stroke [0, {x_max:.6g}] m by more than "
+                  f"{plugin.STROKE_TOLERANCE:.6g} m (status {plugin.STATUS_STROKE}); limit "
+                  "its tendon from the full bag to the natural length: "
+                  f'range="{natural - x_max:.6g} {natural:.6g}" (plugin.tendon_range)',
+                  file=sys.stderr)
+        self.status_bits |= plugin.STATUS_STROKE
+
     def compute(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
         """The step's force and friction level; nothing kept but what advance needs."""
         if self.pending is not None and data.time != self.pending[0]:
@@ -232,7 +246,7 @@ class PythonMuscle:
         force, friction = self.plant.forces(x)
         tolerance = plugin.STROKE_TOLERANCE
         if not -tolerance <= x <= self.muscle.geometry.max_contraction + tolerance:
-            self.status_bits |= plugin.STATUS_STROKE
+            self._left_stroke(x)
         if not math.isfinite(x):  # MuJoCo's state is already bad: add nothing to it
             force, friction = 0.0, self.params.muscle.friction_const
         pi, po = self.plant.pressures

@@ -808,6 +808,20 @@ static void wpam_reset(const mjModel* m, mjtNum* plugin_state, void* plugin_data
   state_reset(k, plugin_state);
 }
 
+/* STATUS_STROKE, and the first time since the data's reset one MuJoCo warning naming the
+   tendon range that holds the muscle in its stroke (plugin.tendon_range). */
+static void left_stroke(const mjModel* m, int instance, const Instance* k, double* s,
+                        double x) {
+  double natural = k->length0 + k->contraction0; /* the tendon's length at x = 0 */
+  if (!((int)s[S_STATUS] & WPAM_STATUS_STROKE))
+    mju_warning("wpam_mj.muscle instance '%s': contraction x = %.6g m left the stroke [0, "
+                "%.6g] m by more than %.6g m (status %d); limit its tendon from the full bag "
+                "to the natural length: range=\"%.6g %.6g\" (plugin.tendon_range)",
+                instance_name(m, instance), x, k->max_contraction, WPAM_STROKE_TOLERANCE,
+                WPAM_STATUS_STROKE, natural - k->max_contraction, natural);
+  set_status(s, WPAM_STATUS_STROKE);
+}
+
 static void wpam_compute(const mjModel* m, mjData* d, int instance, int capability_bit) {
   double* s = d->plugin_state + m->plugin_stateadr[instance];
   Instance* k = instance_of(m, d, instance, s);
@@ -846,7 +860,7 @@ static void wpam_compute(const mjModel* m, mjData* d, int instance, int capabili
   friction = kernel_friction_level(pi_gauge, po_gauge, area, k->p[P_MUSCLE_FRICTION_COEFF],
                                    k->p[P_MUSCLE_FRICTION_CONST]);
   if (!(-WPAM_STROKE_TOLERANCE <= x && x <= k->max_contraction + WPAM_STROKE_TOLERANCE))
-    set_status(s, WPAM_STATUS_STROKE);
+    left_stroke(m, instance, k, s, x);
   if (!isfinite(x)) { /* MuJoCo's state is already bad: add nothing to it */
     force = 0.0;
     friction = k->p[P_MUSCLE_FRICTION_CONST];

@@ -168,6 +168,46 @@ def state_of(model, data, instance: int | str = 0) -> dict[str, float]:
     return dict(zip(STATE_FIELDS, map(float, data.plugin_state[start:start + len(STATE_FIELDS)])))
 
 
+@dataclass(frozen=True)
+class TendonRange:
+    """The lengths [m] of a muscle's tendon across its stroke 0 <= x <= x_max: the range
+    to give the tendon (MJCF ``limited="true" range="lower upper"``) so that no load
+    stretches the braid past its natural length (it is inextensible there) nor contracts
+    it past the full bag."""
+
+    lower: float  # at the full bag, x = x_max: natural length - max_contraction
+    upper: float  # at the muscle's natural length, x = 0
+    max_contraction: float  # x_max, BraidGeometry.max_contraction
+
+    @property
+    def mjcf(self) -> str:
+        """The tendon's attributes that give this range."""
+        return f'limited="true" range="{self.lower:.6g} {self.upper:.6g}"'
+
+
+def tendon_range(model, instance: int | str = 0) -> TendonRange:
+    """The range of the tendon of a muscle of a compiled `model` (instance by id or name).
+
+    x = contraction0 + (tendon length at qpos0 - tendon length) (docs/plugin.md), so the
+    tendon is `upper` = tendon_length0 + contraction0 long at the natural length (x = 0)
+    and `upper` - x_max at the full bag, x_max from the instance's braid parameters
+    (`wpam_mj.physics.geometry.BraidGeometry`). Compile the model once (with any range or
+    none) and give its tendon this one."""
+    from wpam_mj.physics.geometry import BraidGeometry  # noqa: PLC0415 (no cycle at import)
+    from wpam_mj.simulation.engine import InstanceConfig  # noqa: PLC0415 (it imports this module)
+
+    if isinstance(instance, str):
+        instance = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_PLUGIN, instance)
+    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_PLUGIN, instance)
+    config = InstanceConfig.from_config(name, config_of(model, instance),
+                                        model.opt.timestep, int(model.opt.integrator))
+    first = list(model.actuator_plugin).index(instance)  # the channel carrying the force
+    natural = (float(model.tendon_length0[model.actuator_trnid[first, 0]])
+               + config.contraction0)
+    x_max = BraidGeometry.from_params(config.params.braid).max_contraction
+    return TendonRange(natural - x_max, natural, x_max)
+
+
 def status_of(model, data, instance: int | str = 0) -> str:
     """The one line of a muscle's `status` in `data` ("" while it is well)."""
     s = state_of(model, data, instance)
