@@ -14,7 +14,7 @@ from wpam_mj.design import sampling, study, study_spec, study_table
 from wpam_mj.cli import main
 from wpam_mj.infra.pool import Workers, open_workers
 from wpam_mj.physics.params import ParameterError, preset
-from wpam_mj.infra.pool import run_tasks
+from wpam_mj.simulation.execution import execute
 from wpam_mj.experiments.paper_studies import StepTask
 
 # A small study: 6 seeded random step runs of 33 s (3 s plateaus, the shortest a study
@@ -142,12 +142,12 @@ def test_resume_redoes_only_missing_runs_and_ends_with_the_same_table(tmp_path):
         _run(tmp_path, "out", workers, changed, resume=True)
 
 
-def test_task_pool_runs_on_any_executor():
+def test_tasks_run_on_any_executor():
     params = preset("wpam")
     tasks = [StepTask(params, load, "pi", 5e-3) for load in (60.0, 140.0)]
     with ThreadPoolExecutor(2) as pool:
-        on_pool = run_tasks(tasks, jobs=1, executor=pool)
-    serial = run_tasks(tasks, jobs=1)
+        on_pool = execute(tasks, pool)
+    serial = execute(tasks)
     for a, b in zip(on_pool, serial):
         np.testing.assert_array_equal(a.x_mean, b.x_mean)
 

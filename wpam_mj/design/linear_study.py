@@ -2,7 +2,7 @@
 
 For one load and operating contraction, `compare` builds the §3 and extended models for PI
 and PID and runs the simulated sweep (`paper_studies.sweep_batch`) at several target amplitudes
-(the paper's 25 mm and smaller ones), all in one process pool. A `LinearComparison` holds
+(the paper's 25 mm and smaller ones), all in one `execute`. A `LinearComparison` holds
 both; `agreement` is the yardstick: at 0.1-0.25 Hz, does the simulated gain lie
 within 1 dB and the lag within 10 deg of the model's? Everything is recomputed from the
 current parameters, so the numbers follow any change of the physics.
@@ -22,12 +22,12 @@ import numpy as np
 
 from wpam_mj import paper
 from wpam_mj.design import linear
-from wpam_mj.infra import pool
 from wpam_mj.experiments import paper_studies
 from wpam_mj.experiments.drives import SINE_AMPLITUDE_MM, SINE_MEAN_MM
 from wpam_mj.experiments.feasibility import MOVE_MIN_MM
 from wpam_mj.physics.params import MM, Params, ParameterError
 from wpam_mj.experiments.responses import SweepResult
+from wpam_mj.simulation.execution import execute
 
 SMALL_AMPLITUDE_MM = 5.0  # about the friction band's reach in error at 150 N (docs/linear_model.md)
 AMPLITUDES_MM = (SINE_AMPLITUDE_MM, SMALL_AMPLITUDE_MM)  # the paper's, and a small one
@@ -219,7 +219,7 @@ def compare(params: Params, loads: Sequence[float], *, contraction: float = SINE
             controllers: Sequence[str] = linear.CONTROLLERS, dt: float = 1e-3, jobs: int = 1,
             progress: bool = False) -> list[LinearComparison]:
     """A `LinearComparison` per load [N]: models at `contraction` [m], sweeps at each
-    amplitude [m] (one pool for every run)."""
+    amplitude [m] (every run in one `execute`)."""
     controllers = tuple(linear.check_linear_control(c) for c in controllers)
     if not amplitudes:
         raise ParameterError("no amplitudes given")
@@ -228,8 +228,7 @@ def compare(params: Params, loads: Sequence[float], *, contraction: float = SINE
     keys = [(load, a) for load in loads for a in amplitudes]
     batches = [paper_studies.sweep_batch(params, (load,), freqs, controllers, keep=(), dt=dt,
                                    amplitude=a) for load, a in keys]
-    results = dict(zip(keys, pool.run_batches(batches, jobs=jobs, progress=progress,
-                                                 desc="linear vs sim")))
+    results = dict(zip(keys, execute(batches, jobs, progress=progress, desc="linear vs sim")))
     return [LinearComparison(load, contraction, loops[load],
                              {a: results[(load, a)] for a in amplitudes}) for load in loads]
 
