@@ -255,9 +255,10 @@ def test_halving_the_step_moves_the_sine_gain_and_lag_little():
     assert abs(points[0].phase_lag_deg - points[1].phase_lag_deg) < 1.0, points
 
 
-def test_simulate_many_equals_simulate_at_any_thread_count():
+def test_many_runs_equal_simulate_at_any_thread_count():
     """Runs of two layouts (PI and open loop) and three loads through mujoco.batch."""
-    from wpam_mj.simulation.simulate import Run, simulate_many  # noqa: PLC0415
+    from wpam_mj.simulation.execution import execute  # noqa: PLC0415
+    from wpam_mj.simulation.simulate import Run  # noqa: PLC0415
 
     params, dt = preset("wpam"), 1e-3
     t = np.arange(1500) * dt
@@ -271,7 +272,7 @@ def test_simulate_many_equals_simulate_at_any_thread_count():
             singles.append(simulate(params, load, drive, dt=dt, control=control,
                                     engine="python"))
     for nthread in (1, 2):
-        for got, ref in zip(simulate_many(runs, nthread=nthread), singles):
+        for got, ref in zip(execute(runs, nthread), singles):
             for field in REC_FIELDS:
                 np.testing.assert_array_equal(getattr(got, field), getattr(ref, field),
                                               err_msg=f"{field}, {nthread} threads")
