@@ -86,10 +86,7 @@ def test_the_python_engine_runs_the_same_users_model_bit_for_bit():
     model, muscles = engine.python_model(mujoco.MjSpec.from_string(xml))
     ref = mujoco.MjData(model)
     ref.ctrl[0] = 0.25 * MPA
-    with engine.stepping(model, muscles):
-        for _ in range(1000):
-            mujoco.mj_step(model, ref)
-            muscles[0].advance()
+    engine.step(model, ref, muscles, 1000)
     assert data.qpos[0] == ref.qpos[0] and data.qvel[0] == ref.qvel[0]
 
 
@@ -197,13 +194,13 @@ def test_in_plugin_feedforward_equals_the_drives():
 
     def run(model, muscles=()):
         data, xs = mujoco.MjData(model), []
-        with engine.stepping(model, list(muscles)):
-            for step in range(len(t)):
-                xs.append(data.qpos[0])  # recorded at the start of the step, as simulate
-                data.ctrl[0] = x_ref[step]
+        for step in range(len(t)):
+            xs.append(data.qpos[0])  # recorded at the start of the step, as simulate
+            data.ctrl[0] = x_ref[step]
+            if muscles:
+                engine.step(model, data, list(muscles))
+            else:
                 mujoco.mj_step(model, data)
-                for muscle in muscles:
-                    muscle.advance()
         return np.array(xs)
 
     compiled = run(one_channel().compile())

@@ -90,11 +90,7 @@ def finger(flexor: str = "", extensor: str = '<config key="contraction0" value="
 
 
 def step_python(model, muscles, data, n):
-    with engine.stepping(model, muscles):
-        for _ in range(n):
-            mujoco.mj_step(model, data)
-            for muscle in muscles:
-                muscle.advance()
+    engine.step(model, data, muscles, n)
 
 
 # ---------------------------------------------------------------- a muscle pulls
@@ -235,8 +231,9 @@ def test_no_command_poisons_a_muscle(bad, held):
     step_python(pmodel, muscles, pdata, 50)
     pdata.ctrl[:3] = (0.02, 0.1e6, 0.0)
     step_python(pmodel, muscles, pdata, 1000)
-    assert np.all(np.isfinite(pdata.qpos)) and not any(m.status for m in muscles)
-    assert all(math.isfinite(v) for m in muscles for k, v in m.record.items() if k != "x_ref")
+    assert np.all(np.isfinite(pdata.qpos)) and not any(m.status(pdata) for m in muscles)
+    assert all(math.isfinite(v) for m in muscles
+               for k, v in zip(plugin.STATE_FIELDS, m.state(pdata)) if k != "x_ref")
 
 
 # ---------------------------------------------------------------- options edited after compile
@@ -296,7 +293,7 @@ def test_the_python_engine_refuses_a_changed_time_step_alike(capsys):
     step_python(model, muscles, data, 10)
     model.opt.timestep = 1e-5
     step_python(model, muscles, data, 10)
-    assert muscles[0].status.startswith("the model's timestep or integrator changed")
+    assert muscles[0].status(data).startswith("the model's timestep or integrator changed")
     assert data.ctrl[muscles[0].force_actuator] == 0.0
     assert capsys.readouterr().err.count("changed after the model compiled") == 1
 

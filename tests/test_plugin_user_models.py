@@ -90,13 +90,11 @@ def test_a_muscle_without_a_po_channel_runs_alike_on_both_engines():
     pmodel, muscles = engine.python_model(mujoco.MjSpec.from_string(xml))
     pdata = mujoco.MjData(pmodel)
     pdata.ctrl[0] = 0.25e6
-    with engine.stepping(pmodel, muscles):
-        for _ in range(500):
-            mujoco.mj_step(pmodel, pdata)
-            muscles[0].advance()
+    engine.step(pmodel, pdata, muscles, 500)
     state = plugin.state_of(model, data, "m")
     assert state["po_cmd"] == 0.0 and state["pi"] > 0.0 and state["tension"] > 0.0
-    assert pdata.qpos[0] == data.qpos[0] and muscles[0].record["po_cmd"] == 0.0
+    assert pdata.qpos[0] == data.qpos[0]
+    assert muscles[0].state(pdata)[plugin.FIELD["po_cmd"]] == 0.0
 
 
 # ---------------------------------------------------------------- the friction row, after compile
@@ -154,17 +152,16 @@ def test_the_python_engine_stops_a_muscle_without_its_friction_row_alike(capsys)
     step(100)
     model.tendon_frictionloss[0] = 0.0
     step(100)
-    assert muscles[0].status_bits == plugin.STATUS_MODEL
+    assert muscles[0].state(data)[plugin.FIELD["status"]] == plugin.STATUS_MODEL
     assert data.ctrl[muscles[0].force_actuator] == 0.0
     err = capsys.readouterr().err
     assert err.count("WARNING: wpam_mj.muscle instance 'm': tendon 'm' frictionloss = 0 after "
                      "the model compiled") == 1, err
     model.tendon_frictionloss[0] = 1.0
     mujoco.mj_resetData(model, data)
-    for muscle in muscles:
-        muscle.reset()
     step(100)
-    assert muscles[0].status_bits == 0 and data.ctrl[muscles[0].force_actuator] < 0.0
+    assert muscles[0].state(data)[plugin.FIELD["status"]] == 0
+    assert data.ctrl[muscles[0].force_actuator] < 0.0
 
 
 @pytest.mark.parametrize("flag", ["frictionloss", "constraint"])
@@ -177,11 +174,7 @@ def test_a_model_compiled_without_friction_rows_is_refused_on_both_engines(flag)
 
 
 def step_python(model, muscles, data, n):
-    with engine.stepping(model, muscles):
-        for _ in range(n):
-            mujoco.mj_step(model, data)
-            for muscle in muscles:
-                muscle.advance()
+    engine.step(model, data, muscles, n)
 
 
 # ---------------------------------------------------------------- the tendon's range
@@ -239,7 +232,9 @@ def test_the_python_engine_warns_once_when_a_muscle_leaves_its_stroke(capsys):
     model, muscles = engine.python_model(mujoco.MjSpec.from_string(hanging(tendon=LOOSE)))
     data = mujoco.MjData(model)
     step_python(model, muscles, data, 2000)
-    assert muscles[0].status_bits == plugin.STATUS_STROKE and muscles[0].record["x"] < -0.02
+    state = muscles[0].state(data)
+    assert state[plugin.FIELD["status"]] == plugin.STATUS_STROKE
+    assert state[plugin.FIELD["x"]] < -0.02
     err = capsys.readouterr().err
     assert err.count("WARNING: wpam_mj.muscle instance 'm': contraction x = ") == 1, err
     assert 'range="0.306754 0.4" (plugin.tendon_range)' in err

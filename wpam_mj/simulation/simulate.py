@@ -231,24 +231,24 @@ def _run_batch(models: list[mujoco.MjModel], inputs: list[np.ndarray], record_ev
 
 def run_python(spec: mujoco.MjSpec, inputs: np.ndarray, record_every: int):
     """`run_plugin` on the Python engine (`wpam_mj.simulation.engine`): the reference."""
-    model, (muscle,) = pyengine.python_model(spec)
+    model, muscles = pyengine.python_model(spec)
+    (muscle,) = muscles
     data = mujoco.MjData(model)
     n = len(inputs)
     rec = np.zeros(_record_shape(n, record_every))
     channels = muscle.channels
-    ctrl, dt, record = data.ctrl, model.opt.timestep, muscle.record
-    names = REC_FIELDS[1:]
+    ctrl, dt = data.ctrl, model.opt.timestep
+    status, recorded = plugin.FIELD["status"], len(REC_FIELDS) - 1
     j = 0
-    with pyengine.stepping(model, [muscle]):
-        for step in range(n):
-            for channel, value in zip(channels, inputs[step]):
-                ctrl[channel] = value
-            mujoco.mj_step(model, data)
-            muscle.advance()
-            if muscle.status:
-                return rec, (step, muscle.status)
-            if step % record_every == 0:
-                rec[0, j] = step * dt
-                rec[1:, j] = [record[name] for name in names]
-                j += 1
+    for step in range(n):
+        for channel, value in zip(channels, inputs[step]):
+            ctrl[channel] = value
+        pyengine.step(model, data, muscles)
+        state = muscle.state(data)
+        if state[status]:
+            return rec, (step, state_failure(state))
+        if step % record_every == 0:
+            rec[0, j] = step * dt
+            rec[1:, j] = state[:recorded]
+            j += 1
     return rec, None
