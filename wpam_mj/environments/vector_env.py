@@ -39,7 +39,8 @@ from mujoco import batch as mjbatch
 
 from wpam_mj.environments.dm_env_task import REWARD_BOUND, check_actions, check_seed
 from wpam_mj.environments.gym_env import WPAMEnv, check_episode_steps
-from wpam_mj.physics.params import MM, ParameterError
+from wpam_mj.physics.kernel_codegen import array_kernel
+from wpam_mj.physics.params import ParameterError
 from wpam_mj.simulation import plugin
 from wpam_mj.simulation.loop_contract import RunConstants, state_failure
 
@@ -100,7 +101,7 @@ def varying_state_size(env: WPAMEnv) -> str:
 
 class PIArrays:
     """The paper's PI on Po (`wpam_mj.control.controllers.PoFeedback.evaluate` and
-    `commit`, the same operations in the same order) for N environments at once."""
+    `commit`: the kernel's `po_feedback`, in its array form) for N environments at once."""
 
     def __init__(self, n: int) -> None:
         self.kp, self.ki, self.kd, self.tf, self.dt, self.pa_per_unit, self.lo, self.hi = (
@@ -119,20 +120,14 @@ class PIArrays:
     def update(self, x: np.ndarray, x_ref: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """Po commands [Pa] of environments `rows` at contractions x and targets x_ref [m]
         (arrays over `rows`), advancing their state."""
-        integral0 = self.integral[rows]
-        e = (x - x_ref) / MM
-        e_prev = np.where(self.has_prev[rows], self.e_prev[rows], e)
-        tf, dt = self.tf[rows], self.dt[rows]
-        derivative = (tf * self.derivative[rows] + (e - e_prev)) / (tf + dt)
-        integral = integral0 + e * dt
-        u = (self.kp[rows] * e + self.ki[rows] * integral + self.kd[rows] * derivative) \
-            * self.pa_per_unit[rows] + 0.0
-        lo, hi = self.lo[rows], self.hi[rows]
-        above, below = u > hi, u < lo
-        keep = (above & (e >= 0.0)) | (below & (e <= 0.0))  # conditional integration
-        self.integral[rows] = np.where(keep, integral0, integral)
-        self.derivative[rows], self.e_prev[rows], self.has_prev[rows] = derivative, e, True
-        return np.where(above, hi, np.where(below, lo, u))
+        u, self.integral[rows], self.derivative[rows], self.e_prev[rows] = \
+            array_kernel().po_feedback(
+                x, x_ref, 0.0, self.integral[rows], self.derivative[rows], self.e_prev[rows],
+                self.has_prev[rows], self.kp[rows], self.ki[rows], self.kd[rows],
+                self.tf[rows], self.pa_per_unit[rows], self.lo[rows], self.hi[rows],
+                self.dt[rows])
+        self.has_prev[rows] = True
+        return u
 
 
 class WPAMVectorEnv(VectorEnv):
