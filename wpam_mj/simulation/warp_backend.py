@@ -56,10 +56,12 @@ class WarpBatch:
     """Worlds of one model layout, each its own MjSpec, stepped together on `device`.
 
     per_world: model fields held per world whether or not they differ now (those a later
-    `load_world` changes); nsub: the physics steps of one `step_synced`."""
+    `load_world` changes); nsub: the physics steps of one `step_synced`; delay: room for
+    dead-time queues of at least this many steps (a later `load_world` may need more)."""
 
     def __init__(self, specs: list[mujoco.MjSpec], device: str = "cpu", *,
-                 per_world: tuple[str, ...] | list[str] = (), nsub: int = 1) -> None:
+                 per_world: tuple[str, ...] | list[str] = (), nsub: int = 1,
+                 delay: int = 0) -> None:
         wp, mjw = warp_muscle.require_warp()
         self.wp, self.mjw = wp, mjw
         self.device = check_device(device)
@@ -94,7 +96,7 @@ class WarpBatch:
         cache: dict[int, dict] = {}
         values = [cache.setdefault(id(m), warp_muscle.world_values(
             m.config, m.length0, self.dt, len(m.channels))) for m in self.muscles]
-        self.delay = int(max(v["delay_steps"] for v in values))
+        self.delay = int(max(delay, *(v["delay_steps"] for v in values)))
         self.width = len(plugin.STATE_FIELDS) + 2 * self.delay
         self._initial = self._initial_state(values)
         self.kernels = warp_muscle.kernels()
@@ -115,12 +117,15 @@ class WarpBatch:
         """`mujoco_warp.put_model`, with every batched field that differs between the worlds'
         models, or is named in `per_world`, held per world."""
         self.per_world = {}
+        distinct = list({id(m): m for m in self.models}.values())  # compared once each
+        which = {id(m): k for k, m in enumerate(distinct)}
+        index = np.array([which[id(m)] for m in self.models])
         for name in _batched_fields(self.mjw):
             if not hasattr(mjm, name):
                 continue
-            values = [np.asarray(getattr(m, name)) for m in self.models]
+            values = [np.asarray(getattr(m, name)) for m in distinct]
             if name in per_world or any(not np.array_equal(v, values[0]) for v in values[1:]):
-                self.per_world[name] = np.stack(values)
+                self.per_world[name] = np.stack(values)[index]
         model = self.mjw.put_model(mjm, batch_sizes={n: self.nworld for n in self.per_world})
         for name, stacked in self.per_world.items():
             arr = getattr(model, name)
@@ -271,6 +276,7 @@ def run_warp(runs: list, *, device: str = "cpu") -> list:
     """Each run's `SimResult` or the SimulationDiverged it raises, as `simulate_each`, on
     MuJoCo Warp: runs of one model layout and length share a batch (any presets, loads and
     control modes). Records as the plugin does, in float32."""
+    warp_muscle.require_warp()
     out: dict[int, object] = {}
     groups: dict[tuple, list[int]] = {}
     for i, run in enumerate(runs):
