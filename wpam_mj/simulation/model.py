@@ -13,7 +13,7 @@ from pathlib import Path
 
 import mujoco
 
-from wpam_mj.simulation import engine
+from wpam_mj.simulation import engine, stand_in
 from wpam_mj.simulation import plugin
 from wpam_mj.physics import pneumatics
 from wpam_mj.physics.geometry import BraidGeometry
@@ -93,7 +93,7 @@ def rig_spec(params: Params, load: float, dt: float = 1e-3, *, control: str = "o
     """
     load = check_load(load)
     dt = check_dt(dt)
-    engine.register_stand_in()
+    stand_in.register_stand_in()
     spec = mujoco.MjSpec.from_file(str(xml))
     spec.option.timestep = dt
     spec.option.gravity = (0.0, 0.0, -STANDARD_GRAVITY)
