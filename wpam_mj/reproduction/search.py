@@ -120,6 +120,17 @@ def _point_task(arg: tuple) -> Point | None:
     return Point(params, protocol, err, region.names)
 
 
+@dataclass(frozen=True)
+class _StaticFit:
+    """`_point_task` as a task of the execution layer."""
+
+    key: tuple
+    cost = 1.0
+
+    def run(self) -> Point | None:
+        return _point_task(self.key)
+
+
 def point_of(u: Sequence[float], base: Params, region: Region = GLOBAL) -> Point:
     """The point at coordinates `u` (one per dim of `region`, in [0, 1]) on top of
     `base`, with its fit (computed once per point)."""
@@ -246,8 +257,8 @@ class Evaluator:
         """Each coordinate's point with its static fit, the fits run on the workers."""
         keys = [(tuple(float(x) for x in u), self.base, self.region) for u in us]
         todo = [k for k in dict.fromkeys(keys) if k not in _POINTS]
-        fitted = (map(_point_task, todo) if self.executor is None
-                  else self.executor.map(_point_task, todo))
+        from wpam_mj.simulation.execution import execute  # noqa: PLC0415 (the one layer)
+        fitted = execute([_StaticFit(k) for k in todo], self.executor)
         for k, point in zip(todo, fitted):
             _POINTS[k] = point
         return [_POINTS[k] for k in keys]
