@@ -71,7 +71,7 @@ def test_a_local_run_and_a_two_worker_dask_cluster_agree_bit_for_bit(cluster):
     with open_workers(Cluster(cluster.scheduler_address)) as workers:
         assert workers.slots == 2 and workers.where.startswith("Dask")
         remote = execution.execute(TASKS, workers, failed=str)
-        bare = execution.execute(TASKS, workers.executor, failed=str)  # as `executor_for`
+        bare = execution.execute(TASKS, workers.executor, failed=str)  # a bare executor
     local = execution.execute(TASKS, None, failed=str)
     assert (result_bytes(remote) == result_bytes(bare) == result_bytes(local)
             == result_bytes(_serial(TASKS)))

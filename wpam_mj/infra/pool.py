@@ -198,16 +198,6 @@ def open_workers(jobs: int | Cluster | Workers | Executor | None = 1,
             yield Workers(pool, jobs, f"{jobs} local cores")
 
 
-@contextmanager
-def executor_for(jobs: int | Cluster = 1,
-                 executor: Executor | None = None) -> Iterator[Executor | None]:
-    """`executor` if given (the caller's: not shut down here), else the executor of
-    `open_workers(jobs)` (None: run in this process), for code that hands it on to
-    `wpam_mj.simulation.execution.execute` (which reads it back as the same `Workers`)."""
-    with open_workers(jobs if executor is None else executor) as workers:
-        yield workers.executor
-
-
 def _given(where: Workers | Executor | None) -> Workers:
     """The `Workers` of an executor opened elsewhere."""
     if where is None or isinstance(where, Workers):

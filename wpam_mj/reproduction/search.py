@@ -34,7 +34,6 @@ import json
 import math
 import sys
 import time
-from concurrent.futures import Executor
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Sequence
@@ -44,7 +43,7 @@ from scipy.optimize import differential_evolution
 
 from wpam_mj.paper import TABLE2_PO_RTOL
 from wpam_mj.fitting import estimation
-from wpam_mj.infra.pool import executor_for
+from wpam_mj.infra.pool import Workers, open_workers
 from wpam_mj.reproduction.calibrate import FREE
 from wpam_mj.reproduction.search_scoring import OBJECTIVES, Record, Targets, score
 from wpam_mj.physics.params import (Params, ParameterError, check_range,
@@ -191,9 +190,9 @@ class Journal:
 
 class Evaluator:
     """Scores lists of coordinates: journaled points are replayed, the rest run together
-    on `executor`, longest runs first (None: here, one after the other)."""
+    on `executor` (the `Workers` of `open_workers`), longest runs first."""
 
-    def __init__(self, base: Params, journal: Journal, executor: Executor | None,
+    def __init__(self, base: Params, journal: Journal, executor: Workers,
                  targets=None, progress: bool = False, planned: int = 0,
                  region: Region = GLOBAL, objective: str = "cost") -> None:
         self.base, self.journal, self.executor = base, journal, executor
@@ -419,7 +418,7 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
     if resume:
         check_same_search(journal, settings, "--resume")
     started = time.perf_counter()
-    with executor_for(jobs) as ex:
+    with open_workers(jobs) as ex:
         ev = Evaluator(base, journal, ex, targets, progress,
                        planned_evaluations(popsize, maxiter, len(bounds)), region, objective)
         res = differential_evolution(
