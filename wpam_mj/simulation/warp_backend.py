@@ -59,6 +59,8 @@ class WarpBatch:
     `load_world` changes); nsub: the physics steps of one `step_synced`; delay: room for
     dead-time queues of at least this many steps (a later `load_world` may need more)."""
 
+    force_host_copies = False  # tests: the CUDA path's host copies on the CPU device
+
     def __init__(self, specs: list[mujoco.MjSpec], device: str = "cpu", *,
                  per_world: tuple[str, ...] | list[str] = (), nsub: int = 1,
                  delay: int = 0) -> None:
@@ -69,7 +71,7 @@ class WarpBatch:
         built: dict[int, tuple] = {}  # one compile per distinct spec
         for spec in specs:
             if id(spec) not in built:
-                built[id(spec)] = engine.python_model(spec)
+                built[id(spec)] = engine.python_model(spec.copy())  # (it edits the spec)
         worlds = [built[id(spec)] for spec in specs]
         self.models = [model for model, _ in worlds]
         mjm = self.models[0]
@@ -112,6 +114,9 @@ class WarpBatch:
         self._graphs: dict[int, object] = {}
         self._host: dict[str, np.ndarray] = {}
         self._staged: set[str] = set()
+        # host mirrors are copies kept in step on CUDA (views on the CPU device, unless a
+        # test asks for the CUDA path's copies there)
+        self.host_copies = self.device.startswith("cuda") or self.force_host_copies
 
     def _put_model(self, mjm: mujoco.MjModel, per_world: set[str]):
         """`mujoco_warp.put_model`, with every batched field that differs between the worlds'
@@ -219,7 +224,8 @@ class WarpBatch:
 
     def _mirror(self, name: str) -> np.ndarray:
         if name not in self._host:
-            self._host[name] = self._array(name).numpy()  # a view on the CPU device
+            host = self._array(name).numpy()  # a view on the CPU device
+            self._host[name] = host.copy() if self.host_copies else host
         return self._host[name]
 
     def host_view(self) -> dict[str, np.ndarray]:
@@ -250,12 +256,17 @@ class WarpBatch:
             self._stage(f"world.{name}")[i] = value
 
     def _stage(self, name: str) -> np.ndarray:
+        """The host array of `name` to change rows of; on CUDA fetched first, so that the
+        upload leaves the other worlds as the device has them."""
+        host = self._mirror(name)
+        if name not in self._staged and self.host_copies:
+            host[...] = self._array(name).numpy()
         self._staged.add(name)
-        return self._mirror(name)
+        return host
 
     def upload(self) -> None:
         """Send what `load_world` staged to the device (nothing to send on the CPU)."""
-        if self.device.startswith("cuda"):
+        if self.host_copies:
             for name in self._staged:
                 self._array(name).assign(self._host[name])
         self._staged.clear()
@@ -263,11 +274,10 @@ class WarpBatch:
     def step_synced(self, nstep: int | None = None) -> None:
         """`nsub` (or `nstep`) physics steps with the host's ctrl, then the host mirrors of
         the state the vector environment reads."""
-        cuda = self.device.startswith("cuda")
-        if cuda:
+        if self.host_copies:
             self.data.ctrl.assign(self._host["ctrl"])
         self.step(self.nsub if nstep is None else nstep, forward=True)
-        if cuda:
+        if self.host_copies:
             for name in ("ten_length", "ten_velocity", "time", "state"):
                 self._host[name][...] = self._array(name).numpy()
 
