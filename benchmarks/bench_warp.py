@@ -25,6 +25,7 @@ import json
 import os
 import sys
 import time
+import traceback
 
 import gymnasium
 import numpy as np
@@ -85,6 +86,16 @@ def env_rate(worlds: int, seconds: float, repeats: int, **backend) -> float:
     return rate
 
 
+def attempt(measure, *args, **kwargs) -> float | None:
+    """A measurement, or None with its traceback on stderr: one failed row leaves the
+    others (a run on a rented GPU should bring back what it can)."""
+    try:
+        return measure(*args, **kwargs)
+    except Exception:  # noqa: BLE001 (reported, then the next row)
+        traceback.print_exc()
+        return None
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--devices", default=None,
@@ -117,14 +128,15 @@ def main(argv: list[str] | None = None) -> int:
                   if device.startswith("cuda") else "1,4,16")).split(",")]
         for n in counts:
             start = time.perf_counter()
-            physics = physics_rate(device, n, args.nsub, args.seconds, args.repeats)
+            physics = attempt(physics_rate, device, n, args.nsub, args.seconds, args.repeats)
             env = cpu = None
             if n <= args.env_max:
-                env = env_rate(n, args.seconds, args.repeats, backend="warp", device=device)
-                cpu = env_rate(n, args.seconds, args.repeats)
+                env = attempt(env_rate, n, args.seconds, args.repeats, backend="warp",
+                              device=device)
+                cpu = attempt(env_rate, n, args.seconds, args.repeats)
             rows.append({"device": device, "device_name": name[device], "worlds": n,
                          "physics_steps_per_s": physics,
-                         "env_steps_per_s_physics": physics / FRAME_SKIP,
+                         "env_steps_per_s_physics": physics and physics / FRAME_SKIP,
                          "env_steps_per_s": env, "cpu_vector_env_steps_per_s": cpu,
                          "wall_s": time.perf_counter() - start})
             print(f"  {device} {n} worlds: done in {rows[-1]['wall_s']:.0f} s", flush=True)
@@ -138,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"| {r['device']} ({r['device_name']}) | {r['worlds']:,} | "
               f"{f(r['physics_steps_per_s'])} | {f(r['env_steps_per_s_physics'])} | "
               f"{f(r['env_steps_per_s'])} | {f(r['cpu_vector_env_steps_per_s'])} |")
-    best = max(r["env_steps_per_s_physics"] for r in rows)
+    best = max(r["env_steps_per_s_physics"] or 0.0 for r in rows)
     print(f"\nbest env steps/s the physics allows: {best:,.0f} (target on one H100-class "
           f"GPU: {TARGET_ENV_RATE:,})")
     if args.json:
