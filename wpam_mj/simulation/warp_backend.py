@@ -19,6 +19,7 @@ one batch per model layout and length, the record as the plugin's, in float32.
 from __future__ import annotations
 
 import dataclasses
+import sys
 
 import mujoco
 import numpy as np
@@ -188,14 +189,23 @@ class WarpBatch:
                 self._steps(nstep, forward)  # load every kernel before capturing
                 for a, saved in zip(self._state_arrays(), state):
                     wp.copy(a, saved)  # the warm-up leaves no trace
-                with wp.ScopedCapture() as capture:
-                    self._steps(nstep, forward)
-                self._graphs[key] = capture.graph
-            wp.capture_launch(self._graphs[key])
+                try:
+                    with wp.ScopedCapture() as capture:
+                        self._steps(nstep, forward)
+                    self._graphs[key] = capture.graph
+                except Exception as err:  # noqa: BLE001 (no graphs here: launch each kernel)
+                    print(f"wpam_mj: CUDA graph capture failed ({err}); stepping without",
+                          file=sys.stderr)
+                    self._graphs[key] = None
+            if self._graphs[key] is None:
+                self._steps(nstep, forward)
+            else:
+                wp.capture_launch(self._graphs[key])
 
     def _state_arrays(self) -> list:
         d = self.data
-        return [d.qpos, d.qvel, d.act, d.time, d.qacc_warmstart, d.ctrl, self.state]
+        return [a for a in (d.qpos, d.qvel, d.act, d.time, d.qacc_warmstart, d.ctrl,
+                            self.state) if a.size]
 
     def reset(self) -> None:
         """Every world at its model's initial state and its muscle at the plugin's reset."""
