@@ -135,7 +135,7 @@ class ResidualModel(Protocol):
     def residuals(self, params: Params, results: list) -> np.ndarray: ...
 
 
-class Journal:
+class ResidualJournal:
     """Residual vectors by parameter set, kept in a JSON file (`path`; None: in memory)
     after every evaluation. A deterministic search interrupted and run again with the
     journal replays what it had done without running it, so it loses at most the
@@ -180,7 +180,7 @@ class Journal:
 
 def evaluate(model: ResidualModel, trials: Sequence[Params],
              executor: Workers | Executor | None = None,
-             journal: Journal | None = None) -> list[np.ndarray | None]:
+             journal: ResidualJournal | None = None) -> list[np.ndarray | None]:
     """Residual vectors of `model` at each parameter set (None where its simulation
     failed or its parameters are invalid). All tasks of all trials run at once on the
     execution layer (`wpam_mj.simulation.execution.execute`: the simulations on batch
@@ -188,7 +188,7 @@ def evaluate(model: ResidualModel, trials: Sequence[Params],
     Sets found in the `journal` are not run again; the others are recorded in it."""
     if journal is not None:
         todo = [p for p in trials if p not in journal]
-        journal.record({Journal.key(p): r for p, r in zip(todo, evaluate(model, todo,
+        journal.record({ResidualJournal.key(p): r for p, r in zip(todo, evaluate(model, todo,
                                                                            executor))})
         return [journal.get(p) for p in trials]
     groups: list[list | None] = []
@@ -336,7 +336,7 @@ def fit(model: ResidualModel, start: Params, free: Sequence[FreeParameter], *,
         diff_step: float = DIFF_STEP,
         max_nfev: int = 60, xtol: float = 1e-4, ftol: float = 1e-6,
         method: str = "dogbox", progress: bool = False,
-        journal: Journal | None = None) -> FitResult:
+        journal: ResidualJournal | None = None) -> FitResult:
     """Fit the `free` parameters of `start` to `model`'s residuals (module docstring).
     A start value outside its bounds starts at the nearest bound.
 
@@ -348,7 +348,7 @@ def fit(model: ResidualModel, start: Params, free: Sequence[FreeParameter], *,
       max_nfev: most residual evaluations of the search (Jacobians not counted).
       xtol, ftol: scipy's termination tolerances (xtol on the scaled coordinates).
       method: scipy's bounded method, "dogbox" or "trf".
-      journal: keeps every evaluation (`Journal`): a fit interrupted and run again with
+      journal: keeps every evaluation (`ResidualJournal`): a fit interrupted and run again with
         the same journal replays its steps instead of running them.
     """
     if not free:

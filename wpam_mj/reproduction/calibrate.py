@@ -272,7 +272,7 @@ def random_starts(start: Params, samples: int, seed: int) -> list[Params]:
 
 
 def _best_start(model: PaperTargets, candidates: list[Params], ex: Workers,
-                journal: estimation.Journal, progress: bool) -> Params:
+                journal: estimation.ResidualJournal, progress: bool) -> Params:
     """The candidate of least cost (the first on ties: the given start)."""
     costs = []
     batch = 8 if ex.remote or ex.slots > 1 else 1
@@ -318,7 +318,7 @@ def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
     journal_file = None if out is None else journal_path(Path(out))
     if resume and (journal_file is None or not journal_file.exists()):
         raise ParameterError(f"--resume: no journal {journal_file} of an interrupted fit")
-    journal = estimation.Journal(journal_file, keep=resume)
+    journal = estimation.ResidualJournal(journal_file, keep=resume)
     model = PaperTargets(dt, protocol)
     started = time.perf_counter()
     with open_workers(jobs) as ex:

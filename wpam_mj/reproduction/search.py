@@ -154,7 +154,7 @@ def _key(u: Sequence[float]) -> str:
     return hashlib.sha256(repr([round(float(x), 12) for x in u]).encode()).hexdigest()[:24]
 
 
-class Journal:
+class PointJournal:
     """Records by coordinates, appended as JSON lines to `path` (None: in memory), after a
     first line {"settings": ...} naming the search they belong to (`search_settings`;
     None: a journal written before journals recorded them)."""
@@ -192,7 +192,7 @@ class Evaluator:
     """Scores lists of coordinates: journaled points are replayed, the rest run together
     on `executor` (the `Workers` of `open_workers`), longest runs first."""
 
-    def __init__(self, base: Params, journal: Journal, executor: Workers,
+    def __init__(self, base: Params, journal: PointJournal, executor: Workers,
                  targets=None, progress: bool = False, planned: int = 0,
                  region: Region = GLOBAL, objective: str = "cost") -> None:
         self.base, self.journal, self.executor = base, journal, executor
@@ -335,7 +335,7 @@ _SETTING_FLAGS = {"seed": "--seed", "popsize": "--popsize", "free": "--free",
                   "radius": "--radius"}
 
 
-def check_same_search(journal: Journal, ours: dict, what: str,
+def check_same_search(journal: PointJournal, ours: dict, what: str,
                       keys: Sequence[str] = ("seed", "popsize", "free", "radius", "base")
                       ) -> None:
     """ParameterError naming the first setting of `keys` in which the search asked for
@@ -414,7 +414,7 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
     path = None if out is None else Path(out) / "journal.jsonl"
     if resume and path is None:
         raise ParameterError("--resume: an in-memory search has no journal to resume")
-    journal = Journal(path, keep=resume, settings=settings)
+    journal = PointJournal(path, keep=resume, settings=settings)
     if resume:
         check_same_search(journal, settings, "--resume")
     started = time.perf_counter()
@@ -448,4 +448,4 @@ def convergence(records: Sequence[Record],
 def load_records(out: Path) -> list[Record]:
     """Every record of the journal in `out` (a finished or interrupted search);
     ParameterError where there is none."""
-    return list(Journal(Path(out) / "journal.jsonl", keep=True).records.values())
+    return list(PointJournal(Path(out) / "journal.jsonl", keep=True).records.values())
