@@ -237,6 +237,7 @@ def _dask_executor(address: str) -> Iterator[Workers]:
                 raise
             executor.shutdown(wait=True)
         finally:
+            _UNHEALTHY_SINCE.pop(id(client), None)
             client.close(timeout=CONNECT_TIMEOUT_S)
 
 
