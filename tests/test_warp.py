@@ -18,6 +18,7 @@ import pytest
 
 import wpam_mj  # noqa: F401 (registers the ids)
 from wpam_mj.experiments.drives import drive_for_targets, step_targets
+from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import MM, ParameterError, preset
 from wpam_mj.simulation import plugin, warp_muscle
 from wpam_mj.simulation.simulate import Run, simulate_run
@@ -94,6 +95,20 @@ def test_every_preset_and_control_follows_the_plugin_on_warp(parity, case):
     moved = np.abs(reference.velocity) > 1e-3
     assert stuck_ref[np.argmax(moved):].any() and moved.any()
     assert np.mean(stuck_ref == stuck_warp) >= 0.99  # measured: 1.0
+
+
+@needs_warp
+@pytest.mark.skipif(not plugin.available(), reason="the parity runs include the plugin's")
+@pytest.mark.parametrize("name", ["rlam", "mckibben"])
+def test_a_muscle_without_an_outer_bag_keeps_po_at_the_atmosphere_on_warp(parity, name):
+    """No outer bag, no outer chamber: Po is 0 gauge exactly while the muscle moves, and the
+    tension is the closed form at Po = 0 (float32 apart)."""
+    run = parity[1][CASES.index((name, "open"))]
+    assert np.ptp(run.x) > 5 * MM
+    assert np.all(run.po == 0.0), f"Po reached {np.max(np.abs(run.po)):g} Pa"
+    model = MuscleModel.from_params(preset(name))
+    closed = [model.tendon_force(x, pi, 0.0) for x, pi in zip(run.x, run.pi)]
+    np.testing.assert_allclose(run.tension, closed, rtol=0, atol=TOLERANCE["tension"])
 
 
 @needs_warp
