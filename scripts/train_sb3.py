@@ -39,6 +39,8 @@ import wpam_mj  # noqa: F401 (registers the ids)
 from wpam_mj.environments.policies import POLICIES, mean_return
 from wpam_mj.environments.sb3 import BatchedVecEnv
 from wpam_mj.environments.vector_env import default_threads
+from wpam_mj.physics.params import ParameterError
+from wpam_mj.simulation.warp_backend import check_device
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -147,6 +149,11 @@ def parse_args() -> argparse.Namespace:
     args = p.parse_args()
     if args.backend == "mujoco" and args.device != "cpu":
         p.error(f"--device {args.device} needs --backend warp (mujoco.batch runs on the CPU)")
+    if args.backend == "warp":  # the extra and the device, before minutes of reference scores
+        try:
+            check_device(args.device)
+        except ParameterError as err:
+            p.error(f"--backend warp --device {args.device}: {err}")
     if not 0.0 < args.time_limit <= 10.0:
         p.error(f"--time-limit {args.time_limit:g} must be in (0, 10] s")
     per_update = args.n_envs * (args.n_steps if args.algo == "ppo" else 1)
