@@ -11,7 +11,7 @@ Nothing is copied by hand between Python and C: `tables_header()` writes every p
 (``section.field`` names, units, ranges, each preset's values) from `wpam_mj.physics.params`,
 the rule table of `wpam_mj.physics.rules` (the instance's numbers, the derived quantities,
 the rules between quantities), the state layout `STATE_FIELDS` and its status bits, the
-control modes `CONTROLS` and the physical constants of `wpam_mj.physics.pneumatics` as C
+control modes `CONTROLS` as C
 tables (floats as exact hex literals), and the muscle's physics, `wpam_mj.physics.kernel`,
 as C (`wpam_mj.physics.kernel_codegen.c_source`); the library reports the hash of it all,
 which must match, so a change of the kernel rebuilds the plugin.
