@@ -1,12 +1,11 @@
-"""Many short runs through `mujoco.batch` (`wpam_mj.simulation.simulate.simulate_many`): threads.
+"""Many short runs through `mujoco.batch` (`wpam_mj.execute` on 1 and 2 cores): threads.
 
 100 PI runs of 20 s (a 0 -> 10 -> 20 mm staircase, loads spread over 50-150 N), each on
 its own model, stepped by one batch on 1 and on 2 threads (best of --repeats). Figures:
 runs/s on each, the speed-up (target >= 1.8x on 2 threads; it needs two idle cores, so
 `parallel_capacity` is printed beside it), whether the records are bit-identical, and,
 for comparison, the same runs through `simulate` on a process pool of 2 (pool start
-included), the way studies, fits and calibration ran before the execution layer
-(docs/cluster.md) and `wpam reproduce` still runs.
+included), the way every many-run job ran before the execution layer (docs/cluster.md).
 
 Run: python benchmarks/bench_batch.py [--runs N] [--duration S] [--repeats R]
 """
@@ -20,9 +19,9 @@ import numpy as np
 
 from common import Figure, parallel_capacity, plugin_missing, print_table
 from wpam_mj.infra.pool import WorkerPool
-from wpam_mj import preset
+from wpam_mj import execute, preset
 from wpam_mj.experiments.drives import drive_for_targets, step_targets
-from wpam_mj.simulation.simulate import Run, simulate, simulate_many
+from wpam_mj.simulation.simulate import Run, simulate
 
 DT = 1e-3  # s
 TARGET_SPEEDUP = 1.8  # 2 threads / 1 thread
@@ -58,7 +57,7 @@ def measure(runs: list[Run], repeats: int, *, pool: bool = True) -> tuple[dict, 
     for _ in range(repeats):
         for nthread in (1, 2):
             start = time.perf_counter()
-            results[nthread] = simulate_many(runs, nthread=nthread)
+            results[nthread] = execute(runs, nthread)
             best[nthread] = min(best[nthread], time.perf_counter() - start)
         if pool:
             best["pool"] = min(best["pool"], time_pool(len(runs), _duration(runs[0])))

@@ -36,11 +36,12 @@ import time
 from scipy.stats import qmc
 
 from common import Figure
-from wpam_mj.infra.pool import Cluster, TaskPool, open_workers
+from wpam_mj.infra.pool import Cluster, WorkerPool, open_workers
 from wpam_mj.physics.params import preset
 from wpam_mj.reproduction import search
 from wpam_mj.simulation import execution
-from wpam_mj.simulation.execution import result_bytes, plugin
+from wpam_mj.simulation import plugin
+from wpam_mj.simulation.execution import result_bytes
 
 SEED = 20
 
@@ -72,9 +73,10 @@ def _cpu_here() -> float:
 def _run_pool(tasks: list) -> list:
     """The search's dispatch before the layer: every task on a pool of 2, longest first;
     a failed run is None."""
-    with TaskPool(2) as pool:
-        futures = pool.submit([_Guarded(t) for t in tasks])
-        return pool.results(futures)
+    with WorkerPool(2) as pool:
+        futures = {k: pool.submit(_Guarded(tasks[k]).run)
+                   for k in sorted(range(len(tasks)), key=lambda k: -tasks[k].cost)}
+        return [futures[k].result() for k in range(len(tasks))]
 
 
 class _Guarded:

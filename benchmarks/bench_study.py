@@ -18,7 +18,7 @@ Peak RSS: `python -m wpam_mj study --jobs 2` of 100 and of 1,000 short runs (--r
 s each), largest process of the tree (wait4), to show that memory does not grow with runs.
 
 Run: python benchmarks/bench_study.py [--runs N] [--duration S] [--repeats R]
-[--rss-duration S]   (quick check on a busy machine: --runs 100 --duration 20 --repeats 3)
+[--rss-duration S]   (quick check on a busy machine: --runs 100 --duration 33 --repeats 3)
 """
 
 from __future__ import annotations
@@ -125,8 +125,9 @@ def main() -> int:
                     help="simulated seconds per step run (default 100)")
     ap.add_argument("--repeats", type=int, default=1,
                     help="interleaved repeats; each figure is the best (default 1)")
-    ap.add_argument("--rss-duration", type=float, default=2.2,
-                    help="simulated seconds per run of the RSS studies (default 2.2)")
+    ap.add_argument("--rss-duration", type=float, default=33.0,
+                    help="simulated seconds per run of the RSS studies (default 33, the "
+                         "shortest a step study takes)")
     args = ap.parse_args()
     spec = study_spec.parse_spec(spec_dict(args.runs, args.duration))
     print(describe())

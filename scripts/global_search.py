@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from wpam_mj.reproduction import search
+from wpam_mj.reproduction import search, search_outputs
 
 
 def main() -> None:
@@ -26,9 +26,9 @@ def main() -> None:
     ap.add_argument("--resume", action="store_true")
     ap.add_argument("--objective", choices=tuple(search.OBJECTIVES), default="cost")
     a = ap.parse_args()
-    for path in search.write_search(a.out, seed=a.seed, popsize=a.popsize,
-                                    maxiter=a.maxiter, jobs=a.jobs, resume=a.resume,
-                                    objective=a.objective):
+    for path in search_outputs.write_search(a.out, seed=a.seed, popsize=a.popsize,
+                                            maxiter=a.maxiter, jobs=a.jobs, resume=a.resume,
+                                            objective=a.objective):
         print(f"wrote {path}")
 
 

@@ -24,20 +24,20 @@ from pathlib import Path
 import numpy as np
 
 from wpam_mj import paper
-from wpam_mj.infra import pool
 from wpam_mj.physics.params import MM, MPA, apply_overrides, load_toml, preset
 from wpam_mj.experiments.protocol import LOOP_METHODS, SHIPPED, table2_batch
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.experiments.paper_studies import PLATEAU_SETTLE_S, sweep_batch
+from wpam_mj.simulation.execution import execute
 
 LOADS_N = (25.0, 50.0, 75.0, 100.0, 125.0, 150.0, 200.0)
 LAG_FREQ_HZ = 0.1
 
 
 def measure(params, protocol, jobs: int) -> dict:
-    t2, sw = pool.run_batches([table2_batch(params, protocol, loads=LOADS_N),
-                               sweep_batch(params, LOADS_N, paper.SWEEP_FREQS_HZ, ("pi",),
-                                           keep=())], jobs=jobs)
+    t2, sw = execute([table2_batch(params, protocol, loads=LOADS_N),
+                      sweep_batch(params, LOADS_N, paper.SWEEP_FREQS_HZ, ("pi",), keep=())],
+                     jobs)
     rows = {}
     for run in t2.feedback_runs:
         load = run.load

@@ -28,6 +28,7 @@ from wpam_mj.experiments.drives import SineSpec, sine_run
 from wpam_mj.physics.params import MM, MPA, Params
 from wpam_mj.experiments.protocol import SHIPPED, remeasure, table2_batch
 from wpam_mj.infra.files import write_text_atomic
+from wpam_mj.simulation.execution import execute
 from wpam_mj.experiments.paper_studies import step_study, sweep
 
 READINGS = {"MPa/mm": 1.0, "V/mm, 0-5 V input": 0.1, "V/mm, 0-10 V input": 0.05}
@@ -52,7 +53,7 @@ class _ReadingTask:
 
 def measure(params: Params, *, dt: float, jobs: int) -> dict:
     """Every figure of the targets at one time step."""
-    (t2,) = pool.run_batches([table2_batch(params, SHIPPED, dt=dt)], jobs=jobs)
+    (t2,) = execute([table2_batch(params, SHIPPED, dt=dt)], jobs)
     steps = step_study(params, [(load, c) for c in ("pi", "pid") for load in paper.LOADS_N],
                        dt=dt, jobs=jobs)
     sw = sweep(params, keep=(), dt=dt, jobs=jobs)
@@ -83,9 +84,9 @@ def main() -> int:
     params = preset("wpam")
     dt = 1e-3
     result = measure(params, dt=dt, jobs=args.jobs)
-    fast, slow = pool.run_batches(
+    fast, slow = execute(
         [table2_batch(params, dataclasses.replace(SHIPPED, ramp_time=r), dt=dt)
-         for r in (SHIPPED.ramp_time, 240.0)], jobs=args.jobs)
+         for r in (SHIPPED.ramp_time, 240.0)], args.jobs)
     result["po_row_ramp"] = {
         f"{r:g} s, {m}": {f"{k:g}": v for k, v in remeasure(t, m).open_po.items()}
         for r, t in ((SHIPPED.ramp_time, fast), (240.0, slow))
@@ -93,9 +94,9 @@ def main() -> int:
     if not args.quick:
         half = measure(params, dt=dt / 2, jobs=args.jobs)
         result["dt_half"] = half
-        result["readings"] = dict(zip(READINGS, pool.run_tasks(
+        result["readings"] = dict(zip(READINGS, execute(
             [_ReadingTask(params.replace(controller={"command_scale": s}), dt)
-             for s in READINGS.values()], jobs=args.jobs)))
+             for s in READINGS.values()], args.jobs)))
     args.out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.out / "physics_targets.json", json.dumps(result, indent=1) + "\n")
     print(json.dumps({k: v for k, v in result.items() if k not in ("sweep", "dt_half")},

@@ -17,10 +17,10 @@ import dataclasses
 from pathlib import Path
 
 from wpam_mj import paper
-from wpam_mj.infra import pool
 from wpam_mj.experiments.analysis import loop_area
 from wpam_mj.physics.params import MPA, apply_overrides, load_toml, preset
 from wpam_mj.experiments.protocol import LOOP_METHODS, Protocol, ProtocolStaticTask
+from wpam_mj.simulation.execution import execute
 
 TOPS_MPA = (0.0, 0.10, 0.13, 0.16, 0.19, 0.22, 0.26, 0.30)  # 0: per load
 
@@ -38,7 +38,7 @@ def main() -> None:
                  for h in (0.0, a.hold)]
     tasks = [ProtocolStaticTask(params, load, po, 1e-3, pr) for pr in protocols
              for po in (0.0, paper.PO_DOWN_STATIC_MPA * MPA) for load in paper.LOADS_N]
-    loops = iter(pool.run_tasks(tasks, jobs=a.jobs))
+    loops = iter(execute(tasks, a.jobs))
     ref = [paper.TABLE2["open_po"][f] for f in paper.LOADS_N]
     print("top [MPa]  hold [s]  method    row 50/100/150 N          errors")
     for pr in protocols:

@@ -3,7 +3,7 @@ their steps, those whose PI steps settle, the most of `wpam reproduce`'s checks 
 and with settled steps (and what that point misses), and each finding's best margin with
 every other finding held (docs/physics.md, "Where the physics cannot reach the paper");
 with --figure, their convergence on one yardstick, the checks' summed shortfall
-(`search.shortfall`, whatever objective each search minimised), and the most checks met;
+(`search_scoring.shortfall`, whatever objective each search minimised), and the most checks met;
 with --map, the feasibility map of all their points together.
 
     python scripts/search_evidence.py out/search-20 out/search-21 ... \
@@ -15,7 +15,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from wpam_mj.reproduction import findings_map, search
+from wpam_mj.reproduction import findings_map, search, search_scoring
 
 
 def _line(name: str, records: list) -> str:
@@ -44,7 +44,7 @@ def main() -> None:
         conv = {name: search.convergence(rs, "checks") for name, rs in runs.items()}
         findings_map.convergence_figure(
             conv, a.figure, f"Convergence of {len(runs)} searches ({len(pooled)} points)",
-            search.OBJECTIVE_TEXT["checks"])
+            search_scoring.OBJECTIVE_TEXT["checks"])
         print(f"wrote {a.figure}")
     if a.map:
         pm = findings_map.pair_margins(pooled)

@@ -4,7 +4,7 @@ score it against the paper's PI (not run in CI; needs the `learn` extra: docs/le
     python scripts/train_sb3.py --algo ppo --steps 2000000 --out out/train
 
 The agent trains on `--n-envs` environments of `--env` stepped together on `mujoco.batch`
-(`wpam_mj.environments.vector_env`, `--nthread` threads) for exactly `--steps`
+(`wpam_mj.environments.sb3.BatchedVecEnv`, `--nthread` threads) for exactly `--steps`
 environment steps (for PPO a whole number of rollouts of n-envs x n-steps; anything else
 is refused). Every `--eval-every` steps the deterministic policy is scored on the
 validation seeds 1000.. (`--curve-seeds` episodes) and the best so far is kept. At the end
@@ -31,11 +31,12 @@ import matplotlib
 import numpy as np
 import torch
 from stable_baselines3 import PPO, SAC
-from stable_baselines3.common.vec_env import VecEnv, VecMonitor
+from stable_baselines3.common.vec_env import VecMonitor
 
 import wpam_mj  # noqa: F401 (registers the ids)
 from wpam_mj.environments.policies import POLICIES, mean_return
 from wpam_mj.environments.registry import EPISODE_STEPS
+from wpam_mj.environments.sb3 import BatchedVecEnv
 from wpam_mj.environments.vector_env import default_threads
 
 matplotlib.use("Agg")
@@ -43,53 +44,6 @@ import matplotlib.pyplot as plt  # noqa: E402
 
 ALGOS = {"ppo": PPO, "sac": SAC}
 REFERENCE_ID = "wpam_mj/WPAMTrack-v0"  # the same task with Po as the action
-
-
-class BatchedVecEnv(VecEnv):
-    """A `WPAMVectorEnv` (same-step autoreset) as Stable-Baselines3's VecEnv: SB3 wants the
-    next episode's first observation at the step that ends one, and the last one in
-    info["terminal_observation"] (SB3 docs, "Vectorized Environments")."""
-
-    def __init__(self, env_id: str, n_envs: int, nthread: int, **kwargs) -> None:
-        self.venv = gymnasium.make_vec(env_id, num_envs=n_envs, nthread=nthread,
-                                       autoreset_mode="SameStep", **kwargs)
-        super().__init__(n_envs, self.venv.single_observation_space,
-                         self.venv.single_action_space)
-        self._actions = None
-
-    def reset(self) -> np.ndarray:
-        obs, _ = self.venv.reset(seed=[s if s is None else int(s) for s in self._seeds])
-        self._reset_seeds()
-        return obs
-
-    def step_async(self, actions: np.ndarray) -> None:
-        self._actions = actions
-
-    def step_wait(self):
-        obs, rewards, terminated, truncated, infos = self.venv.step(self._actions)
-        dones = terminated | truncated
-        info_list: list[dict] = [{} for _ in range(self.num_envs)]
-        for i in np.flatnonzero(dones):
-            info_list[i] = {"terminal_observation": infos["final_obs"][i],
-                            "TimeLimit.truncated": bool(truncated[i] and not terminated[i])}
-        return obs, rewards.astype(np.float32), dones, info_list
-
-    def close(self) -> None:
-        self.venv.close()
-
-    def get_attr(self, attr_name, indices=None):
-        return [getattr(self.venv.envs[i], attr_name) for i in self._get_indices(indices)]
-
-    def set_attr(self, attr_name, value, indices=None) -> None:
-        for i in self._get_indices(indices):
-            setattr(self.venv.envs[i], attr_name, value)
-
-    def env_method(self, method_name, *method_args, indices=None, **method_kwargs):
-        return [getattr(self.venv.envs[i], method_name)(*method_args, **method_kwargs)
-                for i in self._get_indices(indices)]
-
-    def env_is_wrapped(self, wrapper_class, indices=None) -> list[bool]:
-        return [False for _ in self._get_indices(indices)]
 
 
 def episode_returns(env_id: str, predict, seeds: list[int], nthread: int,
@@ -207,7 +161,7 @@ def main() -> None:
     print("reference policies (test seeds):", {k: round(v, 1) for k, v in refs.items()},
           flush=True)
 
-    venv = VecMonitor(BatchedVecEnv(args.env, args.n_envs, args.nthread))
+    venv = VecMonitor(BatchedVecEnv(args.env, args.n_envs, nthread=args.nthread))
     venv.seed(args.seed)
     model = make_model(args, venv)
 

@@ -161,12 +161,12 @@ def test_table2_ramp_time_reaches_the_study(here, capsys, monkeypatch):
 
     seen = {}
 
-    def run_batches(batches, **kwargs):
+    def execute(batches, jobs, **kwargs):
         seen["ramp_times"] = [t.protocol.ramp_time for t in batches[0].tasks
                               if hasattr(t, "protocol")]
         raise SimulationDiverged("stopped by the test")
 
-    monkeypatch.setattr(cli_experiments, "run_batches", run_batches)
+    monkeypatch.setattr(cli_experiments, "execute", execute)
     code, _, err = _run(capsys, "table2", "--ramp-time", "240", *FAST)
     assert code == 1 and "stopped by the test" in err
     assert seen["ramp_times"] == [240.0] * 6  # the open loops with and without Po
@@ -175,11 +175,11 @@ def test_table2_ramp_time_reaches_the_study(here, capsys, monkeypatch):
 def test_jobs_never_exceed_the_runs(here, capsys, monkeypatch):
     seen = {}
 
-    def run_tasks(tasks, *, jobs, **kwargs):
+    def execute(tasks, jobs, **kwargs):
         seen["jobs"] = jobs
         raise SimulationDiverged("stopped by the test")
 
-    monkeypatch.setattr(paper_studies, "run_tasks", run_tasks)
+    monkeypatch.setattr(paper_studies, "execute", execute)
     code, _, _ = _run(capsys, "static", "--load", "100", "--jobs", "2", *FAST)
     assert code == 1 and seen["jobs"] == 1  # one run: no pool
 

@@ -16,7 +16,7 @@ from wpam_mj.infra.pool import Cluster, Workers, open_workers
 from wpam_mj.physics.params import ParameterError, preset
 from wpam_mj.simulation import execution
 from wpam_mj.simulation.execution import result_bytes
-from wpam_mj.simulation.simulate import SimulationDiverged, simulate_each, simulate_run
+from wpam_mj.simulation.simulate import SimulationDiverged, simulate_run
 
 P = preset("wpam")
 DT = 5e-3
@@ -101,7 +101,7 @@ def test_runs_of_any_length_on_threads_equal_one_at_a_time():
     runs = [r for t in (TASKS[0], TASKS[1], TASKS[3], TASKS[4]) for r in t.runs()]
     one = [simulate_run(r) for r in runs]
     for nthread in (1, 2, 3):
-        got = simulate_each(runs, nthread=nthread)
+        got = execution._simulate_runs(runs, nthread)
         for a, b in zip(got, one):
             assert not isinstance(a, SimulationDiverged)
             for name, arr in b.arrays().items():
@@ -132,16 +132,33 @@ def test_fits_evaluate_the_same_residuals_here_and_on_dask(cluster):
     assert result_bytes(here) == result_bytes(remote) == result_bytes(serial)
 
 
-def test_a_target_that_is_no_executor_is_refused_in_one_line():
-    with pytest.raises(ParameterError, match=r"where = 2: expected the Workers"):
-        execution.execute(TASKS, 2)
+def test_workers_that_are_not_workers_are_refused_in_one_line():
+    with pytest.raises(ParameterError, match=r"jobs = 'two' must be an integer >= 1"):
+        execution.execute(TASKS, "two")
 
 
-def test_a_local_target_is_the_workers_cores():
-    assert execution._target(Workers(None, 1, "here")) == execution._Target(1, None, False)
+def test_local_workers_are_the_cores_here_whoever_opened_them():
     with open_workers(2) as workers:
-        assert execution._target(workers).threads == 2
-        assert not execution._target(workers.executor).remote
+        assert (workers.slots, workers.remote) == (2, False)
+        with open_workers(workers.executor) as again:  # a caller's pool: the same cores
+            assert (again.slots, again.remote, again.executor) == (2, False, workers.executor)
+    assert open_workers(None).__enter__() == Workers(None, 1, "this process")
+
+
+def test_runs_tasks_and_batches_in_one_call_give_their_own_results():
+    run = TASKS[0].runs()[0]
+    batch = execution.Batch(TASKS[:2], lambda res: ("both", res))
+    out = execution.execute([run, batch, TASKS[3]], 2)
+    assert result_bytes(out) == result_bytes([simulate_run(run), ("both", _serial(TASKS[:2])),
+                                              TASKS[3].run()])
+
+
+def test_each_job_is_handed_over_as_it_is_done_in_the_order_given():
+    seen = []
+    out = execution.execute(TASKS, None, failed=execution.Failed,
+                            each=lambda k, r: seen.append(k))
+    assert seen == list(range(len(TASKS)))
+    assert isinstance(out[2], execution.Failed) and "cannot lift" in str(out[2].error)
 
 
 @pytest.mark.parametrize("command", [["search", "--maxiter", "0", "--popsize", "1"],

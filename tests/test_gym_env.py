@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import re
+import time
 import warnings
 from pathlib import Path
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -21,6 +23,7 @@ from wpam_mj.environments.gym_env import ENV_ID, WPAMEnv  # noqa: E402
 from wpam_mj.physics.params import MM, MPA, ParameterError  # noqa: E402
 from wpam_mj.environments.policies import mean_return  # noqa: E402
 from wpam_mj.environments.registry import VARIANTS  # noqa: E402
+from wpam_mj.simulation.live import LiveRig  # noqa: E402
 
 # Code defaults, not the calibration file: these tests pin the environment, not the fit.
 PARAMS = wpam_mj.preset("wpam", calibration=None)
@@ -292,9 +295,10 @@ def test_reset_options_fix_one_episode_and_refuse_the_unknown() -> None:
 
 
 def test_params_by_preset_name_or_refused_in_one_line() -> None:
-    env = gymnasium.make(ENV_ID, params="rlam")
-    assert env.unwrapped.physics.params.preset == "rlam"
-    for params, message in (("wpm", "unknown preset 'wpm'"), (3, "params = 3 must be")):
+    env = gymnasium.make(ENV_ID, params="wpam")
+    assert env.unwrapped.physics.params.preset == "wpam"
+    for params, message in (("wpm", "unknown preset 'wpm'"), (3, "params = 3 must be"),
+                            ("rlam", "the rlam preset has no outer chamber for the Po command")):
         with pytest.raises(ParameterError, match=re.escape(message)):
             gymnasium.make(ENV_ID, params=params)
 
@@ -319,3 +323,59 @@ def test_the_dm_control_env_refuses_mujoco_4_naming_the_versions_that_work(
     env = gymnasium.make("wpam_mj/WPAMTrack-v0", params=PARAMS)
     env.reset(seed=0)
     env.step(env.action_space.sample())
+
+
+def test_a_normalised_env_refuses_infinities_strings_and_a_fractional_seed() -> None:
+    """The single env checks what it is given as the vector env does (one check,
+    `check_actions`): an infinity is refused rather than clipped to the bound, a string
+    is no number, a seed must be an integer of numpy's range; each in one line."""
+    env = WPAMEnv(PARAMS, normalize=True)
+    for seed, message in ((1.5, "seed = 1.5 must be None or an integer in [0, 4294967295]"),
+                          (2**32, "seed = 4294967296 must be None or an integer")):
+        with pytest.raises(ParameterError, match=re.escape(message)):
+            env.reset(seed=seed)
+    env.reset(seed=0)
+    for action, message in (([np.inf], "action[0] = inf must be finite: action must be 1 "
+                                       "finite number in [-1, 1] (po_cmd_pa as fractions"),
+                            (np.array(["0.5"]), "dtype <U3"),
+                            (np.zeros(2, np.float32), "got shape (2,)")):
+        with pytest.raises(ParameterError, match=re.escape(message)):
+            env.step(action)
+    env.step(np.array([2.0], np.float32))  # a finite number out of range: clipped
+    assert env.physics.po_cmd == PARAMS.controller.po_cap
+
+
+def _step_seconds(step, n: int) -> float:
+    start = time.perf_counter()
+    for _ in range(n):
+        step()
+    return time.perf_counter() - start
+
+
+def test_an_env_step_costs_little_beside_its_physics() -> None:
+    """benchmarks/bench_env.py measures it (Gymnasium and dm_control >= 0.5 of the bare
+    rig's steps per second): here a loose floor, best of interleaved runs, that the env
+    layers once missed by far (0.12 and 0.45: per-step warning lists, dm_control's
+    reward and flattening, the observation built twice)."""
+    rig = LiveRig.build(PARAMS, 100.0, 1e-3)
+    data = mujoco.MjData(rig.model)
+    env = WPAMEnv(PARAMS, target=20 * MM, load=100.0, time_limit=100.0)
+    env.reset(seed=0)
+    action = np.array([0.03 * MPA])
+
+    def direct() -> None:
+        rig.set_commands(data, 1e5, 0.03 * MPA)
+        rig.step(data, 10)
+
+    rows = {"direct": direct, "gym": lambda: env.step(action)}
+    if dm_control_runs():
+        dm = make_env(PARAMS, target=20 * MM, load=100.0, time_limit=100.0,
+                      flat_observation=True)
+        dm.reset()
+        rows["dm_control"] = lambda: dm.step(action)
+    best = dict.fromkeys(rows, np.inf)
+    for _ in range(5):
+        for name, step in rows.items():
+            best[name] = min(best[name], _step_seconds(step, 200))
+    ratios = {name: best["direct"] / best[name] for name in rows}
+    assert min(ratios.values()) > 0.3, ratios

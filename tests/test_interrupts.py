@@ -20,7 +20,8 @@ from pathlib import Path
 import pytest
 
 from wpam_mj.infra import termination
-from wpam_mj.infra.pool import TaskPool, WorkerPool
+from wpam_mj.infra.pool import WorkerPool, open_workers
+from wpam_mj.simulation.execution import execute
 
 ROOT = Path(__file__).resolve().parents[1]
 STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143, signal.SIGHUP: 129}
@@ -175,16 +176,32 @@ class _Sleep:
 
 def test_leaving_a_pool_on_an_exception_stops_its_workers_at_once():
     start = time.monotonic()
-    with pytest.raises(ZeroDivisionError), TaskPool(2) as pool:
-        pool.submit([_Sleep(), _Sleep(), _Sleep()])
+    with pytest.raises(ZeroDivisionError), open_workers(2) as workers:
+        for _ in range(3):
+            workers.executor.submit(time.sleep, 30)
         1 / 0
     assert time.monotonic() - start < 5.0  # not the tasks' 30 s
-    assert not pool._pool._processes  # shut down
+    assert not workers.executor._processes  # shut down
+
+
+class _Fault:
+    cost = 3.0  # the pool starts it first, beside a sleep
+
+    def run(self):
+        return {}["missing"]  # a fault, not a failed run
+
+
+def test_a_fault_while_tasks_run_on_the_pool_stops_its_workers_at_once():
+    start = time.monotonic()
+    with pytest.raises(KeyError), open_workers(2) as workers:
+        execute([_Sleep(), _Sleep(), _Fault()], workers)
+    assert time.monotonic() - start < 5.0  # not the tasks' 30 s
+    assert not workers.executor._processes
 
 
 FULL_DISK = """
 import errno, sys, time
-from wpam_mj.infra.pool import TaskPool
+from wpam_mj.infra.pool import open_workers
 from wpam_mj.infra.termination import handle_signals
 
 class Sleep:
@@ -200,8 +217,9 @@ class Large:  # a figure's records: more than a pipe's buffer once pickled
         return len(self.payload)
 
 try:
-    with handle_signals(), TaskPool(2) as pool:  # as the command line runs it
-        pool.submit([Sleep(), Sleep(), *[Large() for _ in range(4)]])
+    with handle_signals(), open_workers(2) as workers:  # as the command line runs it
+        for task in [Sleep(), Sleep(), *[Large() for _ in range(4)]]:
+            workers.executor.submit(task.run)
         time.sleep(0.5)  # the feeder is now blocked on the full pipe to the busy workers
         raise OSError(errno.ENOSPC, "No space left on device")
 except OSError as err:

@@ -53,7 +53,7 @@ def test_the_mckibben_elbow_flexes_more_with_more_pressure_and_stops_at_the_full
     x = plugin.STATE_FIELDS.index("x")
     angles, contractions = [], []
     for pi in (0.03, 0.06, 0.1, 0.5):
-        data.ctrl[:] = (pi * MPA, 0.0)
+        data.ctrl[:] = pi * MPA  # Pi: a McKibben muscle takes no Po
         for _ in range(3000):
             mujoco.mj_step(model, data)
         angles.append(data.qpos[0])

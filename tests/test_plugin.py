@@ -81,15 +81,12 @@ def test_a_users_model_lifts_its_load_to_the_closed_form_equilibrium():
 
 def test_the_python_engine_runs_the_same_users_model_bit_for_bit():
     config = {"start": "rest", "preset": "mckibben"}
-    xml = user_model(config)
-    data = run(mujoco.MjModel.from_xml_string(xml), (0.25 * MPA, 0.0), 1.0)
+    xml = user_model(config, channels=1)  # Pi alone: a McKibben muscle takes no Po
+    data = run(mujoco.MjModel.from_xml_string(xml), (0.25 * MPA,), 1.0)
     model, muscles = engine.python_model(mujoco.MjSpec.from_string(xml))
     ref = mujoco.MjData(model)
-    ref.ctrl[:2] = (0.25 * MPA, 0.0)
-    with engine.stepping(model, muscles):
-        for _ in range(1000):
-            mujoco.mj_step(model, ref)
-            muscles[0].advance()
+    ref.ctrl[0] = 0.25 * MPA
+    engine.step(model, ref, muscles, 1000)
     assert data.qpos[0] == ref.qpos[0] and data.qvel[0] == ref.qvel[0]
 
 
@@ -197,13 +194,13 @@ def test_in_plugin_feedforward_equals_the_drives():
 
     def run(model, muscles=()):
         data, xs = mujoco.MjData(model), []
-        with engine.stepping(model, list(muscles)):
-            for step in range(len(t)):
-                xs.append(data.qpos[0])  # recorded at the start of the step, as simulate
-                data.ctrl[0] = x_ref[step]
+        for step in range(len(t)):
+            xs.append(data.qpos[0])  # recorded at the start of the step, as simulate
+            data.ctrl[0] = x_ref[step]
+            if muscles:
+                engine.step(model, data, list(muscles))
+            else:
                 mujoco.mj_step(model, data)
-                for muscle in muscles:
-                    muscle.advance()
         return np.array(xs)
 
     compiled = run(one_channel().compile())
@@ -255,9 +252,10 @@ def test_halving_the_step_moves_the_sine_gain_and_lag_little():
     assert abs(points[0].phase_lag_deg - points[1].phase_lag_deg) < 1.0, points
 
 
-def test_simulate_many_equals_simulate_at_any_thread_count():
+def test_many_runs_equal_simulate_at_any_thread_count():
     """Runs of two layouts (PI and open loop) and three loads through mujoco.batch."""
-    from wpam_mj.simulation.simulate import Run, simulate_many  # noqa: PLC0415
+    from wpam_mj.simulation.execution import execute  # noqa: PLC0415
+    from wpam_mj.simulation.simulate import Run  # noqa: PLC0415
 
     params, dt = preset("wpam"), 1e-3
     t = np.arange(1500) * dt
@@ -271,7 +269,7 @@ def test_simulate_many_equals_simulate_at_any_thread_count():
             singles.append(simulate(params, load, drive, dt=dt, control=control,
                                     engine="python"))
     for nthread in (1, 2):
-        for got, ref in zip(simulate_many(runs, nthread=nthread), singles):
+        for got, ref in zip(execute(runs, nthread), singles):
             for field in REC_FIELDS:
                 np.testing.assert_array_equal(getattr(got, field), getattr(ref, field),
                                               err_msg=f"{field}, {nthread} threads")

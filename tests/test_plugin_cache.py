@@ -285,8 +285,7 @@ path = str(MODELS_DIR / "elbow" / "elbow.xml")
 model, muscles = engine.python_model(mujoco.MjSpec.from_file(path))
 data = mujoco.MjData(model)
 data.ctrl[0] = 0.3e6
-with engine.stepping(model, muscles):
-    mujoco.mj_step(model, data, nstep=500)
+engine.step(model, data, muscles, 500)
 print("flexed", round(float(data.qpos[0]), 3))
 try:
     mujoco.MjModel.from_xml_path(path)

@@ -84,18 +84,13 @@ def finger(flexor: str = "", extensor: str = '<config key="contraction0" value="
   <actuator>
     <plugin name="flexor_x_ref" instance="flexor" tendon="flexor" ctrlrange="0 0.08"/>
     <plugin name="extensor_pi" instance="extensor" tendon="extensor" ctrlrange="0 500000"/>
-    <plugin name="extensor_po" instance="extensor" tendon="extensor" ctrlrange="0 0"/>
     <motor name="wrist_motor" joint="pip" gear="0.01"/>
   </actuator>
 </mujoco>"""
 
 
 def step_python(model, muscles, data, n):
-    with engine.stepping(model, muscles):
-        for _ in range(n):
-            mujoco.mj_step(model, data)
-            for muscle in muscles:
-                muscle.advance()
+    engine.step(model, data, muscles, n)
 
 
 # ---------------------------------------------------------------- a muscle pulls
@@ -117,12 +112,12 @@ def test_the_tendon_force_never_pushes_and_guided_fittings_carry_the_bags_push()
 def test_a_users_finger_flexes_stays_finite_and_never_pushes_at_zero_pressure():
     model = mujoco.MjModel.from_xml_string(finger())
     data = mujoco.MjData(model)
-    data.ctrl[:] = (0.0, 0.0, 0.0, 0.0)  # flexor asked for no contraction, extensor vented
+    data.ctrl[:] = (0.0, 0.0, 0.0)  # flexor asked for no contraction, extensor vented
     mujoco.mj_step(model, data, nstep=1000)
     for name in ("flexor", "extensor"):
         state = plugin.state_of(model, data, name)
         assert state["tension"] >= 0.0 and state["status"] == 0.0, (name, state)
-    assert np.all(data.actuator_force[:3] <= 0.0)  # along the tendons' lengths: pulls only
+    assert np.all(data.actuator_force[:2] <= 0.0)  # along the tendons' lengths: pulls only
     rest = data.qpos[0]
     data.ctrl[0] = 0.03  # flexor: contract 30 mm
     mujoco.mj_step(model, data, nstep=3000)
@@ -139,14 +134,14 @@ def test_the_finger_is_bit_identical_across_thread_counts_and_engines():
     spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
     initial = np.empty(mujoco.mj_stateSize(model, spec))
     mujoco.mj_getState(model, mujoco.MjData(model), initial, spec)
-    ctrl = np.stack([np.tile((0.01 * i, 0.1e6, 0.0, 0.0), (nstep, 1)) for i in range(nbatch)])
+    ctrl = np.stack([np.tile((0.01 * i, 0.1e6, 0.0), (nstep, 1)) for i in range(nbatch)])
     one = rollout.rollout(model, mujoco.MjData(model), np.tile(initial, (nbatch, 1)), ctrl)[0]
     two = rollout.rollout(model, [mujoco.MjData(model), mujoco.MjData(model)],
                           np.tile(initial, (nbatch, 1)), ctrl)[0]
     np.testing.assert_array_equal(one, two)
     pmodel, muscles = engine.python_model(mujoco.MjSpec.from_string(xml))
     pdata = mujoco.MjData(pmodel)
-    pdata.ctrl[:4] = ctrl[3, 0]
+    pdata.ctrl[:3] = ctrl[3, 0]
     step_python(pmodel, muscles, pdata, nstep)
     np.testing.assert_array_equal(pdata.qpos, one[3, -1, 1:1 + model.nq])
 
@@ -177,7 +172,7 @@ def test_a_muscle_forced_far_past_its_stroke_stays_finite_and_says_so(contractio
     xml = finger(extensor=f'<config key="contraction0" value="{contraction0}"/>')
     model = mujoco.MjModel.from_xml_string(xml)
     data = mujoco.MjData(model)
-    data.ctrl[:] = (0.02, 0.3e6, 0.0, 0.0)
+    data.ctrl[:] = (0.02, 0.3e6, 0.0)
     for _ in range(200):
         data.qpos[:2], data.qvel[:2] = qpos, 0.0
         mujoco.mj_step(model, data)
@@ -236,8 +231,9 @@ def test_no_command_poisons_a_muscle(bad, held):
     step_python(pmodel, muscles, pdata, 50)
     pdata.ctrl[:3] = (0.02, 0.1e6, 0.0)
     step_python(pmodel, muscles, pdata, 1000)
-    assert np.all(np.isfinite(pdata.qpos)) and not any(m.status for m in muscles)
-    assert all(math.isfinite(v) for m in muscles for k, v in m.record.items() if k != "x_ref")
+    assert np.all(np.isfinite(pdata.qpos)) and not any(m.status(pdata) for m in muscles)
+    assert all(math.isfinite(v) for m in muscles
+               for k, v in zip(plugin.STATE_FIELDS, m.state(pdata)) if k != "x_ref")
 
 
 # ---------------------------------------------------------------- options edited after compile
@@ -297,7 +293,7 @@ def test_the_python_engine_refuses_a_changed_time_step_alike(capsys):
     step_python(model, muscles, data, 10)
     model.opt.timestep = 1e-5
     step_python(model, muscles, data, 10)
-    assert muscles[0].status.startswith("the model's timestep or integrator changed")
+    assert muscles[0].status(data).startswith("the model's timestep or integrator changed")
     assert data.ctrl[muscles[0].force_actuator] == 0.0
     assert capsys.readouterr().err.count("changed after the model compiled") == 1
 

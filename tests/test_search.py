@@ -13,8 +13,10 @@ import numpy as np
 import pytest
 
 from wpam_mj import paper
+from wpam_mj.cli import main
 from wpam_mj.reproduction import findings_map
-from wpam_mj.reproduction import search
+from wpam_mj.reproduction import search, search_outputs
+from wpam_mj.reproduction import search_scoring as scoring
 from wpam_mj.physics.params import ParameterError, preset
 from wpam_mj.experiments.protocol import (SHIPPED, ProtocolStaticTask, quasi_static_po_row)
 
@@ -44,7 +46,7 @@ class _Targets:
 
     def score(self, params, results):
         kf, mu = results
-        margins = dict.fromkeys(search.FINDINGS, 0.2 - mu)
+        margins = dict.fromkeys(scoring.FINDINGS, 0.2 - mu)
         margins["table2_po_row"] = kf - 0.8
         margins["gain_spread"] = 0.7 - kf
         r = np.array([max(0.0, -m) for m in margins.values()])
@@ -57,8 +59,8 @@ def _fit(params, protocol):
 
 
 def _search(tmp_path, **kw):
-    return search.search(tmp_path, popsize=1, maxiter=2, jobs=1, progress=False,
-                         targets=_Targets, fit=_fit, **kw)
+    kw = {"popsize": 1, "maxiter": 2, **kw}
+    return search.search(tmp_path, jobs=1, progress=False, targets=_Targets, fit=_fit, **kw)
 
 
 def _simulated(records):
@@ -73,12 +75,13 @@ def test_search_is_seeded_journaled_and_resumes_without_rerunning(tmp_path):
     assert _Task.runs == 2 * len(simulated)
     assert all(r.cost >= search.STATIC_MISS_COST for r in first.records
                if r not in simulated)
-    lines = (tmp_path / "a" / "journal.jsonl").read_text().splitlines()
+    header, *lines = (tmp_path / "a" / "journal.jsonl").read_text().splitlines()
+    assert json.loads(header)["settings"]["seed"] == 20
     assert len(lines) == first.evaluations and json.loads(lines[0])["margins"]
     again = _search(tmp_path / "b")
     assert again.best == first.best  # same seed, same search
     # an interrupted journal (half its lines, the last one cut) resumes to the same end
-    cut = lines[:len(lines) // 2] + [lines[len(lines) // 2][:10]]
+    cut = [header, *lines[:len(lines) // 2], lines[len(lines) // 2][:10]]
     (tmp_path / "b" / "journal.jsonl").write_text("\n".join(cut) + "\n")
     _Task.runs = 0
     resumed = _search(tmp_path / "b", resume=True)
@@ -94,7 +97,7 @@ def test_search_is_seeded_journaled_and_resumes_without_rerunning(tmp_path):
 def test_the_archive_maps_which_findings_conflict(tmp_path):
     records = _search(tmp_path).records
     pm = findings_map.pair_margins(records)
-    i, j = search.FINDINGS.index("table2_po_row"), search.FINDINGS.index("gain_spread")
+    i, j = scoring.FINDINGS.index("table2_po_row"), scoring.FINDINGS.index("gain_spread")
     assert pm[i, i] > 0 and pm[j, j] > 0 and pm[i, j] < 0  # each alone, never together
     assert ("table2_po_row", "gain_spread", pm[i, j]) in findings_map.conflicts(pm)
     assert findings_map.best_compromise(records).cost == min(r.cost for r in records)
@@ -113,22 +116,22 @@ def test_the_rest_map_finds_the_finding_the_others_leave_open(tmp_path):
     assert "With every other finding held" in findings_map.rest_verdict(records)
     n, most, missed = findings_map.held_with(records, "gain_spread")
     assert n == sum(r.margins["gain_spread"] >= 0.0 for r in records if r.tracks) > 0
-    assert "table2_po_row" in missed and most == len(search.PAPER_CHECKS) - len(missed)
+    assert "table2_po_row" in missed and most == len(scoring.PAPER_CHECKS) - len(missed)
 
 
 def test_the_checks_objective_counts_each_shortfall_once_and_caps_it():
-    margins = dict.fromkeys(search.FINDINGS, 1.0)
-    met = search.Record((0.5,), 7.0, margins, {})
-    assert search.shortfall(met) == 0.0  # calibrate's cost may still be 7
-    one = search.Record((0.5,), 7.0, {**margins, "gain_spread": -0.4}, {})
-    assert search.shortfall(one) == pytest.approx(0.4 + paper.CALIBRATION_HEADROOM)
-    far = search.Record((0.5,), 7.0, {**margins, "steps_settle": -50.0}, {})
-    assert search.shortfall(far) == search.SHORTFALL_CAP
-    failed = search.Record((0.5,), search.FAILED_COST, None, None)
-    assert search.shortfall(failed) == search.FAILED_COST
-    falls = search.Record((0.5,), 7.0, {**margins, "po_rises_with_load": -0.5}, {})
-    assert search.shortfall(falls) == 0.0  # "checks" may trade Po's rise away ...
-    assert search.findings_shortfall(falls) == pytest.approx(  # ... "findings" may not
+    margins = dict.fromkeys(scoring.FINDINGS, 1.0)
+    met = scoring.Record((0.5,), 7.0, margins, {})
+    assert scoring.shortfall(met) == 0.0  # calibrate's cost may still be 7
+    one = scoring.Record((0.5,), 7.0, {**margins, "gain_spread": -0.4}, {})
+    assert scoring.shortfall(one) == pytest.approx(0.4 + paper.CALIBRATION_HEADROOM)
+    far = scoring.Record((0.5,), 7.0, {**margins, "steps_settle": -50.0}, {})
+    assert scoring.shortfall(far) == scoring.SHORTFALL_CAP
+    failed = scoring.Record((0.5,), scoring.FAILED_COST, None, None)
+    assert scoring.shortfall(failed) == scoring.FAILED_COST
+    falls = scoring.Record((0.5,), 7.0, {**margins, "po_rises_with_load": -0.5}, {})
+    assert scoring.shortfall(falls) == 0.0  # "checks" may trade Po's rise away ...
+    assert scoring.findings_shortfall(falls) == pytest.approx(  # ... "findings" may not
         0.5 + paper.CALIBRATION_HEADROOM)
 
 
@@ -136,12 +139,12 @@ def test_a_search_on_the_checks_objective_is_seeded_and_converges_on_it(tmp_path
     first = _search(tmp_path / "a", objective="checks")
     assert first.best == _search(tmp_path / "b", objective="checks").best
     conv = search.convergence(first.records, "checks")
-    assert conv[-1][1] == min(search.shortfall(r) for r in first.records)
+    assert conv[-1][1] == min(scoring.shortfall(r) for r in first.records)
     assert all(a[1] >= b[1] for a, b in zip(conv, conv[1:]))
     with pytest.raises(ParameterError, match="objective = 'count' must be one of"):
         _search(tmp_path / "c", objective="count")
-    written = search.write_outputs(tmp_path / "a", first.records, preset("wpam"),
-                                   objective="checks")
+    written = search_outputs.write_outputs(tmp_path / "a", first.records, preset("wpam"),
+                                           objective="checks")
     assert {p.name for p in written} >= {"best.toml", "convergence.png", "feasibility.md"}
 
 
@@ -155,8 +158,8 @@ def test_convergence_is_the_running_best_in_scoring_order(tmp_path):
     assert all(t >= 0.0 for t in seconds) and seconds == sorted(seconds)
     assert findings_map.convergence_csv(conv).splitlines()[0].endswith(",seconds")
     # a point whose staircase does not follow its targets meets checks vacuously: not counted
-    idle = search.Record((0.5,), 0.0, dict.fromkeys(search.FINDINGS, 1.0),
-                         {"step_error_mm": {"pi": [search.TRACK_MM + 1.0]}})
+    idle = scoring.Record((0.5,), 0.0, dict.fromkeys(scoring.FINDINGS, 1.0),
+                          {"step_error_mm": {"pi": [scoring.TRACK_MM + 1.0]}})
     assert search.convergence([idle])[0][2] == 0
     assert conv[-1][1] == min(r.cost for r in records)
 
@@ -225,3 +228,54 @@ def test_the_command_line_states_the_search_defaults():
     """`wpam search --help` spells these numbers out (wpam_mj/cli/reproduction.py)."""
     assert (search.POPSIZE, search.MAXITER, len(search.SPACE)) == (3, 8, 7)
     assert search.planned_evaluations(search.POPSIZE, search.MAXITER) == 190
+
+
+@pytest.mark.parametrize("other, differs", [
+    ({"seed": 21}, "--seed 20 there, 21 here"),
+    ({"free": ("pneumatics.outer_conductance",)},
+     "--free not given there, pneumatics.outer_conductance here"),
+    ({"base": preset("wpam").with_values({"muscle.damping": 55.0})},
+     "parameter muscle.damping = ")])
+def test_resume_refuses_the_journal_of_another_search(tmp_path, other, differs):
+    """A journal names the search it holds: resuming it with another seed, region or base
+    point would mix two searches in one journal; it is refused and left as it was."""
+    _search(tmp_path)
+    journal = (tmp_path / "journal.jsonl").read_bytes()
+    with pytest.raises(ParameterError, match="--resume: the journal .* is of another "
+                       f"search \\({differs}"):
+        _search(tmp_path, resume=True, **other)
+    assert (tmp_path / "journal.jsonl").read_bytes() == journal
+    _search(tmp_path, resume=True, maxiter=3)  # more generations extend the same search
+    with pytest.raises(ParameterError, match="--popsize 1 there, 2 here"):
+        _search(tmp_path, resume=True, popsize=2)
+
+
+def test_radius_without_free_is_refused():
+    with pytest.raises(ParameterError, match="--radius 0.1: only a local search"):
+        _search(None, radius=0.1)
+
+
+@pytest.mark.parametrize("argv, says", [
+    (["--map-only"], "no journal"),
+    (["--resume"], "no journal"),
+    (["--radius", "0.1"], "--radius 0.1: only a local search"),
+    (["--map-only", "--radius", "0.1"], "--radius 0.1: only a local search")])
+def test_search_command_refuses_in_one_line_and_writes_nothing(tmp_path, capsys, argv, says):
+    out = tmp_path / "new"
+    code = main(["search", *argv, "--out", str(out), "--jobs", "1"])
+    _, err = capsys.readouterr()
+    assert code == 2 and len(err.strip().splitlines()) == 1 and says in err, err
+    assert not out.exists()
+
+
+def test_search_command_refuses_to_resume_or_map_another_search(tmp_path, capsys):
+    _search(tmp_path)  # seed 20 on the wpam preset, as the command's defaults
+    journal = (tmp_path / "journal.jsonl").read_bytes()
+    for argv, says in ((["--resume", "--seed", "21"], "--seed 20 there, 21 here"),
+                       (["--map-only", "--free", "controller.po_feedforward"],
+                        "--free not given there, controller.po_feedforward here")):
+        code = main(["search", *argv, "--out", str(tmp_path), "--jobs", "1"])
+        _, err = capsys.readouterr()
+        assert code == 2 and len(err.strip().splitlines()) == 1 and says in err, err
+    assert (tmp_path / "journal.jsonl").read_bytes() == journal
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["journal.jsonl"]

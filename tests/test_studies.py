@@ -10,8 +10,8 @@ from wpam_mj import paper
 from wpam_mj.experiments import figures
 from wpam_mj.experiments import paper_studies
 from wpam_mj.experiments.analysis import loop_area
-from wpam_mj.infra.pool import TaskPool, run_tasks
 from wpam_mj.physics.params import MPA, ParameterError, preset
+from wpam_mj.simulation.execution import execute
 
 
 @pytest.fixture(scope="module")
@@ -77,12 +77,12 @@ def test_worker_errors_reach_the_caller(params):
     bad = paper_studies.StaticTask(params, -1.0, 0.0, 1e-3)  # skips the up-front validation
     good = paper_studies.StaticTask(params, 100.0, 0.0, 1e-3)
     with pytest.raises(ParameterError, match="load"):
-        run_tasks([good, bad], jobs=2)
+        execute([good, bad], 2)
 
 
 @dataclasses.dataclass(frozen=True)
 class _Square:
-    """A cheap pool task: value**2, or ValueError for a negative value."""
+    """A cheap task that is no simulation: value**2, or ValueError for a negative value."""
 
     value: int
 
@@ -97,22 +97,14 @@ class _Square:
 
 
 @pytest.mark.parametrize("jobs", [1, 2])
-def test_task_pool_keeps_order_and_takes_follow_up_work(jobs):
-    with TaskPool(jobs) as pool:
-        first = pool.submit([_Square(v) for v in range(7)])
-        assert pool.results(first) == [v * v for v in range(7)]
-        later = pool.submit([_Square(v) for v in (9, 8)])  # same pool, after results
-        assert pool.results(later) == [81, 64]
-        assert pool.results(first + later)[-1] == 64
+def test_tasks_that_are_no_simulations_keep_their_order(jobs):
+    assert execute([_Square(v) for v in range(7)], jobs) == [v * v for v in range(7)]
 
 
-def test_task_pool_failure_reaches_the_caller():
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_a_fault_of_a_task_reaches_the_caller(jobs):
     with pytest.raises(ValueError, match="negative value -4"):
-        with TaskPool(2) as pool:
-            pool.results(pool.submit([_Square(v) for v in (1, 2, -4, 3)]))
-    with pytest.raises(ValueError, match="negative value -4"):
-        with TaskPool(1) as pool:  # serial: raised at once, nothing after it runs
-            pool.submit([_Square(-4), _Square(5)])
+        execute([_Square(v) for v in (1, 2, -4, 3)], jobs)
 
 
 def test_inputs_are_checked_before_running(params):
@@ -123,7 +115,7 @@ def test_inputs_are_checked_before_running(params):
     with pytest.raises(ParameterError, match="po_down"):
         paper_studies.static_study(params, (100.0,), 0.7 * MPA)
     with pytest.raises(ParameterError, match="jobs"):
-        run_tasks([], jobs=0)
+        execute([], 0)
 
 
 def test_figure_run_key():

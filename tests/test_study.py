@@ -14,15 +14,15 @@ from wpam_mj.design import sampling, study, study_spec, study_table
 from wpam_mj.cli import main
 from wpam_mj.infra.pool import Workers, open_workers
 from wpam_mj.physics.params import ParameterError, preset
-from wpam_mj.infra.pool import run_tasks
+from wpam_mj.simulation.execution import execute
 from wpam_mj.experiments.paper_studies import StepTask
 
-# A small study: 6 seeded random step runs of 2.2 s (0.2 s plateaus), 2 runs per task,
-# varying the load, a model parameter and the controller.
+# A small study: 6 seeded random step runs of 33 s (3 s plateaus, the shortest a study
+# takes), 2 runs per task, varying the load, a model parameter and the controller.
 SMALL = {
     "experiment": "step",
     "batch_size": 2,
-    "fixed": {"duration": 22.0},
+    "fixed": {"duration": 33.0},
     "vary": {"method": "random", "n": 6, "seed": 7,
              "ranges": {"load": [50.0, 150.0], "muscle": {"damping": [300.0, 900.0]}},
              "values": {"controller": ["pi", "open"]}},
@@ -137,17 +137,17 @@ def test_resume_redoes_only_missing_runs_and_ends_with_the_same_table(tmp_path):
     assert (again.ran, again.reused) == (2, 4)
     assert _bytes(tmp_path / "out") == before and again.rows == full.rows
     assert "study.csv" in before
-    changed = {**SMALL, "fixed": {"duration": 3.3}}
+    changed = {**SMALL, "fixed": {"duration": 44.0}}
     with pytest.raises(ParameterError, match="different study"):
         _run(tmp_path, "out", workers, changed, resume=True)
 
 
-def test_task_pool_runs_on_any_executor():
+def test_tasks_run_on_any_executor():
     params = preset("wpam")
     tasks = [StepTask(params, load, "pi", 5e-3) for load in (60.0, 140.0)]
     with ThreadPoolExecutor(2) as pool:
-        on_pool = run_tasks(tasks, jobs=1, executor=pool)
-    serial = run_tasks(tasks, jobs=1)
+        on_pool = execute(tasks, pool)
+    serial = execute(tasks)
     for a, b in zip(on_pool, serial):
         np.testing.assert_array_equal(a.x_mean, b.x_mean)
 
@@ -163,7 +163,7 @@ def test_scheduler_without_dask_is_one_line(monkeypatch):
 
 def test_cli_study_writes_table_and_plots(tmp_path, capsys):
     spec = tmp_path / "s.toml"
-    spec.write_text('experiment = "step"\n[fixed]\nduration = 1.1\n'
+    spec.write_text('experiment = "step"\n[fixed]\nduration = 33.0\n'
                     '[vary]\nvalues = {load = [60, 120]}\n')
     assert main(["study", str(spec), "--out", str(tmp_path / "o"), "--jobs", "1"]) == 0
     with open(tmp_path / "o" / "study.csv", newline="") as fh:

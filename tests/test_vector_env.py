@@ -3,6 +3,8 @@ for bit, autoreset semantics, the reward, the residual task's PI, refusals."""
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -12,6 +14,7 @@ from gymnasium.vector import AutoresetMode, SyncVectorEnv  # noqa: E402
 import wpam_mj  # noqa: E402
 from wpam_mj.environments.gym_env import WPAMEnv  # noqa: E402
 from wpam_mj.environments.policies import make_policy  # noqa: E402
+from wpam_mj.environments.vector_env import make_vec  # noqa: E402
 from wpam_mj.physics.params import MM, ParameterError  # noqa: E402
 from wpam_mj.simulation import plugin  # noqa: E402
 
@@ -186,3 +189,98 @@ def test_bad_actions_are_refused_in_one_line() -> None:
     with pytest.raises(ParameterError, match=r"got shape \(3,\)"):
         envs.step(np.zeros(3))
 
+
+
+ENGINES = [pytest.param("batch", marks=needs_plugin), "serial"]
+
+
+def _refusal(call) -> tuple[type, str]:
+    with pytest.raises((ParameterError, RuntimeError)) as err:
+        call()
+    assert "\n" not in str(err.value)
+    return type(err.value), str(err.value)
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+def test_both_engines_refuse_the_same_bad_input_in_one_line(engine) -> None:
+    """One check for both engines: (2, 3) actions for 3 environments x 2 channels are
+    not redistributed, a step before reset, infinities, strings and a fractional seed
+    are refused, each naming the value and what is allowed."""
+    envs = make("wpam_mj/WPAMTrackBoth-v0", 3, engine)
+    assert _refusal(lambda: envs.step(np.zeros((3, 2)))) == (
+        RuntimeError, "cannot step: no episode has started; call reset() first")
+    assert _refusal(lambda: envs.reset(seed=1.5))[1].startswith(
+        "seed = 1.5 must be None, an integer")
+    assert "seed = -1 must be None or an integer in [0, 4294967295]" in _refusal(
+        lambda: envs.reset(seed=[0, -1, 2]))[1]
+    envs.reset(seed=0)
+    cases = {"shape (2, 3)": np.array([[0.5, 0.7, 0.1], [0.1, 0.5, 0.7]]),
+             "actions[1, 0] = inf must be finite": np.array([[0, 0], [np.inf, 0], [0, 0]]),
+             "actions[2, 1] = -inf must be finite": np.array([[0, 0], [0, 0], [0, -np.inf]]),
+             "dtype <U3": np.full((3, 2), "0.5")}
+    for message, actions in cases.items():
+        kind, text = _refusal(lambda: envs.step(actions))
+        assert kind is ParameterError and message in text, text
+        assert "(3, 2) finite numbers, one row of 2 finite numbers in [-1, 1]" in text
+    obs, *_ = envs.step(np.zeros((3, 2)))  # still running after the refusals
+    assert obs.shape == (3, 7)
+
+
+@needs_plugin
+def test_both_engines_give_the_same_messages() -> None:
+    batch, serial = (make("wpam_mj/WPAMTrack-v0", 2, e) for e in ("batch", "serial"))
+    for envs in (batch, serial):
+        envs.reset(seed=0)
+    for actions in ([[np.nan], [0.0]], [[0.0], [-np.inf]], np.zeros((2, 2)), "0.5",
+                    [["a"], [0.1]]):
+        assert _refusal(lambda: batch.step(actions)) == _refusal(lambda: serial.step(actions))
+
+
+def _dead_time_ranges(tmp_path, lo: float, hi: float):
+    path = tmp_path / "ranges.toml"
+    path.write_text(f"[pneumatics]\ndead_time = [{lo!r}, {hi!r}]\n")
+    return path
+
+
+@needs_plugin
+def test_a_randomized_dead_time_runs_on_the_serial_engine_through_autoresets(
+        tmp_path) -> None:
+    """A dead time drawn per episode sizes the plugin state per episode (its queues):
+    'auto' takes the serial engine, which runs through autoresets (the batched one
+    failed there with mj_setState's TypeError); 'batch' is refused up front."""
+    ranges = _dead_time_ranges(tmp_path, 0.005, 0.04)
+    envs = make("wpam_mj/WPAMTrackRandomized-v0", 2, "auto", randomize=ranges,
+                time_limit=0.05, max_episode_steps=5)
+    assert envs.unwrapped.engine == "serial"
+    envs.reset(seed=0)
+    sizes = set()
+    for _ in range(18):  # three episodes each
+        obs, *_ = envs.step(np.zeros((2, 1), np.float32))
+        sizes.update(env.physics.model.npluginstate for env in envs.unwrapped.envs)
+        assert np.isfinite(obs).all()
+    assert len(sizes) > 1
+    with pytest.raises(ParameterError, match=re.escape(
+            "engine = 'batch' needs one plugin state size for every episode, but randomize "
+            "draws pneumatics.dead_time from [0.005, 0.04] s, dead-time queues of 5 to 40 "
+            "steps of 0.001 s; use engine='serial' or 'auto'")):
+        make("wpam_mj/WPAMTrackRandomized-v0", 2, "batch", randomize=ranges)
+    # a range within one step count keeps the batched engine
+    same = make("wpam_mj/WPAMTrackRandomized-v0", 2, "auto",
+                randomize=_dead_time_ranges(tmp_path, 0.0201, 0.0204))
+    assert same.unwrapped.engine == "batch"
+
+
+def test_make_vec_takes_the_settings_in_gymnasiums_vector_kwargs_spelling() -> None:
+    """gymnasium.make_vec refuses vector_kwargs for an environment with its own vector
+    entry point; `vector_env.make_vec` takes them in either spelling, once."""
+    envs = make_vec("wpam_mj/WPAMTrack-v0", 2, vector_kwargs={
+        "autoreset_mode": "SameStep", "engine": "serial"}, params=PARAMS)
+    assert envs.autoreset_mode == AutoresetMode.SAME_STEP and envs.engine == "serial"
+    assert make_vec("wpam_mj/WPAMTrack-v0", 2, autoreset_mode="SameStep",
+                    params=PARAMS).autoreset_mode == AutoresetMode.SAME_STEP
+    with pytest.raises(ParameterError, match="vector_kwargs 'copy' unknown; the vector "
+                       "env's settings: engine, nthread, autoreset_mode"):
+        make_vec("wpam_mj/WPAMTrack-v0", 2, vector_kwargs={"copy": False})
+    with pytest.raises(ParameterError, match="engine given twice"):
+        make_vec("wpam_mj/WPAMTrack-v0", 2, vector_kwargs={"engine": "serial"},
+                 engine="batch")

@@ -55,7 +55,8 @@ with _termination.importing("wpam_mj"):
     from wpam_mj.simulation import plugin as _plugin
     from wpam_mj.simulation.loop_contract import SimulationDiverged
     from wpam_mj.simulation.results import SimResult
-    from wpam_mj.simulation.simulate import Drive, Run, simulate, simulate_many
+    from wpam_mj.simulation.execution import execute
+    from wpam_mj.simulation.simulate import Drive, Run, simulate
     from wpam_mj.version import __version__
 
     # Where the plugin cannot be built, a stand-in lets MJCF naming it parse for the Python
@@ -69,4 +70,4 @@ with _termination.importing("wpam_mj"):
         _register_all()
 
 __all__ = ["CONTROLS", "Drive", "MUSCLE_TYPES", "Params", "ParameterError", "Run", "SimResult",
-           "SimulationDiverged", "__version__", "preset", "simulate", "simulate_many"]
+           "SimulationDiverged", "__version__", "execute", "preset", "simulate"]

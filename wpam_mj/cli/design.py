@@ -9,8 +9,8 @@ import time
 from pathlib import Path
 
 from wpam_mj.cli.arguments import JOBS_HELP, float_list, out_path, scheduler_option
-from wpam_mj.cli.runs import (amplitude_m, jobs_option, out_dir_of, print_json, run_id_of,
-                              run_options, writable_dir, write_run_manifest, wrote)
+from wpam_mj.cli.runs import (amplitude_m, flag_still, jobs_option, out_dir_of, print_json,
+                              run_id_of, run_options, writable_dir, write_run_manifest, wrote)
 from wpam_mj.experiments.drives import SINE_MEAN_MM
 from wpam_mj.infra import pool
 from wpam_mj.infra.files import write_text_atomic
@@ -58,7 +58,7 @@ def add_parsers(add, sub) -> None:
 
 def _cmd_linear(args: argparse.Namespace) -> int:
     from wpam_mj.design import linear_study
-    from wpam_mj.experiments import figures  # noqa: PLC0415 (python-control, matplotlib: slow)
+    from wpam_mj.experiments import figures, writers  # noqa: PLC0415 (control, matplotlib: slow)
     run = run_options(args)
     load = check_load(args.load)
     amplitudes = tuple(amplitude_m("--amplitudes", a) for a in
@@ -71,13 +71,17 @@ def _cmd_linear(args: argparse.Namespace) -> int:
                 "amplitudes_mm": [a / MM for a in amplitudes], "dt_s": run.dt}
     rid = run_id_of(args, run.params, settings)
     stem = f"linear_{load:g}N"
-    written = [figures.save_figure(cmp.plot(), out / f"{stem}.png", run_id=rid),
-               write_text_atomic(out / f"{stem}.csv", cmp.csv_text())]
+    still = cmp.still_points()
+    written = {figures.save_figure(writers.flag_still(cmp.plot(), still), out / f"{stem}.png",
+                                   run_id=rid): {},
+               write_text_atomic(out / f"{stem}.csv", cmp.csv_text()): {"load_moved": not still}}
     manifest = write_run_manifest(args, out, rid, run.params, settings, written)
     if args.json:
         print_json(cmp.as_json())
     else:
         print(cmp.text())
+    flag_still([(f"linear {point}", False) for point in still], args.json)
+    if not args.json:
         wrote([*written, manifest])
     return 0
 

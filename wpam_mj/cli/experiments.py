@@ -16,9 +16,9 @@ from wpam_mj.experiments import paper_studies
 from wpam_mj.experiments.drives import SINE_AMPLITUDE_MM, SINE_MEAN_MM, SineSpec, check_po
 from wpam_mj.experiments.feasibility import load_moved
 from wpam_mj.experiments.protocol import SHIPPED, table2_batch
-from wpam_mj.infra.pool import run_batches
 from wpam_mj.physics.params import MM, MPA, PRESETS, ParameterError
 from wpam_mj.reproduction import findings
+from wpam_mj.simulation.execution import execute
 
 
 def add_parsers(add) -> None:
@@ -151,9 +151,8 @@ def _cmd_table2(args: argparse.Namespace) -> int:
     out = out_dir_of(args)
     loop_area = args.loop_area or SHIPPED.loop_method
     protocol = dataclasses.replace(SHIPPED, ramp_time=ramp_time, loop_method=loop_area)
-    (t2,) = run_batches([table2_batch(run.params, protocol, dt=run.dt)],
-                        jobs=run.jobs_for(3 * len(paper.LOADS_N)), progress=run.progress,
-                        desc="table 2")
+    (t2,) = execute([table2_batch(run.params, protocol, dt=run.dt)],
+                    run.jobs_for(3 * len(paper.LOADS_N)), progress=run.progress, desc="table 2")
     settings = {"ramp_time_s": ramp_time, "ramp_top_mpa": protocol.ramp_top / MPA,
                 "dt_s": run.dt, "loop_area": loop_area}
     rid = run_id_of(args, run.params, settings)

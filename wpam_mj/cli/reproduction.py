@@ -69,12 +69,14 @@ def add_parsers(add) -> None:
                         "separated, e.g. pneumatics.outer_conductance,controller."
                         "po_feedforward), around the --config point, without the static "
                         "fit (the Po row's plant stays the point's)")
-    p.add_argument("--radius", type=float, default=0.25, metavar="R",
+    p.add_argument("--radius", type=float, default=None, metavar="R",
                    help="with --free: the box is +-R of each range around the point "
                         "(default: 0.25)")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted search in --out: journaled points are "
-                        "replayed, not run again (a finished search replays in seconds)")
+                        "replayed, not run again (a finished search replays in seconds); "
+                        "the same --seed, --popsize, --free, --radius and --config as the "
+                        "journal's (more --maxiter extends it)")
     p.add_argument("--map-only", action="store_true",
                    help="run nothing: the best point and the feasibility map of the points "
                         "journaled in --out so far (e.g. while the search still runs)")
@@ -171,23 +173,22 @@ def _cmd_search(args: argparse.Namespace) -> int:
         raise ParameterError(f"--preset {args.preset}: search explores the wpam preset")
     run = run_options(args)  # the search's shipped point: the preset plus --config
     out = writable_dir(Path("out") / "search" if args.out is None else args.out)
-    from wpam_mj.reproduction import search  # noqa: PLC0415 (scipy, matplotlib: slow imports)
+    from wpam_mj.reproduction import search_outputs  # noqa: PLC0415 (scipy, matplotlib: slow)
     free = None if args.free is None else [n.strip() for n in args.free.split(",")]
     if free is not None and not all(free):
         raise ParameterError(f"--free {args.free!r}: give parameter names separated by "
                              "commas")
     if args.map_only:
-        region = search.GLOBAL if free is None else search.local_region(free)
-        written = search.write_outputs(out, search.load_records(out), run.params,
-                                       objective=args.objective, region=region)
+        written = search_outputs.write_map(out, run.params, args.objective, free,
+                                           args.radius)
     else:
         sizes = {k: v for k, v in (("popsize", args.popsize), ("maxiter", args.maxiter))
                  if v is not None}
         jobs = run.jobs if args.scheduler is None else Cluster(args.scheduler)
-        written = search.write_search(out, base=run.params, seed=args.seed, jobs=jobs,
-                                      resume=args.resume, progress=run.progress,
-                                      objective=args.objective, free=free,
-                                      radius=args.radius, **sizes)
+        written = search_outputs.write_search(out, base=run.params, seed=args.seed, jobs=jobs,
+                                              resume=args.resume, progress=run.progress,
+                                              objective=args.objective, free=free,
+                                              radius=args.radius, **sizes)
     for path in written:
         print(f"wrote {path}")
     return 0

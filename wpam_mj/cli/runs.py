@@ -153,12 +153,13 @@ def write_run_manifest(args: argparse.Namespace, out: Path, rid: str, params: Pa
 
 
 def flag_still(what: Sequence[tuple[str, bool]], to_stderr: bool) -> None:
-    """One line for each run whose load never moved (its numbers mean nothing)."""
+    """One line for each run (or group of runs) whose load never moved (its numbers mean
+    nothing)."""
     from wpam_mj.experiments.feasibility import MOVE_MIN_MM  # noqa: PLC0415
     for name, moved in what:
         if not moved:
             print(f"note: {name}: the load never moved (x spanned < {MOVE_MIN_MM:g} mm); "
-                  "this run's numbers mean nothing",
+                  "its numbers mean nothing",
                   file=sys.stderr if to_stderr else sys.stdout)
 
 

@@ -35,9 +35,10 @@ from typing import ClassVar
 
 import numpy as np
 
-from wpam_mj.physics import pneumatics
+from wpam_mj.physics import kernel, pneumatics
+from wpam_mj.physics.kernel_codegen import array_kernel
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import MM, MPA, Params, ParameterError
+from wpam_mj.physics.params import MPA, Params, ParameterError
 
 def pi_feedforward(muscle: MuscleModel, params: Params, x_ref: np.ndarray, load: float,
                    po: float) -> np.ndarray:
@@ -50,12 +51,10 @@ def pi_feedforward(muscle: MuscleModel, params: Params, x_ref: np.ndarray, load:
     pn = params.pneumatics
     pi = muscle.equilibrium_pressure(np.asarray(x_ref, dtype=float), load, po,
                                      params.controller.feedforward_friction)
-    return np.clip(pi, pn.p_min, pn.p_max)
+    return array_kernel().clip(pi, pn.p_min, pn.p_max)
 
 
-def initial_integral(output: float, ki: float, pa_per_unit: float) -> float:
-    """Integral [mm s] whose Ki term alone outputs `output` [Pa]; 0 when ki = 0."""
-    return output / pa_per_unit / ki if ki > 0.0 else 0.0
+initial_integral = kernel.initial_integral  # (output [Pa], ki, Pa per unit) -> [mm s]
 
 
 class PoController:
@@ -164,25 +163,11 @@ class PoFeedback(PoController):
                  po_cmd: float = 0.0) -> tuple[float, tuple[float, float, float]]:
         """This step's Po command [Pa] and the state `commit` would keep, without keeping
         it: an engine may evaluate a step more than once (`wpam_mj.simulation.engine`)."""
-        po_ff = po_cmd if self.adds_drive_po else 0.0
-        e = (x - x_ref) / MM
-        e_prev = e if self.e_prev is None else self.e_prev
-        derivative = (self.tf * self.derivative + (e - e_prev)) / (self.tf + self.dt)
-        integral = self.integral + e * self.dt
-        u = (self.kp * e + self.ki * integral + self.kd * derivative) * self.pa_per_unit \
-            + po_ff
-        integral_next = self.integral
-        if u > self.hi:
-            u = self.hi
-            if e < 0.0:
-                integral_next = integral
-        elif u < self.lo:
-            u = self.lo
-            if e > 0.0:
-                integral_next = integral
-        else:
-            integral_next = integral
-        return u, (integral_next, derivative, e)
+        u, integral, derivative, e = kernel.po_feedback(
+            x, x_ref, po_cmd if self.adds_drive_po else 0.0, self.integral, self.derivative,
+            0.0 if self.e_prev is None else self.e_prev, self.e_prev is not None, self.kp,
+            self.ki, self.kd, self.tf, self.pa_per_unit, self.lo, self.hi, self.dt)
+        return u, (integral, derivative, e)
 
     def commit(self, state: tuple[float, float, float]) -> None:
         """Keep the (integral, derivative, error) of an `evaluate`."""

@@ -22,7 +22,8 @@ _MODEL_STYLE = {"paper": "-", "extended": "--"}
 _CONTROL_COLOUR = {"pi": "tab:blue", "pid": "tab:red"}
 _AMPLITUDE_MARKERS = ("o", "s", "^", "v", "D", "x")
 GAIN_FLOOR = 1e-3  # simulated gains below it: the load stuck in friction (drawn on the
-#                    floor of the gain axis; their phase has no meaning and is left out)
+#                    floor of the gain axis; their phase, and that of any point whose load
+#                    never moved, has no meaning and is left out)
 
 
 def comparison_figure(cmp: LinearComparison) -> Figure:
@@ -46,7 +47,7 @@ def comparison_figure(cmp: LinearComparison) -> Figure:
                          label=f"simulated, {ctrl.upper()}, {amp / MM:g} mm")
             freqs = np.array([p.freq for p in pts])
             gains = np.array([p.gain for p in pts])
-            moving = gains >= GAIN_FLOOR
+            moving = (gains >= GAIN_FLOOR) & np.array([p.load_moved for p in pts], dtype=bool)
             ax_g.plot(freqs, np.maximum(gains, GAIN_FLOOR), **style)
             ax_ph.plot(freqs[moving], [-p.phase_lag_deg for p, m in zip(pts, moving) if m],
                        **style)

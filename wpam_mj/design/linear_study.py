@@ -2,7 +2,7 @@
 
 For one load and operating contraction, `compare` builds the §3 and extended models for PI
 and PID and runs the simulated sweep (`paper_studies.sweep_batch`) at several target amplitudes
-(the paper's 25 mm and smaller ones), all in one process pool. A `LinearComparison` holds
+(the paper's 25 mm and smaller ones), all in one `execute`. A `LinearComparison` holds
 both; `agreement` is the yardstick: at 0.1-0.25 Hz, does the simulated gain lie
 within 1 dB and the lag within 10 deg of the model's? Everything is recomputed from the
 current parameters, so the numbers follow any change of the physics.
@@ -22,11 +22,12 @@ import numpy as np
 
 from wpam_mj import paper
 from wpam_mj.design import linear
-from wpam_mj.infra import pool
 from wpam_mj.experiments import paper_studies
 from wpam_mj.experiments.drives import SINE_AMPLITUDE_MM, SINE_MEAN_MM
+from wpam_mj.experiments.feasibility import MOVE_MIN_MM
 from wpam_mj.physics.params import MM, Params, ParameterError
 from wpam_mj.experiments.responses import SweepResult
+from wpam_mj.simulation.execution import execute
 
 SMALL_AMPLITUDE_MM = 5.0  # about the friction band's reach in error at 150 N (docs/linear_model.md)
 AMPLITUDES_MM = (SINE_AMPLITUDE_MM, SMALL_AMPLITUDE_MM)  # the paper's, and a small one
@@ -65,14 +66,15 @@ class LinearComparison:
 
     def rows(self) -> list[dict]:
         """One dict per (amplitude, controller, frequency): the simulated gain [1] and
-        lag [deg] beside each model's, and the differences sim - model [dB, deg]."""
+        lag [deg] beside each model's, and the differences sim - model [dB, deg];
+        load_moved: False where the load never moved (the simulated numbers mean nothing)."""
         out = []
         for amp, sw in self.sweeps.items():
             for ctrl in sw.controllers:
                 pts = sw.curve(self.load, ctrl)
                 freqs = [p.freq for p in pts]
                 row0 = [{"load_n": self.load, "amplitude_mm": amp / MM, "controller": ctrl,
-                         "freq_hz": p.freq, "sim_gain": p.gain,
+                         "freq_hz": p.freq, "load_moved": p.load_moved, "sim_gain": p.gain,
                          "sim_lag_deg": p.phase_lag_deg} for p in pts]
                 for model in linear.MODELS:
                     gains, lags = self.loop(model, ctrl).frequency_response(freqs)
@@ -89,19 +91,23 @@ class LinearComparison:
         """Worst |gain difference| [dB] and |lag difference| [deg] between the simulation
         at `amplitude` [m] and `model` over `freqs` [Hz] and every controller, and whether
         both are within GAIN_TOL_DB and LAG_TOL_DEG (an unstable model's G_yr(jw) is still
-        compared, but no steady sinusoid follows it: see `model_stable`)."""
+        compared, but no steady sinusoid follows it: see `model_stable`). Points whose load
+        never moved are left out (counted in `still_points`); with none left the worst
+        figures are NaN and nothing agrees."""
         freqs = set(freqs)
         rows = [r for r in self.rows() if math.isclose(r["amplitude_mm"], amplitude / MM)
                 and r["freq_hz"] in freqs]
         if not rows:
             raise ParameterError(f"no simulated points at {amplitude / MM:g} mm and "
                                  f"{sorted(freqs)} Hz")
-        db = max(abs(r[f"{model}_diff_db"]) for r in rows)
-        deg = max(abs(r[f"{model}_diff_deg"]) for r in rows)
+        moved = [r for r in rows if r["load_moved"]]
+        db = max((abs(r[f"{model}_diff_db"]) for r in moved), default=math.nan)
+        deg = max((abs(r[f"{model}_diff_deg"]) for r in moved), default=math.nan)
         return {"amplitude_mm": amplitude / MM, "model": model,
                 "model_stable": all(lp.stable for lp in self.loops if lp.model == model),
                 "worst_gain_db": db, "worst_lag_deg": deg,
-                "agrees": db <= GAIN_TOL_DB and deg <= LAG_TOL_DEG}
+                "still_points": len(rows) - len(moved),
+                "agrees": bool(moved) and db <= GAIN_TOL_DB and deg <= LAG_TOL_DEG}
 
     def as_json(self) -> dict:
         """Plain JSON types (non-finite numbers become None)."""
@@ -143,19 +149,40 @@ class LinearComparison:
         lines.append(f"{'amp [mm]':>9}{'ctrl':>5}{'f [Hz]':>7}{'sim gain':>9}{'lag':>7}"
                      f"{'§3 gain':>9}{'lag':>7}{'ext gain':>9}{'lag':>7}{'dB':>7}{'deg':>7}")
         for r in self.rows():
-            lines.append(f"{r['amplitude_mm']:>9g}{r['controller']:>5}{r['freq_hz']:>7g}"
-                         f"{r['sim_gain']:>9.3f}{r['sim_lag_deg']:>7.1f}{r['paper_gain']:>9.3f}"
-                         f"{r['paper_lag_deg']:>7.1f}{r['extended_gain']:>9.3f}"
-                         f"{r['extended_lag_deg']:>7.1f}{r['paper_diff_db']:>7.2f}"
-                         f"{r['paper_diff_deg']:>7.1f}")
-        lines.append("dB, deg: simulation minus the §3 model")
+            head = f"{r['amplitude_mm']:>9g}{r['controller']:>5}{r['freq_hz']:>7g}"
+            models = (f"{r['paper_gain']:>9.3f}{r['paper_lag_deg']:>7.1f}"
+                      f"{r['extended_gain']:>9.3f}{r['extended_lag_deg']:>7.1f}")
+            if r["load_moved"]:
+                lines.append(f"{head}{r['sim_gain']:>9.3f}{r['sim_lag_deg']:>7.1f}{models}"
+                             f"{r['paper_diff_db']:>7.2f}{r['paper_diff_deg']:>7.1f}")
+            else:
+                lines.append(f"{head}{'still':>9}{'-':>7}{models}{'-':>7}{'-':>7}")
+        lines.append("dB, deg: simulation minus the §3 model; still: the load never moved "
+                     f"(x spanned < {MOVE_MIN_MM:g} mm over the analysed cycles)")
+        freqs = ", ".join(f"{f:g}" for f in AGREEMENT_FREQS_HZ)
         for a in self.sweeps:
             ag = self.agreement(a)
-            lines.append(f"at {a / MM:g} mm, {', '.join(f'{f:g}' for f in AGREEMENT_FREQS_HZ)}"
-                         f" Hz: worst {ag['worst_gain_db']:.2f} dB, {ag['worst_lag_deg']:.1f} deg"
-                         f" from the §3 model: {'agree' if ag['agrees'] else 'differ'} "
-                         f"(within {GAIN_TOL_DB:g} dB and {LAG_TOL_DEG:g} deg)")
+            still = f"; {ag['still_points']} still point(s) left out" \
+                if ag["still_points"] else ""
+            if math.isnan(ag["worst_gain_db"]):
+                lines.append(f"at {a / MM:g} mm, {freqs} Hz: the load never moved: nothing "
+                             "to compare with the §3 model")
+                continue
+            lines.append(f"at {a / MM:g} mm, {freqs} Hz: worst {ag['worst_gain_db']:.2f} dB, "
+                         f"{ag['worst_lag_deg']:.1f} deg from the §3 model: "
+                         f"{'agree' if ag['agrees'] else 'differ'} "
+                         f"(within {GAIN_TOL_DB:g} dB and {LAG_TOL_DEG:g} deg){still}")
         return "\n".join(lines)
+
+    def still_points(self) -> list[str]:
+        """The simulated points whose load never moved, one entry per amplitude and
+        controller, as "150 N 0.5 mm pi at 0.1, 0.2 Hz"."""
+        still: dict[tuple[float, str], list[float]] = {}
+        for r in self.rows():
+            if not r["load_moved"]:
+                still.setdefault((r["amplitude_mm"], r["controller"]), []).append(r["freq_hz"])
+        return [f"{self.load:g} N {amp:g} mm {ctrl} at {', '.join(f'{f:g}' for f in freqs)} Hz"
+                for (amp, ctrl), freqs in still.items()]
 
     def plot(self):
         """Bode plot of G_yr (`control.bode_plot`) with the simulated points."""
@@ -192,7 +219,7 @@ def compare(params: Params, loads: Sequence[float], *, contraction: float = SINE
             controllers: Sequence[str] = linear.CONTROLLERS, dt: float = 1e-3, jobs: int = 1,
             progress: bool = False) -> list[LinearComparison]:
     """A `LinearComparison` per load [N]: models at `contraction` [m], sweeps at each
-    amplitude [m] (one pool for every run)."""
+    amplitude [m] (every run in one `execute`)."""
     controllers = tuple(linear.check_linear_control(c) for c in controllers)
     if not amplitudes:
         raise ParameterError("no amplitudes given")
@@ -201,8 +228,7 @@ def compare(params: Params, loads: Sequence[float], *, contraction: float = SINE
     keys = [(load, a) for load in loads for a in amplitudes]
     batches = [paper_studies.sweep_batch(params, (load,), freqs, controllers, keep=(), dt=dt,
                                    amplitude=a) for load, a in keys]
-    results = dict(zip(keys, pool.run_batches(batches, jobs=jobs, progress=progress,
-                                                 desc="linear vs sim")))
+    results = dict(zip(keys, execute(batches, jobs, progress=progress, desc="linear vs sim")))
     return [LinearComparison(load, contraction, loops[load],
                              {a: results[(load, a)] for a in amplitudes}) for load in loads]
 

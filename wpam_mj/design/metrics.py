@@ -32,7 +32,14 @@ def _step_metrics(result, hold: float) -> dict[str, float]:
     x = steady_state_means(result.time, result.x, seg, settle)
     pi = steady_state_means(result.time, result.pi, seg, settle)
     err = x - np.asarray(STEP_LEVELS_MM, dtype=float) * MM
-    return {"loop_area_mpa_mm": loop_area(pi, x, method=LOOP_METHOD) / (MPA * MM),
+    try:
+        area = loop_area(pi, x, method=LOOP_METHOD)
+    except ParameterError:  # Pi's plateau means only rise (or only fall): no loop
+        raise ParameterError(
+            f"Pi's plateau means never turn back (x missed its targets by up to "
+            f"{np.max(np.abs(err)) / MM:.3g} mm): the muscle did not follow the staircase "
+            f"of {hold:g} s plateaus, so it has no loop area") from None
+    return {"loop_area_mpa_mm": area / (MPA * MM),
             "plateau_error_max_mm": float(np.max(np.abs(err))) / MM,
             "plateau_error_rms_mm": float(np.sqrt(np.mean(err ** 2))) / MM,
             "po_max_mpa": float(result.po_reg.max()) / MPA}

@@ -29,7 +29,7 @@ from wpam_mj.experiments.drives import SineSpec
 from wpam_mj.infra.pool import Workers
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.physics.params import ParameterError, Params, preset
-from wpam_mj.simulation.execution import Failed, run_chunks
+from wpam_mj.simulation.execution import Batch, Failed, execute
 from wpam_mj.simulation.simulate import SimulationDiverged
 
 # Batches: at least this many tasks per worker slot (so the last tasks balance), at most
@@ -142,8 +142,8 @@ def run_study(spec: StudySpec, out: str | Path, workers: Workers, *, resume: boo
                               csv_text(columns, rows))
             bar.update(len(rows))
 
-        run_chunks([b.tasks() for b in batches], workers,
-                   lambda i, outcomes: finish(batches[i], batches[i].rows(outcomes)))
+        execute([Batch(b.tasks(), b.rows) for b in batches], workers, failed=Failed,
+                each=lambda i, rows: finish(batches[i], rows))
     rows = finished_rows(parts, kinds)
     table = [rows[i] for i in range(len(inputs))]
     return StudyResult(rows=table, files=write_tables(out, spec, table),

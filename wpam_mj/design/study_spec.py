@@ -15,7 +15,8 @@ A study file names the experiment, the settings shared by every run and the vari
 
 Inputs (SI, as in a --config file): any model parameter as `section.field`, plus `load`
 [N], `controller` (open/pi/pid), `frequency` [Hz] and `amplitude` [m] (sine), `duration`
-[s] (step: the staircase's length, default 110), `po_down` [Pa] (static, table2).
+[s] (step: the staircase's length, default 110, at least MIN_STEP_DURATION_S), `po_down`
+[Pa] (static, table2).
 
 Runs are numbered in sampling order (grid: the last name varies fastest; random and
 Latin-hypercube samples come from numpy's PCG64 seeded with `seed`, through
@@ -54,6 +55,11 @@ METHODS = ("grid", "list", "random", "lhs")
 MAX_RUNS = 1_000_000  # our choice: a bound that catches a runaway grid before it starts
 RECORD_DT_S = 0.01  # every run records at this period (`wpam_mj.simulation.simulate.simulate`)
 STEP_DURATION_S = len(STEP_LEVELS_MM) * STEP_HOLD_S  # paper §4.1 staircase, 110 s
+# Our choice: the shortest plateau on which the shipped plant's PI and PID staircases are
+# at rest over the averaged last half (x within 0.2 mm peak to peak at 50-150 N; 2.5 s
+# plateaus leave PI swinging 1.9 mm): shorter staircases have no settled plateau means.
+MIN_STEP_HOLD_S = 3.0
+MIN_STEP_DURATION_S = len(STEP_LEVELS_MM) * MIN_STEP_HOLD_S  # 33 s
 STATIC_DURATION_S = 2 * STATIC_RAMP_S + 2.0  # `experiments.static_loop`: ramps + 1 s dwells
 # Parameter sections of the config file (braid, muscle, pneumatics, controller)
 SECTIONS = {f.name: type(getattr(Params(), f.name)) for f in dataclasses.fields(Params)
@@ -216,11 +222,23 @@ def _check_value(name: str, value: Any, base: Params) -> Any:
     if name == "amplitude":
         return SineSpec(1.0, amplitude=value).amplitude
     if name == "duration":
-        return check_range("duration", value, 1.0, MAX_RUN_S, "s")
+        return _step_duration(value)
     if name == "po_down":
         return check_po("po_down", value, base)
     md = _param_field(name).metadata
     return check_range(name, value, md["lo"], md["hi"], md["unit"], lo_open=md["lo_open"])
+
+
+def _step_duration(value: float) -> float:
+    """A step run's length [s]: long enough that its plateaus settle (MIN_STEP_HOLD_S each),
+    short enough for one run (MAX_RUN_S)."""
+    n = len(STEP_LEVELS_MM)
+    if value < MIN_STEP_DURATION_S:
+        raise ParameterError(
+            f"duration = {value:g} s: its {n} plateaus of {value / n:.3g} s are too short to "
+            f"settle on; the step protocol holds from {MIN_STEP_DURATION_S:g} s "
+            f"({MIN_STEP_HOLD_S:g} s plateaus; the paper's: {STEP_DURATION_S:g} s)")
+    return check_range("duration", value, MIN_STEP_DURATION_S, MAX_RUN_S, "s")
 
 
 def _dt(value: Any) -> float:

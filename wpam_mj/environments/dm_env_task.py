@@ -6,7 +6,8 @@
         timestep = env.step(policy(timestep.observation))
 
 Built on dm_control's `rl.control.Environment` with a `Task` (reward, observations,
-random targets and loads) and a `dm_control.mujoco.Physics` subclass, `MusclePhysics`,
+random targets and loads) and a `dm_control.mujoco.Physics` subclass, `MusclePhysics`
+(`wpam_mj.environments.muscle_physics`),
 whose `step` is the project's physics step: the muscle is the rig's `wpam_mj.muscle`
 actuator plugin (docs/plugin.md), whose input channels are the two regulator commands, and
 `MusclePhysics.step(n)` runs n full `mj_step`s (dm_control's default legacy step would run
@@ -21,7 +22,8 @@ Observations (each a float64 array of shape (1,), SI units, named with their uni
     po_pa         outer-chamber gauge pressure Po [Pa]
     target_m      target contraction x_r [m] at the current time
     load_n        hanging load F [N] (constant over an episode)
-Actions (`BoundedArray`, float64, [Pa]; out-of-range values are clipped):
+Actions (`BoundedArray`, float64, [Pa]; out-of-range values are clipped, anything but
+finite real numbers of the right count is refused, `check_actions`):
     action="po"   shape (1,): Po command in [p_min, po_cap]; Pi is the feedforward of the
                   `controller` (default "pi": the equilibrium model for (target,
                   load) at the nominal Po, as in the paper's §4 controller; "open": at
@@ -70,24 +72,20 @@ import mujoco
 import numpy as np
 from dm_env import specs
 
-from wpam_mj.visualisation import gl
 from wpam_mj.control.controllers import CONTROLLERS, PIControl, check_control
+from wpam_mj.environments.muscle_physics import MusclePhysics, RigPhysics
 from wpam_mj.experiments.drives import SineSpec
 from wpam_mj.experiments.feasibility import check_liftable
-from wpam_mj.physics.geometry import BraidGeometry
-from wpam_mj.simulation.live import LiveRig
-from wpam_mj.simulation.model import check_dt, check_load
-from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import (MM, STANDARD_GRAVITY, ParameterError, Params, check_range,
-                                    check_whole_steps, preset)
-from wpam_mj.simulation.loop_contract import SimulationDiverged
 from wpam_mj.fitting.randomize import ParameterRanges, ranges_of
+from wpam_mj.physics.geometry import BraidGeometry
+from wpam_mj.physics.muscle import MuscleModel
+from wpam_mj.physics.params import (MM, ParameterError, Params, check_range, check_whole_steps,
+                                    preset)
+from wpam_mj.simulation.model import check_dt, check_load
+from wpam_mj.visualisation import gl
 
-with gl.quiet_display_probe():  # dm_control probes GLFW on import; we never render with it
-    from dm_control.mujoco import engine
-    from dm_control.mujoco.wrapper import core as wrapper
+with gl.quiet_display_probe():  # dm_control probes GLFW on import
     from dm_control.rl import control
-    from dm_control.utils import rewards
 
 ACTIONS = ("po", "both", "residual")
 REFERENCES = ("step", "sine", "staircase")
@@ -99,196 +97,13 @@ LOAD_RANGE = (50.0, 150.0)  # N: the paper's loads (§4)
 REWARD_BOUND = 0.5 * MM  # m: reward 1 inside +-bound
 REWARD_MARGIN = 2 * MM  # m: reward 0.1 this far outside the bound
 TRACKING_SCALE = 1 * MM  # m: the "tracking" reward falls linearly to 0 at this error
+# dm_control's Gaussian sigmoid reaches 0.1 at the margin: exp(-(d s)^2 / 2) with
+# s = sqrt(-2 ln 0.1) (dm_control.utils.rewards._sigmoids), d the distance in margins
+_GAUSSIAN_SCALE = float(np.sqrt(-2 * np.log(0.1)))
 TIME_LIMIT_RANGE = (1e-3, 3600.0)  # s
 CONTROL_TIMESTEP_RANGE = (1e-5, 1.0)  # s
 
 OBSERVATIONS = ("x_m", "velocity_m_s", "pi_pa", "po_pa", "target_m", "load_n")
-
-
-class _MuscleReadings:
-    """What the task reads and sets on the hung muscle, for `MusclePhysics` (dm_control)
-    and `RigPhysics` (plain MuJoCo) alike: both hold a `LiveRig` and its MjData."""
-
-    params: Params
-    rig: LiveRig
-
-    def _raw(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
-        raise NotImplementedError
-
-    def _setup(self, params: Params, rig: LiveRig) -> None:
-        self.params = params
-        self.rig = rig
-        self._load_body = rig.model.body("load").id
-        self.pi_cmd = self.po_cmd = 0.0
-        self.diverged: str | None = None
-
-    def set_load(self, load: float) -> None:
-        """Hang `load` [N]: the load body's mass becomes load / g, and the constants MuJoCo
-        derives from masses (the constraints' inverse weights) follow, so the model is the
-        one built for this load whatever load it held before."""
-        model, data = self._raw()
-        model.body_mass[self._load_body] = check_load(load) / STANDARD_GRAVITY
-        mujoco.mj_setConst(model, data)
-
-    def load(self) -> float:
-        """Hanging load [N]."""
-        return float(self._raw()[0].body_mass[self._load_body]) * STANDARD_GRAVITY
-
-    def set_commands(self, pi_cmd: float, po_cmd: float) -> None:
-        """Regulator commands [Pa] (gauge) applied from the next physics step on."""
-        self.pi_cmd, self.po_cmd = float(pi_cmd), float(po_cmd)
-
-    def contraction(self) -> float:
-        """x [m]."""
-        return self.rig.contraction(self._raw()[1])
-
-    def velocity(self) -> float:
-        """dx/dt [m/s]."""
-        return self.rig.velocity(self._raw()[1])
-
-    def pressures(self) -> tuple[float, float]:
-        """Chamber gauge pressures (Pi, Po) [Pa]."""
-        return self.rig.pressures(self._raw()[1])
-
-    def _refuse_if_diverged(self) -> None:
-        if self.diverged is not None:  # the state is meaningless until reset
-            raise control.PhysicsError(f"the muscle diverged ({self.diverged}); call reset() "
-                                       "before stepping again")
-
-    def _step_rig(self, nstep: int) -> None:
-        """`nstep` physics steps (`LiveRig.step`: the physics step of
-        `wpam_mj.simulation.simulate`), ending with `mj_step1` so that positions, sensors and
-        rendering match the new state (as dm_control's own step)."""
-        d = self._raw()[1]
-        self.rig.set_commands(d, self.pi_cmd, self.po_cmd)
-        try:
-            self.rig.step(d, nstep)
-        except SimulationDiverged as err:
-            raise control.PhysicsError(f"at t = {d.time:.4f} s: {err}") from err
-
-
-class MusclePhysics(_MuscleReadings, engine.Physics):
-    """dm_control Physics of the hung muscle whose `step` is the project's physics step.
-
-    The muscle is the rig's `wpam_mj.muscle` plugin (or the Python engine where it is
-    unavailable), stepped by `wpam_mj.simulation.live.LiveRig`: its pneumatic state lives
-    in MuJoCo's data, so `reset` and `copy` carry it. Set the regulator commands with `set_commands`
-    before stepping.
-    """
-
-    @classmethod
-    def create(cls, params: Params, dt: float = 1e-3, load: float = 100.0) -> MusclePhysics:
-        """Build the MJCF model for `params`, physics step `dt` [s], `load` [N]."""
-        dt = check_dt(dt)
-        rig = LiveRig.build(params, load, dt)
-        physics = cls(wrapper.MjData(mujoco.MjData(rig.model)))
-        physics._setup(params, rig)
-        return physics
-
-    def _raw(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
-        return self.model.ptr, self.data.ptr
-
-    def reset(self, keyframe_id=None) -> None:
-        """Reset MuJoCo's state and the pneumatics (chambers vented, regulators at 0)."""
-        super().reset(keyframe_id)
-        self.rig.reset()
-        self.pi_cmd = self.po_cmd = 0.0
-        self.diverged = None
-
-    def copy(self, share_model: bool = False) -> MusclePhysics:
-        """A copy with its own MuJoCo data and pneumatic state."""
-        new = super().copy(share_model)
-        new._setup(self.params, self.rig.copy())
-        new.pi_cmd, new.po_cmd, new.diverged = self.pi_cmd, self.po_cmd, self.diverged
-        return new
-
-    def set_params(self, params: Params) -> None:
-        """Use `params` from now on (domain randomisation, at the start of an episode): the
-        model is rebuilt for them with the same load and time step, from rest."""
-        rig = LiveRig.build(params, self.load(), self.rig.model.opt.timestep)
-        self._reload_from_data(wrapper.MjData(mujoco.MjData(rig.model)))
-        self._setup(params, rig)
-
-    def step(self, nstep: int = 1) -> None:
-        """Advance `nstep` physics steps of the muscle and the load (`_step_rig`); MuJoCo
-        warnings raise dm_control's PhysicsError."""
-        self._refuse_if_diverged()
-        try:
-            with self.check_invalid_state():
-                self._step_rig(nstep)
-        except control.PhysicsError as err:
-            self.diverged = str(err)
-            raise
-
-
-class RigPhysics(_MuscleReadings):
-    """The same physics as `MusclePhysics` on plain MuJoCo, without dm_control (which
-    does not run on mujoco 4): what the Gymnasium environment steps. `model` and `data`
-    are the MjModel and MjData; `create`, `reset`, `after_reset`, `set_params` and `step`
-    do what dm_control's Physics does in `MusclePhysics`, in the same order (its forward
-    computations with actuation disabled included), so both give the same trajectories."""
-
-    @classmethod
-    def create(cls, params: Params, dt: float = 1e-3, load: float = 100.0) -> RigPhysics:
-        """Build the MJCF model for `params`, physics step `dt` [s], `load` [N]."""
-        physics = cls()
-        physics._setup(params, LiveRig.build(params, load, check_dt(dt)))
-        return physics
-
-    def _setup(self, params: Params, rig: LiveRig) -> None:
-        super()._setup(params, rig)
-        self.model, self.data = rig.model, mujoco.MjData(rig.model)
-        self.after_reset()
-
-    def _raw(self) -> tuple[mujoco.MjModel, mujoco.MjData]:
-        return self.model, self.data
-
-    def time(self) -> float:
-        """Episode time [s]."""
-        return float(self.data.time)
-
-    def timestep(self) -> float:
-        """Physics step [s]."""
-        return float(self.model.opt.timestep)
-
-    def reset(self) -> None:
-        """MuJoCo's state and the pneumatics back to rest (chambers vented)."""
-        mujoco.mj_resetData(self.model, self.data)
-        self.after_reset()
-        self.rig.reset()
-        self.pi_cmd = self.po_cmd = 0.0
-        self.diverged = None
-
-    def after_reset(self) -> None:
-        """The derived quantities of the state, with actuation disabled (dm_control's
-        `Physics.after_reset`, also run by its reset and on new data)."""
-        flags = self.model.opt.disableflags
-        self.model.opt.disableflags = flags | mujoco.mjtDisableBit.mjDSBL_ACTUATION
-        try:
-            mujoco.mj_forward(self.model, self.data)
-        finally:
-            self.model.opt.disableflags = flags
-
-    def set_params(self, params: Params) -> None:
-        """Use `params` from now on (domain randomisation): a model rebuilt for them with
-        the same load and time step, from rest."""
-        self._setup(params, LiveRig.build(params, self.load(), self.timestep()))
-
-    def step(self, nstep: int = 1) -> None:
-        """`nstep` physics steps (`_step_rig`); a MuJoCo warning raised meanwhile raises
-        dm_control's PhysicsError, as `MusclePhysics.step`."""
-        self._refuse_if_diverged()
-        warnings = np.array([w.number for w in self.data.warning])
-        try:
-            self._step_rig(nstep)
-            raised = np.array([w.number for w in self.data.warning]) > warnings
-            if raised.any():
-                names = [n for n, r in zip(mujoco.mjtWarning.__members__, raised) if r]
-                raise control.PhysicsError("Physics state is invalid. Warning(s) raised: "
-                                           + ", ".join(names))
-        except control.PhysicsError as err:
-            self.diverged = str(err)
-            raise
 
 
 class TrackingTask(control.Task):
@@ -362,6 +177,7 @@ class TrackingTask(control.Task):
         else:
             self._lo, self._hi = np.array([pn.p_min, pn.p_min]), np.array([pn.p_max, c.po_cap])
             self._name = "pi_cmd_pa,po_cmd_pa"
+        self._lo_f, self._hi_f = self._lo.tolist(), self._hi.tolist()  # the step path's
 
     def _highest_target(self, x_max: float) -> float:
         """The highest contraction [m] an episode may ask for."""
@@ -424,8 +240,13 @@ class TrackingTask(control.Task):
                                                   self._dt)[0][0])
 
     def target_at(self, t: float) -> float:
-        """Target contraction x_r [m] at episode time `t` [s]."""
-        return float(self.targets_at(np.array([t]))[0])
+        """Target contraction x_r [m] at episode time `t` [s] (the same floats as
+        `targets_at`, without its arrays: this runs every control step)."""
+        if self._reference == "staircase":
+            return float(self._levels[min(int(t / STAIR_HOLD + 1e-9), self._n_levels - 1)])
+        if self._sine is None:
+            return self.target
+        return float(self._sine.target(np.array([t]))[0])
 
     def targets_at(self, t: np.ndarray) -> np.ndarray:
         """Target contractions x_r [m] at episode times `t` [s] (an array)."""
@@ -441,20 +262,41 @@ class TrackingTask(control.Task):
         return specs.BoundedArray(shape=self._lo.shape, dtype=np.float64, minimum=self._lo,
                                   maximum=self._hi, name=self._name)
 
+    @property
+    def action_unit(self) -> str:
+        """What the action's numbers are, as refusals name it."""
+        return f"[Pa] ({self._name})"
+
     def before_step(self, action, physics: MusclePhysics) -> None:
-        a = np.asarray(action, dtype=np.float64).reshape(-1)
-        if a.shape != self._lo.shape or not np.all(np.isfinite(a)):
-            raise ParameterError(f"action = {action!r} must be {self._lo.size} finite "
-                                 f"number(s) [Pa] ({self._name})")
-        a = np.clip(a, self._lo, self._hi)
+        self.apply_action(check_actions(action, self._lo.size, self.action_unit), physics)
+
+    def apply_action(self, action: np.ndarray, physics: MusclePhysics) -> None:
+        """Set the regulator commands for the checked `action` (`check_actions`; [Pa]),
+        clipped to the action's bounds, with the controller's feedforward and, under
+        action="residual", the paper's PI around it."""
+        values = action.tolist()
         if self._action == "both":
-            physics.set_commands(a[0], a[1])
+            pi_cmd = min(max(values[0], self._lo_f[0]), self._hi_f[0])
+            physics.set_commands(pi_cmd, min(max(values[1], self._lo_f[1]), self._hi_f[1]))
             return
-        pi_cmd, po_drive = self.feedforward_at(np.array([physics.time()]), physics.load())
-        po = a[0]
+        t = physics.time()
+        pi_cmd, po_drive = self._feedforward_now(t, physics.load())
+        po = min(max(values[0], self._lo_f[0]), self._hi_f[0])
         if self._pi is not None:  # action="residual": the PI's Po plus the agent's
-            po = self._pi.update(physics.contraction(), self.target_at(physics.time())) + po
-        physics.set_commands(pi_cmd[0], min(max(po + po_drive[0], self._po_lo), self._po_hi))
+            po = self._pi.update(physics.contraction(), self.target_at(t)) + po
+        physics.set_commands(pi_cmd, min(max(po + po_drive, self._po_lo), self._po_hi))
+
+    def _feedforward_now(self, t: float, load: float) -> tuple[float, float]:
+        """`feedforward_at` at one time `t` [s], the same floats without its arrays where
+        the feedforward is a table (a drive, a step target)."""
+        if self._drive is not None:
+            k = min(round(t / self._dt), len(self._drive[0]) - 1)  # half-even, as np.rint
+            po = float(self._drive[1][k]) if self._controller.adds_drive_po else 0.0
+            return float(self._drive[0][k]), po
+        if self._reference == "step":
+            return self._pi_ff, 0.0
+        pi_cmd, po = self.feedforward_at(np.array([t]), load)
+        return float(pi_cmd[0]), float(po[0])
 
     def feedforward_at(self, t: np.ndarray, load: float) -> tuple[np.ndarray, np.ndarray]:
         """(Pi command, Po added to the agent's) [Pa] at the start of control steps at
@@ -484,24 +326,51 @@ class TrackingTask(control.Task):
             (name, specs.Array(shape=(1,), dtype=np.float64, name=name))
             for name in OBSERVATIONS)
 
-    def get_observation(self, physics: MusclePhysics) -> collections.OrderedDict:
+    def readings(self, physics: MusclePhysics) -> list[float]:
+        """The observed values in `OBSERVATIONS` order [SI]."""
         pi, po = physics.pressures()
-        values = (physics.contraction(), physics.velocity(), pi, po,
-                  self.target_at(physics.time()), physics.load())
+        return [physics.contraction(), physics.velocity(), pi, po,
+                self.target_at(physics.time()), physics.load()]
+
+    def get_observation(self, physics: MusclePhysics) -> collections.OrderedDict:
+        values = self.readings(physics)
+        if self._flat:  # what control.flatten_observation would make of the values
+            return collections.OrderedDict([(control.FLAT_OBSERVATION_KEY,
+                                             np.array(values))])
         return collections.OrderedDict(
             (name, np.array([v], dtype=np.float64)) for name, v in zip(OBSERVATIONS, values))
 
     def get_reward(self, physics: MusclePhysics) -> float:
-        error = physics.contraction() - self.target_at(physics.time())
-        return float(self.rewards(np.array([error]))[0])
+        return self.reward(physics.contraction() - self.target_at(physics.time()))
+
+    def reward(self, error: float) -> float:
+        """The reward of one tracking error x - x_r [m]: `rewards` on one value, the same
+        float without arrays (this runs every control step)."""
+        if self._reward == "tracking":
+            return max(0.0, 1.0 - abs(error) / TRACKING_SCALE)
+        if -REWARD_BOUND <= error <= REWARD_BOUND:
+            return 1.0
+        d = ((-REWARD_BOUND - error) if error < -REWARD_BOUND else (error - REWARD_BOUND)) \
+            / REWARD_MARGIN
+        d *= _GAUSSIAN_SCALE
+        return float(np.exp(-0.5 * (d * d)))
 
     def rewards(self, error: np.ndarray) -> np.ndarray:
-        """Rewards of tracking errors x - x_r [m] (an array; the module docstring)."""
+        """Rewards of tracking errors x - x_r [m] (an array; the module docstring):
+        "tolerance" is `dm_control.utils.rewards.tolerance` with a Gaussian tail, its
+        operations in its order."""
         if self._reward == "tracking":
             return np.maximum(0.0, 1.0 - np.abs(error) / TRACKING_SCALE)
-        return rewards.tolerance(error, bounds=(-REWARD_BOUND, REWARD_BOUND),
-                                 margin=REWARD_MARGIN, sigmoid="gaussian",
-                                 value_at_margin=0.1)
+        d = np.where(error < -REWARD_BOUND, -REWARD_BOUND - error, error - REWARD_BOUND) \
+            / REWARD_MARGIN
+        d *= _GAUSSIAN_SCALE
+        inside = np.logical_and(-REWARD_BOUND <= error, error <= REWARD_BOUND)
+        return np.where(inside, 1.0, np.exp(-0.5 * (d * d)))
+
+    @property
+    def randomize(self) -> ParameterRanges | None:
+        """The parameter ranges each episode draws from, or None."""
+        return self._randomize
 
     @property
     def action(self) -> str:
@@ -568,8 +437,8 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
         target_range=target_range, load_range=load_range, flat_observation=flat_observation,
         reference=reference, sine_freq=sine_freq, sine_freq_range=sine_freq_range,
         randomize=randomize, reward=reward, controller=controller)
-    return control.Environment(physics, task, time_limit=time_limit, n_sub_steps=n_sub,
-                               flat_observation=flat_observation)
+    # the task makes the flat observation itself (`get_observation`)
+    return control.Environment(physics, task, time_limit=time_limit, n_sub_steps=n_sub)
 
 
 def build(physics_class: type[MusclePhysics] | type[RigPhysics], params: Params | None,
@@ -606,6 +475,40 @@ def check_dm_control() -> None:
         raise RuntimeError(f"the dm_control environment needs mujoco {DM_CONTROL_MUJOCO} "
                            f"(dm-control fails on mujoco {mujoco.__version__}); the default "
                            "install has it, and the Gymnasium ids run on both")
+
+
+def _brief(value) -> str:
+    """`value` on one short line, for a refusal."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def check_actions(actions, size: int, unit: str, num_envs: int | None = None) -> np.ndarray:
+    """The one check of what an agent sends: for one environment (`num_envs` None), `size`
+    real numbers in any shape ((size,) the usual), returned as float64 (size,); for
+    `num_envs` environments, one row of them per environment, (num_envs, size) (or
+    (num_envs,) when size is 1), returned as float64 (num_envs, size). Numbers out of
+    the action's bounds are the caller's to clip; anything else (strings, booleans,
+    NaN or an infinity, the wrong count) is refused in one line naming it and `unit`."""
+    label = "action" if num_envs is None else "actions"
+    numbers = f"{size} finite number{'s' if size > 1 else ''} {unit}"
+    want = numbers if num_envs is None else (f"({num_envs}, {size}) finite numbers, one "
+                                              f"row of {numbers} per environment")
+    try:
+        a = actions if type(actions) is np.ndarray else np.asarray(actions)
+    except (TypeError, ValueError):  # ragged nesting
+        raise ParameterError(f"{label} = {_brief(actions)} must be {want}") from None
+    if a.dtype.kind not in "fiu":
+        raise ParameterError(f"{label} = {_brief(actions)} must be {want}; got dtype {a.dtype}")
+    if a.size != size * (num_envs or 1) or (num_envs is not None and (
+            a.ndim == 0 or a.shape[0] != num_envs)):
+        raise ParameterError(f"{label} must be {want}; got shape {a.shape}")
+    a = a.astype(np.float64, copy=False).reshape(size if num_envs is None else (num_envs, size))
+    if not (np.isfinite(a).all() if a.size > 4 else all(map(math.isfinite, a.ravel().tolist()))):
+        where = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
+        raise ParameterError(f"{label}[{', '.join(map(str, where))}] = {float(a[where])} "
+                             f"must be finite: {label} must be {want}")
+    return a
 
 
 SEED_RANGE = (0, 2**32 - 1)  # numpy.random.RandomState's seed range

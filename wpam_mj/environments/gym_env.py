@@ -65,7 +65,9 @@ from dm_control.rl import control
 from gymnasium import Env, spaces
 
 from wpam_mj.environments.dm_env_task import (LOAD_RANGE, REWARD_BOUND, SINE_FREQ_RANGE,
-                                              TARGET_RANGE, RigPhysics, TrackingTask, build)
+                                              TARGET_RANGE, TrackingTask, build,
+                                              check_actions, check_seed)
+from wpam_mj.environments.muscle_physics import RigPhysics
 from wpam_mj.physics.geometry import BraidGeometry
 from wpam_mj.simulation.model import check_dt
 from wpam_mj.physics.params import MM, ParameterError, Params, preset
@@ -132,11 +134,11 @@ class Scaling:
                        x_max, loads[1], ERROR_SCALE])
         self._centre, self._half = (lo + hi) / 2, np.maximum((hi - lo) / 2, 1e-12)
 
-    def action(self, a) -> np.ndarray:
-        """Normalised action in [-1, 1] -> SI command [Pa]: a times the upper bound,
-        clipped to the bounds (so a <= p_min / upper bound is the regulator minimum)."""
-        a = np.asarray(a, dtype=np.float64).reshape(self._a_lo.shape)
-        return np.clip(a * self._a_hi, self._a_lo, self._a_hi)
+    def action(self, a: np.ndarray) -> np.ndarray:
+        """Normalised action in [-1, 1] (checked: `check_actions`) -> SI command [Pa]: a
+        times the upper bound, clipped to the bounds (so a <= p_min / upper bound is the
+        regulator minimum)."""
+        return np.minimum(np.maximum(a * self._a_hi, self._a_lo), self._a_hi)
 
     def action_of(self, command) -> np.ndarray:
         """SI command [Pa] -> normalised action (float32), e.g. to run a classic
@@ -144,17 +146,9 @@ class Scaling:
         c = np.asarray(command, dtype=np.float64).reshape(self._a_lo.shape)
         return (c / self._a_hi).astype(np.float32)
 
-    def observation(self, obs_si: np.ndarray) -> np.ndarray:
-        """SI observation (6,) -> normalised (7,) float32 in [-1, 1]."""
-        return self.observations(obs_si[np.newaxis])[0]
-
-    def observations(self, obs_si: np.ndarray) -> np.ndarray:
-        """SI observations (N, 6) -> normalised (N, 7) float32 in [-1, 1]."""
-        return self.normalised(np.column_stack((obs_si, obs_si[:, 0] - obs_si[:, 4])))
-
     def normalised(self, full: np.ndarray) -> np.ndarray:
-        """SI observations with the tracking error x - x_r appended, (N, 7) -> normalised
-        float32 in [-1, 1]."""
+        """SI observations with the tracking error x - x_r appended, (7,) or (N, 7) ->
+        normalised float32 in [-1, 1]."""
         return np.clip((full - self._centre) / self._half, -1.0, 1.0).astype(np.float32)
 
 
@@ -231,6 +225,10 @@ class WPAMEnv(Env):
             else None
         self.action_space, self.observation_space = self._spaces(params, spec, loads)
         self._obs: np.ndarray | None = None
+        self._info: dict = {}
+        # what the action's numbers are, as refusals name them
+        self.action_unit = self._task.action_unit if self.scaling is None else (
+            f"in [-1, 1] ({spec.name} as fractions of its upper bounds)")
         self._ended: str | None = "no episode has started"
 
     def _spaces(self, params: Params, spec, loads) -> tuple[spaces.Box, spaces.Box]:
@@ -261,6 +259,7 @@ class WPAMEnv(Env):
 
     def reset(self, *, seed: int | None = None,
               options: dict | None = None) -> tuple[np.ndarray, dict]:
+        seed = check_seed(seed)
         fixed = check_reset_options(options)
         super().reset(seed=seed)
         if seed is not None:
@@ -272,29 +271,55 @@ class WPAMEnv(Env):
         self._physics.reset()
         self.task.initialize_episode(self._physics)
         self._physics.after_reset()
-        self._obs = self._observation()
         self._ended = None
         if self._frames is not None:
             self._frames.set_load(self.physics.load())
-        return self._obs.copy(), self._info()
+        return self._observe()
+
+    def check_action(self, action) -> np.ndarray:
+        """`action` as float64 of the action's shape, or a one-line ParameterError
+        (`wpam_mj.environments.dm_env_task.check_actions`, the vector env's check too)."""
+        return check_actions(action, self.action_space.shape[0], self.action_unit)
 
     def step(self, action) -> tuple[np.ndarray, float, bool, bool, dict]:
         if self._ended is not None:
             raise RuntimeError(f"cannot step: {self._ended}; call reset() first")
+        return self.step_checked(self.check_action(action))
+
+    def step_checked(self, action: np.ndarray):
+        """`step` with an action `check_action` has checked (the vector env's serial
+        engine checks all its environments' actions at once)."""
         command = action if self.scaling is None else self.scaling.action(action)
         try:  # as dm_control's Environment.step
-            self.task.before_step(command, self._physics)
+            self._task.apply_action(command, self._physics)
             self._physics.step(self.frame_skip)
         except control.PhysicsError as err:
             self._ended = f"the episode ended, the state diverged ({err})"
-            return self._obs.copy(), 0.0, True, False, {**self._info(), "diverged": str(err)}
-        reward = self.task.get_reward(self._physics)
-        self._obs = self._observation()
+            return self._obs.copy(), 0.0, True, False, {**self._info, "diverged": str(err)}
+        obs, info = self._observe()
         self._steps += 1
         truncated = self._steps >= self.step_limit
         if truncated:
             self._ended = "the episode ended at its time limit"
-        return self._obs.copy(), reward, False, truncated, self._info()
+        return obs, self._task.reward(info["error_m"]), False, truncated, info
+
+    def _observe(self) -> tuple[np.ndarray, dict]:
+        """The observation and info of the current state, each read once."""
+        physics = self._physics
+        values = self._task.readings(physics)
+        x, target = values[0], values[4]
+        error = x - target
+        if self.scaling is None:
+            obs = np.array(values)
+        else:
+            values.append(error)
+            obs = self.scaling.normalised(np.array(values))
+        self._obs = obs
+        self._info = {"time_s": physics.time(), "x_m": x, "target_m": target,
+                      "error_m": error, "pi_cmd_pa": physics.pi_cmd,
+                      "po_cmd_pa": physics.po_cmd,
+                      "is_success": -REWARD_BOUND <= error <= REWARD_BOUND}
+        return obs.copy(), self._info
 
     def render(self) -> np.ndarray | None:
         if self.render_mode != "rgb_array":
@@ -311,14 +336,3 @@ class WPAMEnv(Env):
         if self._frames is not None:
             self._frames.close()
             self._frames = None
-
-    def _observation(self) -> np.ndarray:
-        obs = np.concatenate(list(self.task.get_observation(self._physics).values()))
-        return obs if self.scaling is None else self.scaling.observation(obs)
-
-    def _info(self) -> dict:
-        t = self.physics.time()
-        x, target = self.physics.contraction(), self.task.target_at(t)
-        return {"time_s": t, "x_m": x, "target_m": target, "error_m": x - target,
-                "pi_cmd_pa": self.physics.pi_cmd, "po_cmd_pa": self.physics.po_cmd,
-                "is_success": bool(abs(x - target) <= REWARD_BOUND)}

@@ -30,22 +30,25 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 
+import gymnasium
 import mujoco
 import numpy as np
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 from mujoco import batch as mjbatch
 
-from wpam_mj.environments.dm_env_task import REWARD_BOUND
+from wpam_mj.environments.dm_env_task import REWARD_BOUND, check_actions, check_seed
 from wpam_mj.environments.gym_env import WPAMEnv, check_episode_steps
-from wpam_mj.physics.params import MM, ParameterError
+from wpam_mj.physics.kernel_codegen import array_kernel
+from wpam_mj.physics.params import ParameterError
 from wpam_mj.simulation import plugin
-from wpam_mj.simulation.loop_contract import state_failure
+from wpam_mj.simulation.loop_contract import RunConstants, state_failure
 
 ENGINES = ("auto", "batch", "serial")
 INFO_KEYS = ("time_s", "x_m", "target_m", "error_m", "pi_cmd_pa", "po_cmd_pa", "is_success")
 _STATE = mujoco.mjtState.mjSTATE_INTEGRATION
 _WARNING_NUMBER = 1  # mjWarningStat: (lastinfo, number)
+DEAD_TIME = "pneumatics.dead_time"  # the one parameter that sizes the plugin state
 
 
 def default_threads(num_envs: int) -> int:
@@ -55,9 +58,50 @@ def default_threads(num_envs: int) -> int:
     return max(1, min(num_envs, cpus))
 
 
+VECTOR_SETTINGS = ("engine", "nthread", "autoreset_mode")  # WPAMVectorEnv's own keywords
+
+
+def make_vec(env_id: str, num_envs: int = 1, *, vector_kwargs: dict | None = None,
+             **kwargs) -> VectorEnv:
+    """`gymnasium.make_vec(env_id, num_envs, **kwargs)` that also takes the vector env's
+    settings (`VECTOR_SETTINGS`) in Gymnasium's spelling, `vector_kwargs={...}`, which
+    gymnasium.make_vec itself refuses for every environment with its own vector entry
+    point (Gymnasium >= 1.0: such settings go in as keywords)."""
+    vector_kwargs = dict(vector_kwargs or {})
+    unknown = sorted(set(vector_kwargs) - set(VECTOR_SETTINGS), key=str)
+    if unknown:
+        raise ParameterError(f"vector_kwargs {', '.join(map(repr, unknown))} unknown; the "
+                             f"vector env's settings: {', '.join(VECTOR_SETTINGS)}")
+    twice = sorted(set(vector_kwargs) & set(kwargs))
+    if twice:
+        raise ParameterError(f"{', '.join(twice)} given twice, in vector_kwargs and as a "
+                             "keyword: give it once")
+    return gymnasium.make_vec(env_id, num_envs, **kwargs, **vector_kwargs)
+
+
+def varying_state_size(env: WPAMEnv) -> str:
+    """Why the episodes of a new `env` may not share one plugin state size, or "". The
+    regulators' dead-time queues hold `RunConstants.delay_steps` = round(dead_time / dt)
+    commands each, so a randomized dead time whose range rounds to several step counts
+    changes the state's size from episode to episode; one `mujoco.batch` holds states of
+    one size only."""
+    ranges = env.task.randomize
+    if ranges is None or DEAD_TIME not in ranges.ranges:
+        return ""
+    physics = env.physics  # before any reset: the base parameters
+    dt = physics.timestep()
+    lo, hi = ranges.ranges[DEAD_TIME]
+    steps = [RunConstants.make(physics.params.with_values({DEAD_TIME: v}), dt, dt).delay_steps
+             for v in (lo, hi)]
+    if steps[0] == steps[1]:
+        return ""
+    return (f"randomize draws {DEAD_TIME} from [{lo:g}, {hi:g}] s, dead-time queues of "
+            f"{steps[0]} to {steps[1]} steps of {dt:g} s")
+
+
 class PIArrays:
     """The paper's PI on Po (`wpam_mj.control.controllers.PoFeedback.evaluate` and
-    `commit`, the same operations in the same order) for N environments at once."""
+    `commit`: the kernel's `po_feedback`, in its array form) for N environments at once."""
 
     def __init__(self, n: int) -> None:
         self.kp, self.ki, self.kd, self.tf, self.dt, self.pa_per_unit, self.lo, self.hi = (
@@ -76,20 +120,14 @@ class PIArrays:
     def update(self, x: np.ndarray, x_ref: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """Po commands [Pa] of environments `rows` at contractions x and targets x_ref [m]
         (arrays over `rows`), advancing their state."""
-        integral0 = self.integral[rows]
-        e = (x - x_ref) / MM
-        e_prev = np.where(self.has_prev[rows], self.e_prev[rows], e)
-        tf, dt = self.tf[rows], self.dt[rows]
-        derivative = (tf * self.derivative[rows] + (e - e_prev)) / (tf + dt)
-        integral = integral0 + e * dt
-        u = (self.kp[rows] * e + self.ki[rows] * integral + self.kd[rows] * derivative) \
-            * self.pa_per_unit[rows] + 0.0
-        lo, hi = self.lo[rows], self.hi[rows]
-        above, below = u > hi, u < lo
-        keep = (above & (e >= 0.0)) | (below & (e <= 0.0))  # conditional integration
-        self.integral[rows] = np.where(keep, integral0, integral)
-        self.derivative[rows], self.e_prev[rows], self.has_prev[rows] = derivative, e, True
-        return np.where(above, hi, np.where(below, lo, u))
+        u, self.integral[rows], self.derivative[rows], self.e_prev[rows] = \
+            array_kernel().po_feedback(
+                x, x_ref, 0.0, self.integral[rows], self.derivative[rows], self.e_prev[rows],
+                self.has_prev[rows], self.kp[rows], self.ki[rows], self.kd[rows],
+                self.tf[rows], self.pa_per_unit[rows], self.lo[rows], self.hi[rows],
+                self.dt[rows])
+        self.has_prev[rows] = True
+        return u
 
 
 class WPAMVectorEnv(VectorEnv):
@@ -102,7 +140,11 @@ class WPAMVectorEnv(VectorEnv):
 
     def __init__(self, num_envs: int = 1, *, engine: str = "auto", nthread: int | None = None,
                  autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
-                 max_episode_steps: int | None = None, **kwargs) -> None:
+                 max_episode_steps: int | None = None, backend: str = "mujoco",
+                 device: str = "cpu", **kwargs) -> None:
+        if backend != "mujoco":  # MuJoCo Warp (the gpu extra): wpam_mj.environments.warp_vector_env
+            from wpam_mj.environments import warp_vector_env  # noqa: PLC0415 (optional)
+            warp_vector_env.check_backend(backend)
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) \
                 or num_envs < 1:
             raise ParameterError(f"num_envs = {num_envs!r} must be an integer >= 1")
@@ -129,19 +171,22 @@ class WPAMVectorEnv(VectorEnv):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         check_episode_steps(self.envs[0].episode_steps, max_episode_steps)
         self._autoreset = np.zeros(self.num_envs, dtype=bool)
+        self._started = False
+        varying = varying_state_size(self.envs[0])
+        if engine == "batch" and varying:
+            raise ParameterError(f"engine = 'batch' needs one plugin state size for every "
+                                 f"episode, but {varying}; use engine='serial' or 'auto'")
         self.engine = "batch" if engine == "batch" or (
-            engine == "auto" and plugin.available()) else "serial"
+            engine == "auto" and plugin.available() and not varying) else "serial"
         self._batch = _BatchedEpisodes(self.envs, nthread or default_threads(num_envs)) \
-            if self.engine == "batch" else None
+            if self.engine == "batch" and backend == "mujoco" else None
+        if backend == "warp":
+            self.engine = "warp"
+            self._batch = warp_vector_env.WarpEpisodes(self.envs, device)
 
     def reset(self, *, seed: int | Sequence[int | None] | None = None,
               options: dict | None = None) -> tuple[np.ndarray, dict]:
-        if seed is None or isinstance(seed, (int, np.integer)):
-            seeds = [None if seed is None else int(seed) + i for i in range(self.num_envs)]
-        else:
-            seeds = list(seed)
-            if len(seeds) != self.num_envs:
-                raise ParameterError(f"{len(seeds)} seeds for {self.num_envs} environments")
+        seeds = self._seeds(seed)
         obs, infos = [], {}
         for i, (env, s) in enumerate(zip(self.envs, seeds)):
             o, info = env.reset(seed=s, options=options)
@@ -152,11 +197,34 @@ class WPAMVectorEnv(VectorEnv):
             self._batch.restart(np.arange(self.num_envs))
             self._batch.obs[:] = obs
         self._autoreset[:] = False
+        self._started = True
         return obs, infos
 
+    def _seeds(self, seed) -> list[int | None]:
+        """Each environment's seed: None, seed + i for an integer seed (as SyncVectorEnv),
+        or one each (None or an integer in `dm_env_task.SEED_RANGE`)."""
+        if seed is None:
+            return [None] * self.num_envs
+        if isinstance(seed, (int, np.integer)) and not isinstance(seed, (bool, np.bool_)):
+            check_seed(seed)
+            check_seed(int(seed) + self.num_envs - 1)  # the last environment's
+            return [int(seed) + i for i in range(self.num_envs)]
+        if not isinstance(seed, (Sequence, np.ndarray)) or isinstance(seed, str):
+            raise ParameterError(f"seed = {seed!r} must be None, an integer, or a sequence "
+                                 f"of {self.num_envs} (None or integers), one per environment")
+        if len(seed) != self.num_envs:
+            raise ParameterError(f"{len(seed)} seeds for {self.num_envs} environments: give "
+                                 "one per environment")
+        return [check_seed(s) for s in seed]
+
     def step(self, actions) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict]:
+        if not self._started:
+            raise RuntimeError("cannot step: no episode has started; call reset() first")
+        env = self.envs[0]
+        actions = check_actions(actions, env.action_space.shape[0], env.action_unit,
+                                self.num_envs)
         if self._batch is None:
-            obs, rewards, terminated, truncated, infos = self._step_serial(np.asarray(actions))
+            obs, rewards, terminated, truncated, infos = self._step_serial(actions)
         else:
             obs, rewards, terminated, truncated, infos = self._batch.step(actions,
                                                                           self._autoreset)
@@ -202,7 +270,7 @@ class WPAMVectorEnv(VectorEnv):
                 obs[i], infos_each[i] = self.envs[i].reset()
             else:
                 obs[i], rewards[i], terminated[i], truncated[i], infos_each[i] = \
-                    self.envs[i].step(actions[i])
+                    self.envs[i].step_checked(actions[i])
         infos: dict = {}
         for i, info in enumerate(infos_each):
             infos = self._add_info(infos, info, i)
@@ -223,7 +291,6 @@ class _BatchedEpisodes:
         n = len(envs)
         env = envs[0]
         self.rig = env.physics.rig
-        self.sim = mjbatch.Batch(env.physics.model, n, nthread=nthread)
         self.rows = np.arange(n)
         self.action = env.task.action
         self.scaling = env.scaling
@@ -244,21 +311,33 @@ class _BatchedEpisodes:
         self.x = np.zeros(n)  # contraction [m] at the start of the next step
         self.obs = np.zeros((n, *env.observation_space.shape), env.observation_space.dtype)
         self.pid = PIArrays(n) if self.action == "residual" else None
+        self._open(env.physics.model, n, nthread)
+        adr = max(self.rig.state, 0)
+        self.p_i, self.p_o = adr + plugin.FIELD["p_i"], adr + plugin.FIELD["p_o"]
+        self.status = adr + plugin.FIELD["status"]
+
+    def _open(self, model: mujoco.MjModel, n: int, nthread: int) -> None:
+        """The n simulations, on `mujoco.batch` (MuJoCo Warp: `warp_vector_env`)."""
+        self.sim = mjbatch.Batch(model, n, nthread=nthread)
         self.ten_length = self.sim.bind("ten_length")
         self.ten_velocity = self.sim.bind("ten_velocity")
         self.plugin_state = self.sim.bind("plugin_state")
         self.ctrl = self.sim.bind("ctrl")
-        adr = self.rig.state
-        self.p_i, self.p_o = adr + plugin.FIELD["p_i"], adr + plugin.FIELD["p_o"]
-        self.status = adr + plugin.FIELD["status"]
+
+    def _load_states(self, ids: np.ndarray) -> None:
+        """Simulations `ids` take their environments' state and model (just reset)."""
+        for i in ids:
+            physics = self.envs[i].physics
+            mujoco.mj_getState(physics.model, physics.data, self.sim.state[i], _STATE)
+            self.sim.warning[i] = 0  # warnings are no part of the state: as a reset data
+        # set again: a reset edits the load's mass
+        self.sim.set_models([env.physics.model for env in self.envs])
 
     def restart(self, ids: np.ndarray) -> None:
         """Environments `ids` have just been reset: their state, model and tables in."""
         for i in ids:
             env = self.envs[i]
             physics, task = env.physics, env.task
-            mujoco.mj_getState(physics.model, physics.data, self.sim.state[i], _STATE)
-            self.sim.warning[i] = 0  # warnings are no part of the state: as a reset data
             self.k[i] = 0
             self.length0[i] = physics.rig.length0
             self.atmosphere[i] = physics.rig.atmosphere
@@ -270,20 +349,12 @@ class _BatchedEpisodes:
                                                                    self.load[i])
             if self.pid is not None:
                 self.pid.load(i, task.pi_controller)
-        models = [env.physics.model for env in self.envs]
-        if any(m.npluginstate != models[0].npluginstate for m in models):
-            raise ParameterError("engine='batch' needs one plugin state size for every "
-                                 "environment (a randomized dead time changes it); use "
-                                 "engine='serial'")
-        self.sim.set_models(models)  # set again: a reset edits the load's mass
+        self._load_states(ids)
 
-    def step(self, actions, autoreset: np.ndarray):
+    def step(self, a: np.ndarray, autoreset: np.ndarray):
+        """One step of every environment with the checked actions `a` ((n, size) float64,
+        `check_actions`), those in `autoreset` resetting instead."""
         n = len(self.envs)
-        a = np.asarray(actions, dtype=np.float64)
-        if a.size != n * len(self.a_lo) or not np.isfinite(a).all():
-            raise ParameterError(f"actions must be ({n}, {len(self.a_lo)}) finite numbers; "
-                                 f"got shape {np.shape(actions)}")
-        a = a.reshape(n, -1)
         command = a * self.a_hi if self.scaling is not None else a
         command = np.minimum(np.maximum(command, self.a_lo), self.a_hi)
         resetting = np.flatnonzero(autoreset) if autoreset.any() else ()

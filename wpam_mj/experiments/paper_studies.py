@@ -6,9 +6,10 @@
   * `table2`           everything Table 2 needs, normalized as in the paper.
   * `sweep`            sinusoidal targets over loads, frequencies and controllers (Figs. 17-19).
 
-Each run is a small picklable task object, run by `wpam_mj.infra.pool` serially or in a
-process pool; workers send back reduced results (`wpam_mj.experiments.responses`) and only the
-time series that a figure needs. `*_batch` gives a study's tasks to share one pool.
+Each run is a small picklable task object, run by the execution layer
+(`wpam_mj.simulation.execution.execute`) here or on a cluster; tasks reduce their runs to
+response objects (`wpam_mj.experiments.responses`) and keep only the time series that a
+figure needs. `*_batch` gives a study's tasks to run together with other studies'.
 """
 
 from __future__ import annotations
@@ -28,8 +29,7 @@ from wpam_mj.paper import (FIG18_FREQ_HZ, FIG18_LOAD_N, LOADS_N, PO_DOWN_STATIC_
                            SINE_AMPLITUDE_MM, STEP_HOLD_S, STEP_LEVELS_MM, SWEEP_CONTROLLERS,
                            SWEEP_FREQS_HZ)
 from wpam_mj.physics.params import MM, MPA, Params, ParameterError, check_range
-from wpam_mj.infra.pool import Batch, run_batches, run_tasks
-from wpam_mj.simulation.execution import SimulationTask
+from wpam_mj.simulation.execution import Batch, SimulationTask, execute
 from wpam_mj.simulation.results import SimResult
 from wpam_mj.experiments.responses import (LOOP_METHOD, StaticLoop, StepRun, SweepKey, SweepPoint,
                                    SweepResult, Table2Result)
@@ -89,7 +89,7 @@ def compare_presets(params_list: Sequence[Params], loads: Iterable[float] = (100
     loads, dt, ramp_time = _check_loads(loads), check_dt(dt), check_ramp_time(ramp_time)
     tasks = [StaticTask(p, load, check_po("po_down", po_down, p), dt, ramp_time)
              for p in params_list for load in loads]
-    return run_tasks(tasks, jobs=jobs, progress=progress, desc="static")
+    return execute(tasks, jobs, progress=progress, desc="static")
 
 
 def plateau_segments(levels_mm: Sequence[float] = STEP_LEVELS_MM,
@@ -132,7 +132,7 @@ def step_study(params: Params, runs: Iterable[tuple[float, str]], *, dt: float =
              for load, control in runs]
     if not tasks:
         raise ParameterError("no step runs requested")
-    return run_tasks(tasks, jobs=jobs, progress=progress, desc="step")
+    return execute(tasks, jobs, progress=progress, desc="step")
 
 
 def table2(params: Params, *, loads: Iterable[float] = LOADS_N,
@@ -141,13 +141,13 @@ def table2(params: Params, *, loads: Iterable[float] = LOADS_N,
     """Run the open-loop ramps (Po = 0 and Po = `po_down` [Pa], each direction lasting
     `ramp_time` [s]) and the PI staircase at each load [N], and compute the Table 2 areas."""
     batch = table2_batch(params, loads=loads, po_down=po_down, dt=dt, ramp_time=ramp_time)
-    return run_batches([batch], jobs=jobs, progress=progress, desc="table 2")[0]
+    return execute([batch], jobs, progress=progress, desc="table 2")[0]
 
 
 def table2_batch(params: Params, *, loads: Iterable[float] = LOADS_N,
                  po_down: float = PO_DOWN_STATIC_MPA * MPA, dt: float = 1e-3,
                  ramp_time: float = STATIC_RAMP_S) -> Batch:
-    """The runs of `table2` as a `Batch` (to share a pool with other studies)."""
+    """The runs of `table2` as a `Batch` (to run together with other studies)."""
     loads, dt, ramp_time = _check_loads(loads), check_dt(dt), check_ramp_time(ramp_time)
     po_down = check_po("po_down", po_down, params)
     tasks = ([StaticTask(params, load, 0.0, dt, ramp_time) for load in loads]
@@ -225,7 +225,7 @@ def sweep(params: Params, loads: Iterable[float] = LOADS_N,
     """
     batch = sweep_batch(params, loads, freqs, controllers, keep=keep, dt=dt,
                         amplitude=amplitude)
-    return run_batches([batch], jobs=jobs, progress=progress, desc="sweep")[0]
+    return execute([batch], jobs, progress=progress, desc="sweep")[0]
 
 
 def sweep_batch(params: Params, loads: Iterable[float] = LOADS_N,
@@ -233,7 +233,7 @@ def sweep_batch(params: Params, loads: Iterable[float] = LOADS_N,
                 controllers: Iterable[str] = SWEEP_CONTROLLERS, *,
                 keep: Iterable[SweepKey] | None = None, dt: float = 1e-3,
                 amplitude: float = SINE_AMPLITUDE_MM * MM) -> Batch:
-    """The runs of `sweep` as a `Batch` (to share a pool with other studies)."""
+    """The runs of `sweep` as a `Batch` (to run together with other studies)."""
     loads, dt = _check_loads(loads), check_dt(dt)
     freqs = tuple(SineSpec(f, amplitude=amplitude).freq for f in freqs)  # validates each
     controllers = tuple(check_control(c) for c in controllers)

@@ -36,8 +36,7 @@ from wpam_mj.paper import LOADS_N, PO_DOWN_STATIC_MPA
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import MPA, ParameterError, Params, check_range
 from wpam_mj.physics.quasistatic import ramp_contraction
-from wpam_mj.infra.pool import Batch
-from wpam_mj.simulation.execution import SimulationTask
+from wpam_mj.simulation.execution import Batch, SimulationTask
 from wpam_mj.simulation.results import SimResult
 from wpam_mj.simulation.simulate import Drive, Run
 from wpam_mj.experiments.paper_studies import StepTask, check_ramp_time
@@ -150,7 +149,7 @@ def static_drive(params: Params, load: float, po_down: float, protocol: Protocol
 
 @dataclass(frozen=True)
 class ProtocolStaticTask(SimulationTask):
-    """One open-loop ramp under `protocol` (a pool task, as `paper_studies.StaticTask`)."""
+    """One open-loop ramp under `protocol` (a task, as `paper_studies.StaticTask`)."""
 
     params: Params
     load: float

@@ -24,7 +24,7 @@ from wpam_mj.fitting.measurements import Experiment
 from wpam_mj.simulation.model import check_dt, check_load
 from wpam_mj.physics.params import MM, MPA, Params, ParameterError, check_int, check_range
 from wpam_mj.simulation.results import SimResult
-from wpam_mj.experiments.paper_studies import run_tasks
+from wpam_mj.simulation.execution import execute
 
 HOLDOUT_FREQ_HZ = 0.25  # the sine run of the held-out set
 HOLDOUT_DIR = "holdout"
@@ -103,7 +103,7 @@ def synth(params: Params, out: Path, *, loads: Sequence[float] = paper.LOADS_N,
                              f"{', '.join(KINDS)}")
     tasks = [SynthTask(params, kind, load, dt, sample_dt, ramp_time)
              for kind in kinds for load in loads]
-    runs = run_tasks(tasks, jobs=jobs, progress=progress, desc="synth")
+    runs = execute(tasks, jobs, progress=progress, desc="synth")
     rng = np.random.default_rng(seed)
     paths = []
     for task, r in zip(tasks, runs):

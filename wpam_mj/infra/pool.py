@@ -1,24 +1,16 @@
-"""Where and how independent, deterministic runs execute: in this process, in one local
-process pool, or on a Dask cluster.
+"""Where many independent, deterministic runs execute, chosen once: `open_workers`.
 
-Everything that runs many simulations takes a `concurrent.futures.Executor`, so the
-choice is made once, here (`open_workers`, or `executor_for` where a caller may bring
-its own):
-
-  * jobs = 1, no scheduler: no executor (runs in this process, in order);
-  * jobs > 1: a `WorkerPool` of `jobs` processes (the default), whose workers never
-    outlive the command;
+  * jobs = 1, no scheduler: this process, one batch thread;
+  * jobs > 1: this process's `jobs` `mujoco.batch` threads for the simulations, and a
+    `WorkerPool` of `jobs` processes (started on first use, its workers never outlive the
+    command) for tasks that are not simulations (figures, files, static fits);
   * a Dask scheduler address (`--scheduler tcp://host:8786` or the environment variable
-    DASK_SCHEDULER_ADDRESS): `distributed.Client(address).get_executor()`, the Executor
-    interface of Dask distributed. Workers must have wpam_mj installed. Dask is an
+    DASK_SCHEDULER_ADDRESS): `distributed.Client(address).get_executor()`; every task is
+    shipped to the cluster's workers. Workers must have wpam_mj installed. Dask is an
     optional dependency (`pip install ".[cluster]"`), imported only when asked for.
 
-A task is any picklable object with `.run()` (its result) and `.cost` (a relative run
-time, so that the longest start first); `TaskPool` runs them, results in task order,
-not depending on the number of workers. Studies, fits, the calibration and the search run
-their tasks through `wpam_mj.simulation.execution` instead, which takes these same
-workers: local processes stand for this machine's cores (the simulations run on as many
-`mujoco.batch` threads in this process), a Dask executor for the cluster's workers.
+The `Workers` it yields say which; `wpam_mj.simulation.execution.execute` runs tasks on
+them (docs/cluster.md).
 """
 
 from __future__ import annotations
@@ -27,13 +19,12 @@ import ctypes
 import os
 import signal
 import sys
-from concurrent.futures import FIRST_EXCEPTION, Executor, Future, ProcessPoolExecutor
+from concurrent.futures import BrokenExecutor, Executor, Future, ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Callable, Iterator, Sequence
+from typing import Iterator
 
 import numpy as np
-from tqdm import tqdm
 
 from wpam_mj.infra import termination
 from wpam_mj.physics.params import ParameterError, shown
@@ -136,128 +127,36 @@ class _Dropped(Future):
         pass
 
 
-def _execute(task):
-    """Worker entry point (module level, so the pool can pickle it)."""
-    return task.run()
-
-
-class TaskPool:
-    """Runs task objects (`.run()`, `.cost`) in this process or in one process pool.
-
-    jobs = 1 runs each task as it is submitted; jobs > 1 starts a pool (default start
-    method) and queues each submitted group longest first. Tasks submitted after others
-    queue behind them, so follow-up work (figures of finished runs) keeps the cores busy
-    without a second pool. The first failure cancels every task not yet started and is
-    re-raised (by `submit` when jobs = 1, else by `results`). Use as a context manager.
-    `executor`: any concurrent.futures.Executor (e.g. Dask's, from `open_workers`) to
-    run on instead of a pool of its own, whatever `jobs` is; the caller shuts it down.
-    """
-
-    def __init__(self, jobs: int = 1, *, progress: bool = False, desc: str = "runs",
-                 executor: Executor | None = None) -> None:
-        self.jobs = check_jobs(jobs)
-        self._executor = executor
-        self._pool: ProcessPoolExecutor | None = None
-        self._submitted: list[Future] = []
-        self._bar = tqdm(total=0, desc=desc, unit="run", file=sys.stderr,
-                         disable=not progress, leave=False)
-
-    def __enter__(self) -> TaskPool:
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        for fut in self._submitted:
-            fut.cancel()
-        if self._pool is not None:
-            self._pool.__exit__(exc_type, exc, tb)  # on an exception: stop the workers now
-        self._bar.close()
-
-    def submit(self, tasks: Sequence) -> list[Future]:
-        """Futures of `task.run()` for each task, in task order."""
-        tasks = list(tasks)
-        self._bar.total += len(tasks)
-        self._bar.refresh()
-        futures: list[Future | None] = [None] * len(tasks)
-        if self.jobs == 1 and self._executor is None:  # a failure propagates at once
-            for i, task in enumerate(tasks):
-                futures[i] = Future()
-                futures[i].set_result(task.run())
-                self._bar.update()
-            return futures
-        if self._pool is None and self._executor is None:
-            self._pool = WorkerPool(self.jobs)
-        pool = self._pool if self._executor is None else self._executor
-        with termination.deferred():  # every future recorded, so that all are cancelled
-            for i in sorted(range(len(tasks)), key=lambda i: -tasks[i].cost):
-                futures[i] = fut = pool.submit(_execute, tasks[i])
-                fut.add_done_callback(lambda _: self._bar.update())
-            self._submitted += futures
-        return futures
-
-    def results(self, futures: Sequence[Future]) -> list:
-        """The results of `futures` (from `submit`), in order; raises the first failure."""
-        done, _ = termination.wait(futures, FIRST_EXCEPTION)
-        for fut in done:
-            if fut.exception() is not None:
-                for other in self._submitted:
-                    other.cancel()
-                raise fut.exception()
-        return [fut.result() for fut in futures]
-
-    def run(self, tasks: Sequence) -> list:
-        """`submit` then `results`."""
-        return self.results(self.submit(tasks))
-
-
-def run_tasks(tasks: Sequence, *, jobs: int = 1, progress: bool = False,
-              desc: str = "runs", executor: Executor | None = None) -> list:
-    """Run `task.run()` for every task (see `TaskPool`); results in task order."""
-    with TaskPool(jobs, progress=progress, desc=desc, executor=executor) as pool:
-        return pool.run(tasks)
-
-
-@dataclass(frozen=True)
-class Batch:
-    """Tasks of one study and the function that turns their results into its response."""
-
-    tasks: Sequence
-    assemble: Callable[[list], object]
-
-
-def submit_batches(pool: TaskPool, batches: Sequence[Batch]) -> list[Callable[[], object]]:
-    """Submit the tasks of several studies at once (longest first across all of them, so
-    they balance each other on few cores); returns one callable per study that waits for
-    its runs and returns its assembled response."""
-    futures = pool.submit([t for b in batches for t in b.tasks])
-    out, start = [], 0
-    for b in batches:
-        mine = futures[start:start + len(b.tasks)]
-        out.append(lambda b=b, mine=mine: b.assemble(pool.results(mine)))
-        start += len(b.tasks)
-    return out
-
-
-def run_batches(batches: Sequence[Batch], *, jobs: int = 1, progress: bool = False,
-                desc: str = "runs", executor: Executor | None = None) -> list:
-    """Run the tasks of several studies in one pool and return each study's assembled
-    response, in the order given."""
-    with TaskPool(jobs, progress=progress, desc=desc, executor=executor) as pool:
-        return [response() for response in submit_batches(pool, batches)]
-
-
 # ---- the choice of workers
 
 SCHEDULER_ENV = "DASK_SCHEDULER_ADDRESS"
 CONNECT_TIMEOUT_S = 10.0  # our choice: a scheduler that does not answer in 10 s is not there
+LOST_AFTER_S = 10.0  # our choice: a cluster with no worker (or no scheduler) this long is gone
+
+
+class WorkersLost(BrokenExecutor):
+    """The cluster can no longer run tasks: its scheduler or every worker is gone."""
 
 
 @dataclass(frozen=True)
 class Workers:
-    """An executor (None: run in this process) and how many tasks it runs at once."""
+    """Where tasks run, as `open_workers` chose (module docstring).
+
+    executor: None (this process only); local: the process pool for tasks that are not
+      simulations; remote: the cluster, every task.
+    slots: tasks at once: batch threads here (local), the cluster's worker threads (remote).
+    where: for messages: "this process", "2 local cores", "Dask at tcp://...".
+    """
 
     executor: Executor | None
     slots: int
-    where: str  # for messages: "this process", "2 local cores", "Dask at tcp://..."
+    where: str
+    remote: bool = False
+
+    def lost(self) -> str | None:
+        """Why the cluster can no longer run tasks, or None while it can (local: never)."""
+        client = getattr(self.executor, "_client", None)
+        return None if client is None else _dask_lost(client)
 
 
 def scheduler_address(scheduler: str | None) -> str | None:
@@ -274,11 +173,18 @@ class Cluster:
 
 
 @contextmanager
-def open_workers(jobs: int | Cluster = 1, scheduler: str | None = None) -> Iterator[Workers]:
-    """Context manager yielding the `Workers` for `jobs` local processes or a Dask
-    scheduler (see the module docstring); shuts them down (or disconnects) on exit."""
+def open_workers(jobs: int | Cluster | Workers | Executor | None = 1,
+                 scheduler: str | None = None) -> Iterator[Workers]:
+    """Context manager yielding the `Workers` for `jobs` (module docstring): a number of
+    local cores, a `Cluster`, or workers the caller opened (a `Workers` or any
+    concurrent.futures.Executor: yielded as they are, not shut down here; None: this
+    process). Shuts what it opened down (or disconnects) on exit."""
+    if jobs is None or isinstance(jobs, (Workers, Executor)):
+        yield _given(jobs)
+        return
     if isinstance(jobs, Cluster):
         jobs, scheduler = 1, jobs.address
+    jobs = check_jobs(jobs)
     address = scheduler_address(scheduler)
     if address is not None:
         with _dask_executor(address) as workers:
@@ -286,20 +192,30 @@ def open_workers(jobs: int | Cluster = 1, scheduler: str | None = None) -> Itera
     elif jobs == 1:
         yield Workers(None, 1, "this process")
     else:
-        with WorkerPool(jobs) as workers:  # stops its workers at once on an exception
-            yield Workers(workers, jobs, f"{jobs} local cores")
+        with WorkerPool(jobs) as pool:  # stops its workers at once on an exception
+            yield Workers(pool, jobs, f"{jobs} local cores")
 
 
 @contextmanager
 def executor_for(jobs: int | Cluster = 1,
                  executor: Executor | None = None) -> Iterator[Executor | None]:
     """`executor` if given (the caller's: not shut down here), else the executor of
-    `open_workers(jobs)` (None: run in this process)."""
-    if executor is not None:
-        yield executor
-        return
-    with open_workers(jobs) as workers:
+    `open_workers(jobs)` (None: run in this process), for code that hands it on to
+    `wpam_mj.simulation.execution.execute` (which reads it back as the same `Workers`)."""
+    with open_workers(jobs if executor is None else executor) as workers:
         yield workers.executor
+
+
+def _given(where: Workers | Executor | None) -> Workers:
+    """The `Workers` of an executor opened elsewhere."""
+    if where is None or isinstance(where, Workers):
+        return where or Workers(None, 1, "this process")
+    if isinstance(where, ProcessPoolExecutor):  # local processes: as many cores here
+        return Workers(where, where._max_workers, f"{where._max_workers} local cores")
+    client = getattr(where, "_client", None)  # Dask's executor
+    where_text = type(where).__name__ if client is None else \
+        f"Dask at {client.scheduler.address}"
+    return Workers(where, 1, where_text, remote=True)
 
 
 @contextmanager
@@ -309,19 +225,62 @@ def _dask_executor(address: str) -> Iterator[Workers]:
     except ImportError:
         raise ParameterError(f"Dask scheduler {address}: Dask distributed is not installed; "
                              'pip install ".[cluster]"') from None
-    try:
-        client = Client(address, timeout=CONNECT_TIMEOUT_S)
-    except (OSError, ValueError) as err:  # TimeoutError is an OSError
-        raise ParameterError(f"Dask scheduler {address}: cannot connect "
-                             f"({' '.join(str(err).split())})") from None
-    try:
-        slots = sum(client.nthreads().values())  # threads of the workers connected now
-        executor = client.get_executor()
+    with _quiet_dask():
         try:
-            yield Workers(executor, max(slots, 1), f"Dask at {address}")
-        except BaseException:
-            executor.shutdown(wait=False)  # cancel the cluster's tasks; do not wait for them
-            raise
-        executor.shutdown(wait=True)
+            client = Client(address, timeout=CONNECT_TIMEOUT_S)
+        except Exception as err:  # noqa: BLE001 (OSError, a timeout, or what a service
+            # that is not Dask makes of its answer: a frame length of exabytes)
+            raise ParameterError(f"Dask scheduler {address}: cannot connect "
+                                 f"({_reason(err)}); is it a Dask scheduler?") from None
+        try:
+            slots = sum(client.nthreads().values())  # threads of the workers connected now
+            executor = client.get_executor()
+            try:
+                yield Workers(executor, max(slots, 1), f"Dask at {address}", remote=True)
+            except BaseException:
+                executor.shutdown(wait=False)  # cancel the cluster's tasks; no waiting
+                raise
+            executor.shutdown(wait=True)
+        finally:
+            client.close(timeout=CONNECT_TIMEOUT_S)
+
+
+def _reason(err: BaseException) -> str:
+    return " ".join(str(err).split()) or type(err).__name__
+
+
+_UNHEALTHY_SINCE: dict[int, float] = {}  # client id -> since when it could run nothing
+
+
+def _dask_lost(client) -> str | None:
+    """Why `client` can no longer run tasks: its scheduler unreachable, or no worker,
+    for LOST_AFTER_S (the scheduler would wait for a worker forever)."""
+    import time  # noqa: PLC0415
+
+    address = client.scheduler.address
+    if client.status != "running":
+        why = f"the scheduler {address} is gone"
+    elif not client.scheduler_info().get("workers"):  # refreshed by the client every 2 s
+        why = f"no worker is connected to {address}"
+    else:
+        _UNHEALTHY_SINCE.pop(id(client), None)
+        return None
+    since = _UNHEALTHY_SINCE.setdefault(id(client), time.monotonic())
+    return why if time.monotonic() - since >= LOST_AFTER_S else None
+
+
+@contextmanager
+def _quiet_dask() -> Iterator[None]:
+    """Dask's own logging off while we use it: its errors reach the command as one line
+    (`WorkersLost`, a refused address), not as the tracebacks its loggers print."""
+    import logging  # noqa: PLC0415
+
+    loggers = [logging.getLogger(name) for name in ("distributed", "tornado", "asyncio")]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
     finally:
-        client.close()
+        for lg, level in zip(loggers, levels):
+            lg.setLevel(level)

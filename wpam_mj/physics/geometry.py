@@ -24,18 +24,19 @@ holds the muscle there smoothly (the chambers' air sees the same S there,
 `wpam_mj.physics.pneumatics`), and the plugin reports a muscle well outside the stroke
 (`wpam_mj.simulation.plugin.STROKE_TOLERANCE`).
 
-Methods take floats (inside the per-step loop) or numpy arrays (feedforward, plots);
-np.sqrt of a float is the correctly rounded IEEE sqrt, like C's (see
-`wpam_mj/simulation/muscle_plugin.c`).
+The equations are `wpam_mj.physics.kernel`'s, which every engine runs: methods take
+floats (the kernel's functions as they are) or numpy arrays (its array form,
+`wpam_mj.physics.kernel_codegen.array_kernel`, element for element the same numbers).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from wpam_mj.physics import kernel
+from wpam_mj.physics.kernel_codegen import array_kernel
 from wpam_mj.physics.params import Braid
 
 
@@ -47,6 +48,9 @@ class BraidGeometry:
     thread_length: float  # b [m]
     turns: float  # n [1]
     max_contraction: float  # x at D = D_max [m]
+    thread_sq: float  # b^2 [m^2]
+    volume_denom: float  # 4 pi n^2 [1]
+    diameter_denom: float  # n pi [1]
 
     @classmethod
     def from_params(cls, braid: Braid) -> "BraidGeometry":
@@ -57,22 +61,18 @@ class BraidGeometry:
     def of(cls, natural_length: float, braid_angle: float, natural_diameter: float,
            max_diameter: float) -> "BraidGeometry":
         """The geometry of L0 [m], theta0 [rad], D0 and D_max [m]."""
-        b = natural_length / math.cos(braid_angle)
-        n = b * math.sin(braid_angle) / (math.pi * natural_diameter)
-        # D = D_max  <=>  b^2 - L^2 = (n pi D_max)^2; the rules (wpam_mj.physics.rules)
-        # guarantee the bag fills before the locking angle, so this length is real and
-        # S > 0 up to it.
-        radial = n * math.pi * max_diameter
-        length_at_stop = math.sqrt(b * b - radial * radial)
-        return cls(natural_length, b, n, natural_length - length_at_stop)
+        n = kernel.turns(natural_length, braid_angle, natural_diameter)
+        return cls(natural_length, kernel.thread_length(natural_length, braid_angle), n,
+                   kernel.max_contraction(natural_length, braid_angle, natural_diameter,
+                                          max_diameter),
+                   kernel.thread_square(natural_length, braid_angle),
+                   kernel.volume_denominator(n), kernel.diameter_denominator(n))
 
     def in_stroke(self, x: float) -> float:
         """x [m] held to the stroke [0, max_contraction] (the module docstring)."""
         if isinstance(x, np.ndarray):
-            return np.minimum(np.maximum(x, 0.0), self.max_contraction)
-        if 0.0 <= x <= self.max_contraction:  # the usual case, the same number
-            return x
-        return min(max(x, 0.0), self.max_contraction)
+            return array_kernel().in_stroke(x, self.max_contraction)
+        return kernel.in_stroke(x, self.max_contraction)
 
     def length(self, x: float) -> float:
         """Active length L = L0 - x [m]."""
@@ -80,16 +80,19 @@ class BraidGeometry:
 
     def diameter(self, x: float) -> float:
         """Sleeve diameter D(x) [m] (Chou & Hannaford eq. 2)."""
-        L = self.natural_length - self.in_stroke(x)
-        return np.sqrt(self.thread_length ** 2 - L * L) / (self.turns * math.pi)
+        f = array_kernel().diameter if isinstance(x, np.ndarray) else kernel.diameter
+        return f(x, self.natural_length, self.thread_sq, self.diameter_denom,
+                 self.max_contraction)
 
     def volume(self, x: float) -> float:
         """Inner-bag volume V(x) [m^3]."""
-        L = self.natural_length - self.in_stroke(x)
-        return L * (self.thread_length ** 2 - L * L) / (4.0 * math.pi * self.turns ** 2)
+        f = array_kernel().volume if isinstance(x, np.ndarray) else kernel.volume
+        return f(x, self.natural_length, self.thread_sq, self.volume_denom,
+                 self.max_contraction)
 
     def area(self, x: float) -> float:
         """Effective area S(x) = dV/dx [m^2] (Chou & Hannaford eq. 5); outside the stroke,
         that of its nearest end (the module docstring)."""
-        L = self.natural_length - self.in_stroke(x)
-        return (3.0 * L * L - self.thread_length ** 2) / (4.0 * math.pi * self.turns ** 2)
+        f = array_kernel().area if isinstance(x, np.ndarray) else kernel.area
+        return f(x, self.natural_length, self.thread_sq, self.volume_denom,
+                 self.max_contraction)

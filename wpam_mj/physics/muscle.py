@@ -33,17 +33,22 @@ equal T wherever T > 0, so the static equilibria below hold for either.
 The static equilibria follow eqs. 5-6: at rest on the branch of motion direction s
 (+1 contracting, -1 extending, 0 frictionless), T - s Ff = F_load, i.e.
     Pi = Po + (F_load + Kf Fco + A_ax Po + s F_f0) / ((Kf - s mu) S).
+
+The equations are `wpam_mj.physics.kernel`'s (every engine runs them); this class binds
+them to one parameter set for the analysis code, on floats or, for `equilibrium_pressure`,
+arrays.
 """
 
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from wpam_mj.physics import kernel
 from wpam_mj.physics.geometry import BraidGeometry
+from wpam_mj.physics.kernel_codegen import array_kernel
 from wpam_mj.physics.params import Muscle, Params
 
 
@@ -71,27 +76,24 @@ class MuscleModel:
 
     def rubber_force(self, x: float) -> float:
         """Fco(x) = pi K_R (D - D0) [N] (paper eq. 7 with r = D/2)."""
-        return math.pi * self.rubber_stiffness * (self.geometry.diameter(x) - self.natural_diameter)
+        return kernel.rubber_force(self.geometry.diameter(x), self.rubber_stiffness,
+                                   self.natural_diameter)
 
     def tension(self, x: float, pi: float, po: float) -> float:
         """Frictionless tension on the load [N], contraction positive."""
-        dp = pi - po if pi > po else 0.0
-        return (self.output_coeff * (dp * self.geometry.area(x) - self.rubber_force(x))
-                - self.axial_area * po)
+        return kernel.tension(pi, po, self.geometry.area(x), self.rubber_force(x),
+                              self.output_coeff, self.axial_area)
 
     def tendon_force(self, x: float, pi: float, po: float, guided: bool = False) -> float:
         """The force [N] the muscle pulls its tendon with (the module docstring): max(T, 0)
         on free end fittings; with `guided` ones, the braid's pull less Po's push."""
-        if guided:
-            dp = pi - po if pi > po else 0.0
-            return (max(self.output_coeff * (dp * self.geometry.area(x) - self.rubber_force(x)),
-                        0.0) - self.axial_area * po)
-        return max(self.tension(x, pi, po), 0.0)
+        return kernel.tendon_force(pi, po, self.geometry.area(x), self.rubber_force(x),
+                                   self.output_coeff, self.axial_area, guided)
 
     def friction(self, x: float, pi: float, po: float) -> float:
         """Dry-friction level Ff >= 0 [N] (paper eq. 4 plus a constant part)."""
-        dp = pi - po if pi > po else 0.0
-        return self.friction_coeff * dp * self.geometry.area(x) + self.friction_const
+        return kernel.friction_level(pi, po, self.geometry.area(x), self.friction_coeff,
+                                     self.friction_const)
 
     def equilibrium_pressure(self, x: float, load: float, po: float,
                              direction: float = 0.0) -> float:
@@ -101,14 +103,16 @@ class MuscleModel:
         (eq. 6, Pi_E); 0: frictionless; values between weight the friction band.
         Works elementwise on arrays of x; inf where the braid cannot hold the load.
         """
-        s = float(direction)
-        gain = (self.output_coeff - s * self.friction_coeff) * self.geometry.area(x)
-        rhs = np.maximum(load + self.axial_area * po
-                         + self.output_coeff * self.rubber_force(x)
-                         + s * self.friction_const, 0.0)
-        safe_gain = np.where(gain > 0.0, gain, 1.0)
-        pi = np.where(gain > 0.0, po + rhs / safe_gain, np.inf)
-        return float(pi) if pi.ndim == 0 else pi
+        args = (float(direction), self.output_coeff, self.friction_coeff,
+                self.friction_const, self.axial_area)
+        if isinstance(x, np.ndarray) or isinstance(po, np.ndarray) \
+                or isinstance(load, np.ndarray):
+            x = np.asarray(x, dtype=float)
+            pi = array_kernel().equilibrium_pressure(
+                po, load, args[0], self.geometry.area(x), self.rubber_force(x), *args[1:])
+            return float(pi) if pi.ndim == 0 else pi
+        return kernel.equilibrium_pressure(po, load, args[0], self.geometry.area(x),
+                                           self.rubber_force(x), *args[1:])
 
     def equilibrium_contraction(self, pi: float, po: float, load: float,
                                 direction: int = 0) -> float:

@@ -2,8 +2,8 @@
 
 The two state-holding pieces the muscle advances once per physics step are
 `Regulator` (command -> set pressure) and `Chamber` (set pressure -> chamber pressure).
-`wpam_mj/simulation/muscle_plugin.c` mirrors each of them one to one (same names, same order of
-operations); a change here is a change there.
+Their equations are `wpam_mj.physics.kernel`'s, which every engine runs (the compiled
+plugin as generated C); this module binds them for the analysis code.
 
 Each regulator (SMC ITV2031: 0.005-0.5 MPa) is modelled as
   1. its command clamped to [0, p_max] (0 = vented; the controllers never command
@@ -34,51 +34,25 @@ Moving the muscle moves air, so the restriction limits its velocity: this is the
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
+from wpam_mj.physics import kernel
 from wpam_mj.physics.geometry import BraidGeometry
+from wpam_mj.physics.kernel_codegen import array_kernel
 from wpam_mj.physics.params import Params
 
-R_AIR = 287.05  # J/(kg K), specific gas constant of dry air
-T_0 = 293.15  # K, ISO 8778 reference (ANR) temperature
-RHO_0 = 1.185  # kg/m^3, ISO 8778 reference density (ANR)
-R_LAMINAR = 0.99  # pressure ratio above which the flow law is linearised
-
-RT0 = R_AIR * T_0
-
-
-def iso6358_psi(r: float, b: float) -> float:
-    """Flow function psi(r) of ISO 6358 for 0 <= r <= 1, laminar-linearised near r = 1."""
-    if r <= b:
-        return 1.0
-    if r <= R_LAMINAR:
-        q = (r - b) / (1.0 - b)
-        return math.sqrt(1.0 - q * q)
-    q = (R_LAMINAR - b) / (1.0 - b)
-    return math.sqrt(1.0 - q * q) * (1.0 - r) / (1.0 - R_LAMINAR)
-
-
-def mass_flow(p_source: float, p_chamber: float, conductance: float, b: float) -> float:
-    """Mass flow [kg/s] from a source at `p_source` into a chamber at `p_chamber`.
-
-    Absolute pressures [Pa]; negative when the chamber vents back through the valve.
-    """
-    if p_source >= p_chamber:
-        return conductance * RHO_0 * p_source * iso6358_psi(p_chamber / p_source, b)
-    return -conductance * RHO_0 * p_chamber * iso6358_psi(p_source / p_chamber, b)
+R_AIR, T_0, RHO_0, R_LAMINAR, RT0 = (kernel.R_AIR, kernel.T_0, kernel.RHO_0, kernel.R_LAMINAR,
+                                     kernel.RT0)
+iso6358_psi = kernel.iso6358_psi  # psi(r, b), 0 <= r <= 1
+mass_flow = kernel.mass_flow  # (p_source, p_chamber, C, b) -> kg/s, absolute pressures
+max_flow_slope = kernel.max_flow_slope  # (C, b) -> the largest |d m_dot / d p| [kg/(s Pa)]
+outer_bag_volume = kernel.outer_bag_volume  # (length, diameter) -> m^3
 
 
 def mass_flow_array(p_source: np.ndarray, p_chamber: np.ndarray, conductance: float,
                     b: float) -> np.ndarray:
     """`mass_flow` elementwise on arrays (for feedforward design, not the step loop)."""
-    up = np.maximum(p_source, p_chamber)
-    r = np.minimum(p_source, p_chamber) / up
-    q = (np.minimum(r, R_LAMINAR) - b) / (1.0 - b)
-    psi = np.where(r <= b, 1.0, np.sqrt(np.maximum(1.0 - q * q, 0.0)))
-    psi = np.where(r > R_LAMINAR, psi * (1.0 - r) / (1.0 - R_LAMINAR), psi)
-    return np.sign(p_source - p_chamber) * conductance * RHO_0 * up * psi
+    return array_kernel().mass_flow(p_source, p_chamber, conductance, b)
 
 
 def source_pressure(m_dot: np.ndarray, p_chamber: np.ndarray, conductance: float,
@@ -100,7 +74,8 @@ def chamber_volumes(bag_inner: float, x: float, axial_area: float, bag_volume: f
     """(V_i, V_o) [m^3]: the inner bag's volume `bag_inner` plus its tube, and the outer
     bag's enclosed `bag_volume` less the inner bag and A_ax x, plus its tube (module doc).
     Floats or arrays."""
-    return bag_inner + tube_volume, bag_volume + tube_volume - bag_inner - axial_area * x
+    return (kernel.inner_volume(bag_inner, tube_volume),
+            kernel.outer_volume(bag_inner, x, axial_area, bag_volume, tube_volume))
 
 
 def chamber_volumes_of(params: Params, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -111,12 +86,6 @@ def chamber_volumes_of(params: Params, x: np.ndarray) -> tuple[np.ndarray, np.nd
     return chamber_volumes(geometry.volume(x), x, params.muscle.axial_area,
                            outer_bag_volume(b.outer_bag_length, b.outer_bag_diameter),
                            params.pneumatics.tube_volume)
-
-
-def max_flow_slope(conductance: float, b: float) -> float:
-    """Largest |d m_dot / d p_chamber| [kg/(s Pa)] of `mass_flow` at a fixed source: the
-    slope of its laminar-linearised region, C rho_0 psi(R_LAMINAR) / (1 - R_LAMINAR)."""
-    return conductance * RHO_0 * iso6358_psi(R_LAMINAR, b) / (1.0 - R_LAMINAR)
 
 
 def stable_timesteps(geometry: BraidGeometry, axial_area: float, bag_length: float,
@@ -135,8 +104,8 @@ def stable_timesteps(geometry: BraidGeometry, axial_area: float, bag_length: flo
     bag = outer_bag_volume(bag_length, bag_diameter)
     v_i, _ = chamber_volumes(geometry.volume(0.0), 0.0, axial_area, bag, tube_volume)
     _, v_o = chamber_volumes(geometry.volume(x_max), x_max, axial_area, bag, tube_volume)
-    return (v_i / (RT0 * max_flow_slope(conductance_i, b)),
-            v_o / (RT0 * max_flow_slope(conductance_o, b)))
+    return (kernel.stable_timestep(v_i, conductance_i, b),
+            kernel.stable_timestep(v_o, conductance_o, b))
 
 
 def stable_dt(params: Params) -> tuple[float, str]:
@@ -147,11 +116,6 @@ def stable_dt(params: Params) -> tuple[float, str]:
                               b.outer_bag_length, b.outer_bag_diameter, pn.tube_volume,
                               pn.inner_conductance, pn.outer_conductance, pn.critical_ratio)
     return min(zip(limits, ("pneumatics.inner_conductance", "pneumatics.outer_conductance")))
-
-
-def outer_bag_volume(length: float, diameter: float) -> float:
-    """Volume enclosed by the outer bag [m^3] (a cylinder of the paper's §2.3 size)."""
-    return math.pi * diameter * diameter * length / 4.0
 
 
 class Regulator:
@@ -173,7 +137,7 @@ class Regulator:
         """Settle at a held `command` [Pa]: every command in flight and the set point equal
         to it (the regulator has been holding it since before the run)."""
         self._queue = [command] * len(self._queue)
-        self.set_point = min(max(command, 0.0), self.p_max)
+        self.set_point = kernel.regulator_clamp(command, self.p_max)
 
     def update(self, command: float) -> float:
         """Take this step's command [Pa]; return the new set point [Pa]."""
@@ -181,8 +145,8 @@ class Regulator:
             h = self._head
             command, self._queue[h] = self._queue[h], command
             self._head = (h + 1) % len(self._queue)
-        clamped = min(max(command, 0.0), self.p_max)
-        self.set_point += self.lag_alpha * (clamped - self.set_point)
+        self.set_point = kernel.regulator_set_point(self.set_point, command, self.p_max,
+                                                    self.lag_alpha)
         return self.set_point
 
 
@@ -199,7 +163,6 @@ class Chamber:
     def step(self, p_source: float, volume: float, dvdx: float, v: float, dt: float) -> float:
         """One step of `dt` [s] fed from `p_source` [Pa abs] at volume [m^3], dV/dx
         [m^2] and contraction velocity v [m/s]; returns the new pressure [Pa abs]."""
-        p = self.pressure
-        m = mass_flow(p_source, p, self.conductance, self.critical_ratio)
-        self.pressure = p + dt * (RT0 * m - p * dvdx * v) / volume
+        self.pressure = kernel.chamber_step(self.pressure, p_source, volume, dvdx, v,
+                                            self.conductance, self.critical_ratio, dt)
         return self.pressure

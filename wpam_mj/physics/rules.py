@@ -27,6 +27,8 @@ import re
 from dataclasses import dataclass
 from typing import Callable
 
+from wpam_mj.physics import kernel
+
 Getter = Callable[[str], float]
 
 
@@ -64,15 +66,13 @@ def _locking_angle(get: Getter) -> float:
     D = b sin(theta) / (n pi) grows with sin(theta), so the bag reaches max_diameter before
     locking while sin(theta) max_diameter / natural_diameter < sqrt(2/3) (Chou & Hannaford
     1996; `wpam_mj.physics.geometry`)."""
-    return math.asin(min(1.0, math.sqrt(2.0 / 3.0) * get("braid.natural_diameter")
-                         / get("braid.max_diameter")))
+    return kernel.locking_angle(get("braid.natural_diameter"), get("braid.max_diameter"))
 
 
 def _bag_section(get: Getter) -> float:
     """The outer bag's cross-section pi D_bag^2 / 4 [m^2]: the most area its pressure can
     push the end fittings apart on."""
-    d = get("braid.outer_bag_diameter")
-    return math.pi * (d * d) / 4.0
+    return kernel.bag_section(get("braid.outer_bag_diameter"))
 
 
 def _geometry(get: Getter):

@@ -3,9 +3,9 @@
 For findings i and j, `pair_margins` gives the best margin of i found among the points
 of the search at which j holds (>= 0: some credible point meets both); the diagonal is
 i's best margin over every point. Margins are in units of each margin's scale
-(`wpam_mj.reproduction.search.finding_margins`). A map is a measurement of the points searched, not
-a proof over the whole box: a pair marked as conflicting had no point meeting both among
-those evaluated, and the best joint margin says by how much it missed.
+(`wpam_mj.reproduction.search_scoring.finding_margins`). A map is a measurement of the
+points searched, not a proof over the whole box: a pair marked as conflicting had no point
+meeting both among those evaluated, and the best joint margin says by how much it missed.
 """
 
 from __future__ import annotations
@@ -16,7 +16,8 @@ from typing import Sequence
 
 import numpy as np
 
-from wpam_mj.reproduction.search import FINDING_TEXT, FINDINGS, PAPER_CHECKS, TRACK_MM, Record
+from wpam_mj.reproduction.search_scoring import (FINDING_TEXT, FINDINGS, PAPER_CHECKS, TRACK_MM,
+                                                 Record, shortfall)
 
 
 def margin_matrix(records: Sequence[Record]) -> np.ndarray:
@@ -101,8 +102,6 @@ def held_with(records: Sequence[Record], kept: str) -> tuple[int, int, list[str]
     """Among the tracking points at which finding `kept` holds: how many there are, the
     most of `wpam reproduce`'s checks one of them meets, and the checks that point (the
     least shortfall among those meeting most) misses. (0, 0, []) when none holds it."""
-    from wpam_mj.reproduction.search import shortfall  # noqa: PLC0415 (it imports this module)
-
     ok = [r for r in records if r.tracks and r.margins[kept] >= 0.0]
     if not ok:
         return 0, 0, []

@@ -1,7 +1,8 @@
 """`reproduce`: every experiment of the paper into one folder, with report.md.
 
-One process pool runs every study (longest runs first), then each study's CSVs and
-figures as soon as its runs are in; the summaries, checks and report follow.
+The execution layer runs every study's runs at once (longest first), then every CSV and
+figure (on the local process pool with --jobs > 1); the summaries, checks and report
+follow.
 """
 
 from __future__ import annotations
@@ -17,12 +18,13 @@ from wpam_mj.reproduction import findings, robustness
 from wpam_mj.reproduction.findings import Check
 from wpam_mj.physics.muscle_types import COMPARED_TYPES
 from wpam_mj.physics.params import Params, preset
-from wpam_mj.infra.pool import Batch, TaskPool, submit_batches
+from wpam_mj.infra.pool import open_workers
 from wpam_mj.reproduction.report import report_markdown
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
 from wpam_mj.experiments.paper_studies import StaticTask, StepTask, figure_run_key, sweep_batch
 from wpam_mj.experiments.responses import SweepResult, Table2Result
+from wpam_mj.simulation.execution import Batch, execute
 from wpam_mj.experiments.writers import (run_metadata, sine_csv_name, static_csv_name,
                                          step_csv_name, write_sweep, write_table2)
 
@@ -31,7 +33,7 @@ PRESET_COMPARE_LOAD_N = 100.0  # our choice for Fig. 3 (the paper's load is not 
 
 
 class _CsvTask:
-    """Write one run's CSV (a pool task)."""
+    """Write one run's CSV (a task)."""
 
     cost = 1.0
 
@@ -43,7 +45,7 @@ class _CsvTask:
 
 
 class _FigureTask:
-    """Build one figure with `wpam_mj.experiments.figures.<builder>` and save it (a pool task)."""
+    """Build one figure with `wpam_mj.experiments.figures.<builder>` and save it (a task)."""
 
     cost = 3.0
 
@@ -104,14 +106,12 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
         files.update(dict.fromkeys((out / name for name in figs), {}))
         return [_FigureTask(out / name, *spec, run_id) for name, spec in figs.items()]
 
-    # One pool for everything: the runs of all studies longest first, then each study's
-    # CSVs and figures as soon as its runs are in (they queue behind the remaining runs).
-    with TaskPool(jobs, progress=progress, desc="reproduce") as pool:
-        table2_response, extra_response, sweep_response = submit_batches(pool, [
-            table2_batch(params, protocol, dt=dt), Batch(extra, list),
-            sweep_batch(params, dt=dt)])
-        t2 = table2_response()
-        outputs = pool.submit(
+    # The runs of all studies at once, longest first; then every CSV and figure.
+    with open_workers(jobs) as workers:
+        t2, (open_step, *preset_runs), sw = execute(
+            [table2_batch(params, protocol, dt=dt), Batch(extra, list),
+             sweep_batch(params, dt=dt)], workers, progress=progress, desc="reproduce")
+        outputs = (
             csv_tasks((*t2.open_loops, *t2.po_loops), static_csv_name)
             + csv_tasks(t2.feedback_runs, step_csv_name)
             + figure_tasks({
@@ -124,12 +124,11 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
                 "table2.png": ("table2_figure", (t2,), {})}))
         files.update(dict.fromkeys(write_table2(out, t2), {}))
 
-        open_step, *preset_runs = extra_response()
         own_loop = t2.open_loops[t2.loads.index(PRESET_COMPARE_LOAD_N)]
         ran = iter(preset_runs)
         preset_loops = [own_loop if p == params else next(ran) for p in compare]
         pi_100 = t2.feedback_runs[t2.loads.index(100.0)]
-        outputs += pool.submit(
+        outputs += (
             csv_tasks([r for r in preset_loops if r is not own_loop], static_csv_name)
             + csv_tasks([open_step], step_csv_name)
             + figure_tasks({
@@ -139,10 +138,9 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
                                            dict(title="Step response at 100 N: open loop vs "
                                                       "PI on Po (cf. Figs. 12-13)"))}))
 
-        sw = sweep_response()
         fig_key = figure_run_key(paper.LOADS_N, paper.SWEEP_FREQS_HZ,
                                  paper.SWEEP_CONTROLLERS)
-        outputs += pool.submit(
+        outputs += (
             [csv_task(data / sine_csv_name(fig_key), sw.series[fig_key])]
             + figure_tasks({
                 "fig17_frequency_response.png": ("sweep_figure", (sw,), {}),
@@ -151,7 +149,7 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
         files.update(dict.fromkeys(write_sweep(out, sw), {}))
         checks = findings.all_checks(t2, open_step, sw, params.controller.po_cap)
         files[write_checks(out, checks)] = {}
-        pool.results(outputs)
+        execute(outputs, workers, progress=progress, desc="files")
     text = report_markdown(params, dt, t2, sw, open_step, preset_loops, checks, protocol)
     if robustness_samples:
         rob = robustness.robustness(params, robustness_samples, seed=robustness_seed,

@@ -14,10 +14,10 @@ ramp for every load, 60 s each way, every loop lobe counted). Two stages:
   * the dynamic findings: scipy's `differential_evolution` (Storn & Price 1997) over the
     remaining coordinates, each in [0, 1] of its range, Latin-hypercube start (no known
     point given), generations evaluated together ("deferred" updating) on a process pool,
-    each point scored on calibrate's one cost (`calibrate.PaperTargets`, 1/2 |r|^2) with
-    the signed margin of every finding (`FINDINGS`, in units of each margin's scale,
-    >= 0 holds), so that the archive is also a measured feasibility map
-    (`wpam_mj.reproduction.findings_map`) and `convergence` shows how the search got there.
+    each point scored on calibrate's one cost with the signed margin of every finding
+    (`wpam_mj.reproduction.search_scoring`), so that the archive is also a measured
+    feasibility map (`wpam_mj.reproduction.findings_map`) and `convergence` shows how the
+    search got there; `wpam_mj.reproduction.search_outputs` writes what it found.
 
 Seeded and deterministic: the simulator is, results come back in task order, and the same
 seed draws the same trials. Every evaluation is appended to a JSON-lines journal, so a
@@ -32,33 +32,27 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
-import resource
 import sys
 import time
 from concurrent.futures import Executor
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Sequence
 
 import numpy as np
 from scipy.optimize import differential_evolution
 
-from wpam_mj.paper import CALIBRATION_HEADROOM, TABLE2_PO_RTOL
-from wpam_mj.reproduction import findings
+from wpam_mj.paper import TABLE2_PO_RTOL
 from wpam_mj.fitting import estimation
 from wpam_mj.infra.pool import executor_for
-from wpam_mj.reproduction.calibrate import FREE, PaperTargets
-from wpam_mj.physics.params import Params, ParameterError, check_range, preset
+from wpam_mj.reproduction.calibrate import FREE
+from wpam_mj.reproduction.search_scoring import OBJECTIVES, Record, Targets, score
+from wpam_mj.physics.params import (Params, ParameterError, check_range,
+                                    parameter_fields, preset)
 from wpam_mj.experiments.protocol import SHIPPED, Protocol
 from wpam_mj.reproduction.static_fit import STATIC_FIT, static_fit
-from wpam_mj.infra.files import write_text_atomic
 
-PO_RISE_SCALE_MPA = 0.01
-STEP_PP_MM = 0.2  # a converged plateau (Fig. 14: "quickly converges"); our reading
-TRACK_MM = 5.0  # half a 10 mm step: a PI staircase worse than this does not follow it
-FAILED_COST = 1e6  # DE needs a finite cost where a simulation fails
-STATIC_MISS_COST = 1e3  # ... and where the screen finds no static fit (plus its error)
+STATIC_MISS_COST = 1e3  # a point the screen finds no static fit for (plus its error)
 SEARCH_DT = 1e-3  # s, the physics step of every evaluation (as reproduce)
 POPSIZE, MAXITER = 3, 8  # `wpam search`'s defaults: 21 points a generation, 9 generations
 
@@ -143,142 +137,6 @@ def coordinates_of(params: Params, region: Region = GLOBAL) -> np.ndarray:
     return np.array([d.to_z(params.value(d.name)) for d in region.dims])
 
 
-# ---- scoring: the cost and every finding's signed margin
-
-# The findings of `wpam reproduce` (`findings.FINDINGS`), then two the paper shows without a
-# number: settled steps (Figs. 12-15) and Po rising with load (Fig. 15, §4.2).
-FINDING_TEXT = {**{name: f.short for name, f in findings.FINDINGS.items()},
-                "steps_settle": "PI steps settle: error <= Table 2's split, p-p <= 0.2 mm",
-                "po_rises_with_load": "plateau-mean Po rises with load"}
-FINDINGS = tuple(FINDING_TEXT)
-PAPER_CHECKS = tuple(findings.FINDINGS)  # the eight that `wpam reproduce` checks
-
-
-def _worst(margins) -> float:
-    return min(m.margin / m.scale for m in margins)
-
-
-def finding_margins(scores, table2) -> dict[str, float]:
-    """Each finding's worst margin in units of its scale (>= 0: holds)."""
-    checks = [*findings.table2_checks(table2), *scores.sweep_checks]
-    out = {c.name: _worst(c.margins) for c in checks}
-    steps = [min((lim - e) / lim, (STEP_PP_MM - p) / STEP_PP_MM)
-             for e, p, lim in zip(scores.step_error_mm["pi"], scores.step_pp_mm["pi"],
-                                  scores.step_limit_mm)]
-    po = scores.po_plateau_mpa
-    out["steps_settle"] = min(steps)
-    out["po_rises_with_load"] = min((b - a) / PO_RISE_SCALE_MPA for a, b in zip(po, po[1:]))
-    return out
-
-
-@dataclass(frozen=True)
-class Record:
-    """One evaluated point: coordinates, cost, margins (None: failed) and the figures."""
-
-    u: tuple[float, ...]
-    cost: float
-    margins: dict[str, float] | None
-    figures: dict | None
-    # wall seconds into the search when it was scored (None: not recorded)
-    seconds: float | None = field(default=None, compare=False)
-
-    @property
-    def tracks(self) -> bool:
-        """Whether the point ran and its PI staircase follows the targets at all. A muscle
-        that never moves meets the feedback row vacuously (no loop): such points are not
-        reproductions of the experiments and stay out of the map and the choice."""
-        return self.margins is not None and \
-            max(self.figures["step_error_mm"]["pi"]) <= TRACK_MM
-
-    @property
-    def held(self) -> int:
-        """How many of the paper's checks (`wpam reproduce`'s, PAPER_CHECKS) hold."""
-        return 0 if self.margins is None else sum(self.margins[f] >= 0.0
-                                                  for f in PAPER_CHECKS)
-
-    def as_json(self) -> dict:
-        return {"u": list(self.u), "cost": self.cost, "margins": self.margins,
-                "figures": self.figures, "seconds": self.seconds}
-
-    @classmethod
-    def from_json(cls, d: dict) -> "Record":
-        return cls(tuple(d["u"]), d["cost"], d["margins"], d["figures"], d.get("seconds"))
-
-
-# ---- objectives: what DE minimises (journals keep margins, so either replays any journal)
-
-SHORTFALL_CAP = 3.0  # scale units: one far miss counts as three near ones, no more
-
-
-def shortfall(rec: Record, wanted: Sequence[str] = (*PAPER_CHECKS, "steps_settle")) -> float:
-    """The "checks" objective: how far the point falls short of every check of `wpam
-    reproduce` and of settled PI steps (or of the findings `wanted`), each shortfall in
-    units of its margin's scale measured from CALIBRATION_HEADROOM past its limit and
-    capped at SHORTFALL_CAP (0: all met with headroom). Unlike calibrate's cost it asks
-    no more of a finding than its check does, so a point's value falls only by meeting
-    checks."""
-    if rec.margins is None:
-        return rec.cost  # failed or screened out: the same large cost as "cost"
-    return sum(min(max(0.0, CALIBRATION_HEADROOM - rec.margins[f]), SHORTFALL_CAP)
-               for f in wanted)
-
-
-def findings_shortfall(rec: Record) -> float:
-    """The "findings" objective: the checks' shortfall with every finding of FINDINGS
-    asked, Po rising with load among them (what "checks" may trade away)."""
-    return shortfall(rec, FINDINGS)
-
-
-OBJECTIVES = {"cost": lambda rec: rec.cost, "checks": shortfall,
-              "findings": findings_shortfall}
-OBJECTIVE_TEXT = {"cost": "calibrate's cost 1/2 |r|^2", "checks": "checks' summed shortfall",
-                  "findings": "findings' summed shortfall"}
-
-
-def _figures(scores) -> dict:
-    """The numbers a reader checks a point by (display units)."""
-    return {"table2_po_row": list(scores.table2_po_row),
-            "feedback_row": list(scores.feedback_row),
-            "step_error_mm": {c: list(v) for c, v in scores.step_error_mm.items()},
-            "step_pp_mm": {c: list(v) for c, v in scores.step_pp_mm.items()},
-            "step_limit_mm": list(scores.step_limit_mm),
-            "po_plateau_mpa": list(scores.po_plateau_mpa),
-            "failed": list(scores.sweep_failed)}
-
-
-@dataclass(frozen=True)
-class Targets:
-    """The paper's targets under one protocol: `tasks` to run, `score` of their results
-    as (residual vector of calibrate's cost, finding margins, figures)."""
-
-    dt: float
-    protocol: Protocol
-
-    def tasks(self, params: Params) -> list:
-        return PaperTargets(self.dt, self.protocol).tasks(params)
-
-    def score(self, params: Params, results: list):
-        model = PaperTargets(self.dt, self.protocol)
-        r = model.residuals(params, results)
-        scores, table2 = model.scores_and_table2(params, results)
-        return r, finding_margins(scores, table2), _figures(scores)
-
-
-def score(targets, params: Params, results: list | None) -> tuple[float, dict | None,
-                                                                    dict | None]:
-    """(cost, margins, figures) of a point from its runs' results (None: failed)."""
-    if results is None:
-        return FAILED_COST, None, None
-    try:
-        r, margins, figures = targets.score(params, results)
-    except (ParameterError, ArithmeticError):
-        return FAILED_COST, None, None
-    cost = 0.5 * float(r @ r)
-    if not math.isfinite(cost):
-        return FAILED_COST, None, None
-    return cost, margins, figures
-
-
 # ---- evaluation: parallel over every run of a generation, journaled
 
 
@@ -287,22 +145,31 @@ def _key(u: Sequence[float]) -> str:
 
 
 class Journal:
-    """Records by coordinates, appended as JSON lines to `path` (None: in memory)."""
+    """Records by coordinates, appended as JSON lines to `path` (None: in memory), after a
+    first line {"settings": ...} naming the search they belong to (`search_settings`;
+    None: a journal written before journals recorded them)."""
 
-    def __init__(self, path: Path | None, keep: bool) -> None:
-        self.path, self.records = path, {}
+    def __init__(self, path: Path | None, keep: bool, settings: dict | None = None) -> None:
+        self.path, self.records, self.settings = path, {}, settings
         if path is None:
             return
-        if keep and path.exists():
+        if keep:
+            if not path.is_file():
+                raise ParameterError(f"no journal {path}: nothing has been searched in "
+                                     f"{path.parent} yet")
+            self.settings = None
             for line in path.read_text().splitlines():
                 try:
                     d = json.loads(line)
                 except ValueError:
                     continue  # a line cut by the interruption: run it again
-                self.records[d["key"]] = Record.from_json(d)
+                if "settings" in d:
+                    self.settings = d["settings"]
+                else:
+                    self.records[d["key"]] = Record.from_json(d)
         else:
             path.parent.mkdir(parents=True, exist_ok=True)
-            path.write_text("")
+            path.write_text(json.dumps({"settings": settings}) + "\n")
 
     def add(self, key: str, rec: Record) -> None:
         self.records[key] = rec
@@ -441,11 +308,72 @@ def local_region(names: Sequence[str]) -> Region:
     return Region(names, keep_static)
 
 
+RADIUS = 0.25  # a local search's default half-width, of each range
+
+
+def search_settings(base: Params, free: Sequence[str] | None = None,
+                    radius: float | None = None, seed: int | None = None,
+                    popsize: int | None = None) -> dict:
+    """What makes a search the one its journal holds (a resumed search must repeat them;
+    the generations and the objective may change: they extend or re-rank the same
+    points): seed, popsize, the local search's names and radius, and the base point."""
+    return {"seed": seed, "popsize": popsize, "free": None if free is None else list(free),
+            "radius": radius, "base": {k: base.value(k) for k, _ in parameter_fields()}}
+
+
+_SETTING_FLAGS = {"seed": "--seed", "popsize": "--popsize", "free": "--free",
+                  "radius": "--radius"}
+
+
+def check_same_search(journal: Journal, ours: dict, what: str,
+                      keys: Sequence[str] = ("seed", "popsize", "free", "radius", "base")
+                      ) -> None:
+    """ParameterError naming the first setting of `keys` in which the search asked for
+    differs from the one `journal` holds (a journal without settings is not checked)."""
+    theirs = journal.settings
+    if theirs is None:
+        return
+    for key in keys:
+        a, b = theirs.get(key), ours[key]
+        if a == b:
+            continue
+        if key == "base":
+            name = next(n for n in b if a.get(n) != b[n])
+            differs = (f"parameter {name} = {a.get(name)!r} there, {b[name]!r} here "
+                       "(--config)")
+        else:
+            differs = f"{_SETTING_FLAGS[key]} {_shown(a)} there, {_shown(b)} here"
+        raise ParameterError(f"{what}: the journal {journal.path} is of another search "
+                             f"({differs}); give its settings or another --out")
+
+
+def _shown(value) -> str:
+    """A setting as typed on the command line."""
+    if value is None:
+        return "not given"
+    if isinstance(value, list):
+        return ",".join(value)
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def region_of(free: Sequence[str] | None, radius: float | None
+              ) -> tuple[Region, float | None]:
+    """The region a search varies (GLOBAL, or `local_region(free)`) and the local search's
+    radius (RADIUS unless given; None for the global search, which refuses one)."""
+    if free is None:
+        if radius is not None:
+            raise ParameterError(f"--radius {radius:g}: only a local search (--free NAMES) "
+                                 "has a radius; the global search covers every range whole")
+        return GLOBAL, None
+    return local_region(free), check_range("radius", RADIUS if radius is None else radius,
+                                           0.0, 1.0, lo_open=True)
+
+
 def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
            popsize: int = POPSIZE, maxiter: int = MAXITER, jobs: int = 2,
            resume: bool = False, progress: bool = True, targets=None,
            fit=None, objective: str = "cost", free: Sequence[str] | None = None,
-           radius: float = 0.25) -> SearchResult:
+           radius: float | None = None) -> SearchResult:
     """Run DE over SPACE, every coordinate drawn from its whole range (a Latin hypercube,
     not started from any known point): `base` (default: the wpam preset) gives only the
     parameters that are not searched. Journals to `out`/journal.jsonl (None: in memory).
@@ -454,7 +382,9 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
     targets: protocol -> `Targets` (default: the paper's, at SEARCH_DT); fit: the static
     screen (default `static_fit`); objective: what DE minimises (OBJECTIVES).
     free: a local search instead (`local_region`): only these dynamic readings, in a box
-    of +-`radius` (of each range) around `base`, whose point DE's first population holds.
+    of +-`radius` (of each range, default RADIUS) around `base`, whose point DE's first
+    population holds. resume: replay the journal in `out` and go on, refused when it is
+    of another search (`check_same_search`).
     """
     if objective not in OBJECTIVES:
         raise ParameterError(f"objective = {objective!r} must be one of "
@@ -463,17 +393,20 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
     check_range("maxiter", maxiter, 0, 1000)
     check_range("seed", seed, 0, 2**32 - 1)
     base = base if base is not None else preset("wpam")
-    region = GLOBAL if free is None else local_region(free)
+    region, radius = region_of(free, radius)
     region = region if fit is None else Region(region.names, fit)
     bounds, x0 = [(0.0, 1.0)] * len(region.names), None
     if free is not None:
-        check_range("radius", radius, 0.0, 1.0, lo_open=True)
         x0 = coordinates_of(base, region)
         bounds = [(max(0.0, z - radius), min(1.0, z + radius)) for z in x0]
+    settings = search_settings(base, None if free is None else region.names, radius, seed,
+                               popsize)
     path = None if out is None else Path(out) / "journal.jsonl"
-    if resume and (path is None or not path.exists()):
-        raise ParameterError(f"--resume: no journal {path} of an interrupted search")
-    journal = Journal(path, keep=resume)
+    if resume and path is None:
+        raise ParameterError("--resume: an in-memory search has no journal to resume")
+    journal = Journal(path, keep=resume, settings=settings)
+    if resume:
+        check_same_search(journal, settings, "--resume")
     started = time.perf_counter()
     with executor_for(jobs) as ex:
         ev = Evaluator(base, journal, ex, targets, progress,
@@ -503,105 +436,6 @@ def convergence(records: Sequence[Record],
 
 
 def load_records(out: Path) -> list[Record]:
-    """Every record of the journal in `out` (a finished or interrupted search)."""
+    """Every record of the journal in `out` (a finished or interrupted search);
+    ParameterError where there is none."""
     return list(Journal(Path(out) / "journal.jsonl", keep=True).records.values())
-
-
-def describe_point(u: Sequence[float], base: Params, region: Region = GLOBAL) -> str:
-    """The point's values, one per line (display units)."""
-    p = point_of(u, base, region)
-    lines = [f"  {k:<34s} {v:.6g}" if isinstance(v, float) else f"  {k:<34s} {v}"
-             for k, v in p.values().items()]
-    return "\n".join(lines + [f"  protocol: {p.protocol.describe()}"])
-
-
-def at_bounds(u: Sequence[float], base: Params, region: Region = GLOBAL,
-              tol: float = 1e-3) -> list[str]:
-    """The searched and statically fitted values within `tol` (of their range) of a
-    bound of their range."""
-    point = point_of(u, base, region)
-    near = [d.name for d, x in zip(region.dims, u) if x <= tol or x >= 1.0 - tol]
-    for name in STATIC_FIT:
-        z = estimation.FreeParameter.of(name).to_z(point.params.value(name))
-        if z <= tol or z >= 1.0 - tol:
-            near.append(name)
-    return near
-
-
-
-def write_search(out: Path, **kw) -> list[Path]:
-    """`search` into `out`, then `write_outputs` of its archive."""
-    load0, cpu0 = os.getloadavg()[0], _cpu_seconds()
-    r = search(out, **kw)
-    timing = (f"{r.evaluations} points in {r.seconds / 60:.1f} min wall, "
-              f"{(_cpu_seconds() - cpu0) / 60:.1f} CPU-min (load average {load0:.2f} at "
-              f"the start, {os.getloadavg()[0]:.2f} at the end); {r.message}")
-    return write_outputs(out, r.records, kw.get("base") or preset("wpam"), timing,
-                         kw.get("objective", "cost"), r.region)
-
-
-def _cpu_seconds() -> float:
-    """CPU time of this process and its finished workers [s] (the machine is shared:
-    wall time alone says more about the others' load than about the search)."""
-    own, kids = resource.getrusage(resource.RUSAGE_SELF), \
-        resource.getrusage(resource.RUSAGE_CHILDREN)
-    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
-
-
-def write_outputs(out: Path, records: Sequence[Record], base: Params,
-                  timing: str = "", objective: str = "cost",
-                  region: Region = GLOBAL) -> list[Path]:
-    """The best compromise of `records` under `objective` (best.toml, best.txt), how the
-    search converged (convergence.csv, convergence.png) and their feasibility map
-    (feasibility.md, feasibility.png) in `out`."""
-    from wpam_mj.reproduction import findings_map  # noqa: PLC0415 (it imports this module)
-
-    conv = convergence(records, objective)
-    written = [write_text_atomic(out / "convergence.csv", findings_map.convergence_csv(conv)),
-               findings_map.convergence_figure(
-                   {out.name: conv}, out / "convergence.png",
-                   f"Convergence of the search: {len(records)} points, "
-                   f"{sum(r.margins is not None for r in records)} simulated",
-                   OBJECTIVE_TEXT[objective])]
-    if not any(r.tracks for r in records):
-        return written  # nothing simulated tracks its targets: no map to draw
-    pm = findings_map.pair_margins(records)
-    best = findings_map.best_compromise(records, OBJECTIVES[objective])
-    most = findings_map.most_findings(records)
-    return written + [
-            write_text_atomic(out / "best.toml", point_toml(point_of(best.u, base, region))),
-            write_text_atomic(out / "best.txt", summary(timing, best, base, region) + "\n"
-                              + "the point meeting the most findings:\n"
-                              + summary("", most, base, region)),
-            write_text_atomic(out / "feasibility.md", findings_map.markdown(pm, records)
-                              + "\n\n" + findings_map.verdict(pm) + "\n\n"
-                              + findings_map.rest_verdict(records) + "\n"),
-            findings_map.figure(pm, out / "feasibility.png",
-                                f"Feasibility of the paper's findings: {len(records)} "
-                                "points of the credible box and protocol readings")]
-
-
-def point_toml(point: Point) -> str:
-    """The point's parameter values as a `--config` TOML and its protocol as comments."""
-    sections: dict[str, list[str]] = {}
-    for name, v in point.values().items():
-        if not name.startswith("protocol."):
-            s, n = name.split(".")
-            sections.setdefault(s, []).append(f"{n} = {float(v)!r}")
-    out = ["# Found by `wpam search` (wpam_mj/reproduction/search.py); SI units.",
-           f"# protocol: {point.protocol.describe()}", ""]
-    for s, lines in sections.items():
-        out += [f"[{s}]", *lines, ""]
-    return "\n".join(out)
-
-
-def summary(timing: str, best: Record, base: Params, region: Region = GLOBAL) -> str:
-    """A point of the search and its findings (plain text)."""
-    return (f"{timing}\n" * bool(timing)
-            + f"cost {best.cost:.4f}, {best.held} of the {len(PAPER_CHECKS)} checks of "
-            "`wpam reproduce` met\n"
-            + describe_point(best.u, base, region)
-            + f"\nat a bound: {', '.join(at_bounds(best.u, base, region)) or 'none'}"
-            + "\nmargins:\n" + "\n".join(f"  {k:<24s} {v:+.3f}"
-                                         for k, v in (best.margins or {}).items())
-            + f"\nfigures: {json.dumps(best.figures)}\n")

@@ -1,49 +1,48 @@
-"""The Python engine: the muscle's readable definition, run as a MuJoCo control callback.
+"""The Python engine: the muscle's physics run from Python on a plain MuJoCo model.
 
 Any model that declares ``wpam_mj.muscle`` actuators (docs/plugin.md) runs either on the
 compiled plugin (`wpam_mj.simulation.plugin`, the product) or here, where `python_model` replaces
 each instance's actuators by plain motors that carry no force (their ctrl stays the input
 channels) plus one force motor on the muscle's tendon, and `PythonMuscle` computes the
-muscle in Python, piece for piece what ``muscle_plugin.c`` does in C:
+muscle from Python with the same physics, `wpam_mj.physics.kernel`, which the plugin runs
+as generated C; this module is the glue the plugin's callbacks are in C:
 
-  compute (installed as ``mjcb_control``, which MuJoCo calls after the constraint rows are
-    made and before actuation and the solve, as it calls a plugin's compute): x, v from the
-    tendon; the commands; the controller's Po output, evaluated but not kept; the tendon
-    force from the chamber pressures -> the force motor; the friction level -> this
+  compute (between ``mj_step1``, which makes the constraint rows, and ``mj_step2``, which
+    runs actuation and the solve: where MuJoCo calls a plugin's compute): x, v from the
+    tendon; the commands; the Po feedback's output, evaluated but not committed; the
+    tendon force from the chamber pressures -> the force motor; the friction level -> this
     simulation's friction row of the tendon (`d.efc_frictionloss`).
-  advance (after mj_step, once per step): the controller's state kept, the regulators and
-    chambers advanced (`wpam_mj.simulation.plant.Plant.step`).
+  advance (after ``mj_step2``, once per step): the feedback's state committed, the
+    regulators and chambers advanced.
+
+`step` is one such step. Each muscle's state lives in the MjData, in ``userdata`` (which
+`python_model` sizes), laid out as the plugin's ``plugin_state``: `mj_resetData`, copies,
+pickles, several MjData of one model and threads behave as on the plugin, and no MuJoCo
+callback is installed, so other models compile meanwhile.
 
 Configurations are checked against the rule table `wpam_mj.physics.rules`, with the same
 line as the compiled plugin (`InstanceConfig.from_config`, `python_model`).
-
-`stepping` installs the callback for the duration of a ``with`` block only: MuJoCo's
-callbacks are process-global, and a Python one makes every model compilation fail while it
-is installed. Within the block, ``mj_step`` then `advance` is one step; a loop that only
-calls ``mj_step`` (a viewer) also works, as compute advances the previous step when the
-time has moved on. tests/test_plugin.py checks that the plugin is bit-identical to this.
+tests/test_plugin.py checks that the plugin is bit-identical to this.
 """
 
 from __future__ import annotations
 
-import contextlib
 import ctypes
 import math
 import re
 import sys
 from dataclasses import dataclass
-from typing import Iterator
 
 import mujoco
 import numpy as np
 
 from wpam_mj.simulation import plugin
-from wpam_mj.control.controllers import CONTROLLERS, PoController, make_controller, pi_feedforward
-from wpam_mj.simulation.loop_contract import REC_FIELDS, RunConstants, SimulationDiverged
-from wpam_mj.physics import rules
+from wpam_mj.control.controllers import CONTROLLERS, make_controller
+from wpam_mj.simulation.loop_contract import RunConstants
+from wpam_mj.simulation.plugin import FIELD
+from wpam_mj.physics import kernel, rules
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import ParameterError, Params, parameter_fields, preset
-from wpam_mj.simulation.plant import Plant
 
 _RK4 = int(mujoco.mjtIntegrator.mjINT_RK4)
 
@@ -123,138 +122,302 @@ def instance_configs(spec: mujoco.MjSpec) -> dict[str, InstanceConfig]:
 
 
 class PythonMuscle:
-    """One muscle instance computed in Python on a model made by `python_model`."""
+    """One muscle instance computed in Python on a model made by `python_model`: what its
+    model determines (the plugin's Instance). Its state lives in each MjData's userdata,
+    laid out as the plugin's `plugin_state` (`plugin.STATE_FIELDS`, then the two dead-time
+    queues) after this engine's own fields (`HEADER`), from `address` on."""
 
-    def __init__(self, model: mujoco.MjModel, config: InstanceConfig,
-                 channels: list[int], force_actuator: int) -> None:
+    def __init__(self, model: mujoco.MjModel, config: InstanceConfig, channels: list[int],
+                 force_actuator: int, address: int) -> None:
         self.config = config
-        self.params = config.params
+        self.params = params = config.params
         self.channels = channels
         self.force_actuator = force_actuator
+        self.address = address
         self.tendon = int(model.actuator_trnid[force_actuator, 0])
         self.length0 = float(model.tendon_length0[self.tendon])
         self.dt = float(model.opt.timestep)
         self.integrator = int(model.opt.integrator)
-        self.muscle = MuscleModel.from_params(self.params)
         self.feedback = plugin.control_mode(config.control).feedback
-        self.friction_row = 0  # where the tendon's friction row was last step
         # each channel's ctrlrange where it is limited (read_commands clamps to it)
         self.ctrl_limits = [tuple(map(float, model.actuator_ctrlrange[a]))
                             if model.actuator_ctrllimited[a] else None for a in channels]
-        self.refused = False  # the model's options changed after it was made (warned)
-        self.reset()
+        self.geometry = g = MuscleModel.from_params(params).geometry
+        # the kernel's braid arguments of V and S, and of D
+        self.braid = (params.braid.natural_length, g.thread_sq, g.volume_denom,
+                      g.max_contraction)
+        self.braid_d = (params.braid.natural_length, g.thread_sq, g.diameter_denom,
+                        g.max_contraction)
+        self.k = RunConstants.make(params, self.dt, self.dt)
+        controller = make_controller(config.control, params, self.dt)
+        # the Po feedback's constants (PoFeedback's), and its integral at the start
+        self.gains = (controller.kp, controller.ki, controller.kd, controller.tf,
+                      controller.pa_per_unit, controller.lo, controller.hi) \
+            if self.feedback else ()
+        self.integral0 = controller.integral if self.feedback else 0.0
+        self.size = state_size(config, self.dt)
 
-    def reset(self) -> None:
-        """Vented chambers, empty regulators, controller at its start (plugin reset)."""
-        self.plant = Plant(self.muscle, RunConstants.make(self.params, self.dt, self.dt),
-                           guided=self.config.guided)
-        self.controller: PoController = make_controller(self.config.control, self.params,
-                                                        self.dt)
-        self.rest_pending = self.config.start_at_rest
-        self.pending: tuple | None = None  # what compute computed and advance keeps
-        self.status_bits = 0  # plugin.STATUS_* bits
-        self.inputs = [0.0] * plugin.MAX_CHANNELS  # each channel's last finite command
-        self.record = dict.fromkeys(REC_FIELDS[1:], 0.0)
-        self.record["x_ref"] = math.nan
+    def state(self, data: mujoco.MjData) -> np.ndarray:
+        """This muscle's state in `data` (a view, laid out as the plugin's plugin_state),
+        set to the start first where it is not yet (a new or reset MjData)."""
+        block = data.userdata[self.address:self.address + self.size]
+        if block[_STARTED] == 0.0:
+            block[:] = self._initial()
+        return block[len(HEADER):]
 
-    @property
-    def status(self) -> str:
-        """Why the muscle's state left its range, in one line ("" while it has not)."""
-        if not self.status_bits:
-            return ""
-        p_i, p_o = (c.pressure for c in (self.plant.chamber_i, self.plant.chamber_o))
-        return plugin.status_message(self.status_bits, self.record["x"], p_i, p_o)
+    def _initial(self) -> list[float]:
+        """Vented chambers, empty regulators, controller at its bumpless start (the
+        plugin's state_reset), after the header of a started muscle."""
+        s = [0.0] * self.size
+        s[_STARTED] = 1.0
+        state = dict(x_ref=math.nan, p_i=self.k.atmosphere, p_o=self.k.atmosphere,
+                     integral=self.integral0, rest_pending=float(self.config.start_at_rest))
+        for name, value in state.items():
+            s[len(HEADER) + FIELD[name]] = value
+        return s
 
-    @property
-    def stopped(self) -> bool:
-        """A muscle whose state left its range, or whose model changed, steps no more."""
-        return bool(self.status_bits & (plugin.STATUS_PRESSURE | plugin.STATUS_MODEL))
+    def status(self, data: mujoco.MjData) -> str:
+        """Why the muscle's state in `data` left its range, in one line ("" while it has
+        not)."""
+        s = self.state(data)
+        return plugin.status_message(*(float(s[FIELD[n]]) for n in ("status", "x", "p_i",
+                                                                     "p_o")))
 
-    def _inputs(self, ctrl: np.ndarray) -> tuple[float, float, float]:
-        """(x_ref, Pi command, Po command or feedforward) from the input channels (the
-        plugin's read_commands): each clamped to its ctrlrange where limited, a
-        non-finite one replaced by the channel's last finite value, x_ref held to the
-        stroke."""
-        values = []
+    def _options_changed(self, model: mujoco.MjModel, h: list[float]) -> bool:
+        """The plugin's refusal of a timestep or integrator changed after compile, or of a
+        model left without the muscle's friction row (`no_friction_row`): status, and one
+        warning line (once per data until changed back)."""
+        opt = model.opt
+        if opt.timestep == self.dt and opt.integrator == self.integrator:
+            why = no_friction_row(model, self.config.name, self.tendon, after=True)
+            if why is None:
+                h[_REFUSED] = 0.0
+                return False
+        else:
+            what = "timestep" if model.opt.timestep != self.dt else "integrator"
+            why = (f"wpam_mj.muscle instance '{self.config.name}': the {what} changed after "
+                   f"the model compiled (timestep {model.opt.timestep:.6g} s, integrator "
+                   f"{plugin.INTEGRATORS[int(model.opt.integrator)]}); the muscle stops "
+                   "until it is changed back or the model recompiled")
+        if not h[_REFUSED]:
+            print(f"WARNING: {why}", file=sys.stderr)
+        h[_REFUSED] = 1.0
+        _set_status(h, plugin.STATUS_MODEL)
+        return True
+
+    def _commands(self, ctrl: np.ndarray, h: list[float]) -> list[float]:
+        """The commands of this step (the plugin's read_commands): each channel's ctrl
+        clamped to its ctrlrange where limited, a non-finite one replaced by the channel's
+        last finite value (0 at the start), x_ref held to the stroke under feedback."""
+        command = [0.0] * plugin.MAX_CHANNELS
         for i, (a, limits) in enumerate(zip(self.channels, self.ctrl_limits)):
             c = float(ctrl[a])
             if limits is not None:
                 c = min(max(c, limits[0]), limits[1])
             if math.isfinite(c):
-                self.inputs[i] = c
-            values.append(self.inputs[i])
-        if not self.feedback:
-            return math.nan, values[0], values[1]
-        x_ref = self.muscle.geometry.in_stroke(values[0])
-        if len(values) > 1:
-            pi_cmd = values[1]
-        else:
-            pi_cmd = float(pi_feedforward(self.muscle, self.params, x_ref,
-                                          self.config.feedforward_load,
-                                          self.params.controller.po_feedforward))
-        return x_ref, pi_cmd, values[2] if len(values) > 2 else 0.0
-
-    def _options_changed(self, model: mujoco.MjModel) -> bool:
-        """The plugin's refusal of a timestep or integrator changed after compile: status,
-        and one warning line."""
-        opt = model.opt
-        if opt.timestep == self.dt and opt.integrator == self.integrator:
-            self.refused = False
-            return False
-        if not self.refused:
-            what = "timestep" if model.opt.timestep != self.dt else "integrator"
-            print(f"WARNING: wpam_mj.muscle instance '{self.config.name}': the {what} "
-                  f"changed after the model compiled (timestep {model.opt.timestep:.6g} s, "
-                  f"integrator {plugin.INTEGRATORS[int(model.opt.integrator)]}); the "
-                  "muscle stops until it is changed back or the model recompiled",
-                  file=sys.stderr)
-        self.refused = True
-        self.status_bits |= plugin.STATUS_MODEL
-        return True
+                h[_S + FIELD[f"input{i}"]] = c
+            command[i] = h[_S + FIELD[f"input{i}"]]
+        if self.feedback:
+            command[0] = kernel.in_stroke(command[0], self.braid[-1])
+        return command
 
     def compute(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
-        """The step's force and friction level; nothing kept but what advance needs."""
-        if self.pending is not None and data.time != self.pending[0]:
-            self.advance()  # a loop that only calls mj_step: the last step ends here
-        if self._options_changed(model) or self.stopped:
+        """The step's force and friction level (the plugin's compute): after the constraint
+        rows are made, before actuation and the solve; the controller's output is kept
+        in the state for `advance` to commit."""
+        self.state(data)
+        block = data.userdata[self.address:self.address + self.size]
+        h = block.tolist()
+        if self._options_changed(model, h) or _stopped(h):
+            block[:] = h
             data.ctrl[self.force_actuator] = 0.0
             return
+        p, k = self.params, self.k
         x = self.config.contraction0 + (self.length0 - float(data.ten_length[self.tendon]))
         v = -float(data.ten_velocity[self.tendon])
-        x_ref, pi_cmd, po_in = self._inputs(data.ctrl)
-        po_cmd, ctl_state = self.controller.evaluate(x, x_ref, po_in)
-        if self.rest_pending:
-            self.plant.rest(pi_cmd, po_cmd)
-        force, friction = self.plant.forces(x)
+        command = self._commands(data.ctrl, h)
+        nchannel = len(self.channels)
+        x_ref = math.nan
+        if self.feedback:
+            x_ref = command[0]
+            pi_cmd = command[1] if nchannel > 1 else self._pi_feedforward(x_ref)
+            kp, ki, kd, tf, pa_per_unit, lo, hi = self.gains
+            po_cmd, *after = kernel.po_feedback(
+                x, x_ref, command[2] if nchannel > 2 else 0.0, h[_S + FIELD["integral"]],
+                h[_S + FIELD["derivative"]], h[_S + FIELD["e_prev"]],
+                h[_S + FIELD["has_prev"]] != 0.0, kp, ki, kd, tf, pa_per_unit, lo, hi,
+                self.dt)
+            for name, value in zip(("next_integral", "next_derivative", "next_e"), after):
+                h[_S + FIELD[name]] = value
+        else:
+            pi_cmd, po_cmd = command[0], command[1]
+        if h[_S + FIELD["rest_pending"]] != 0.0:
+            self._rest(h, pi_cmd, po_cmd)
+        pi = h[_S + FIELD["p_i"]] - k.atmosphere
+        po = h[_S + FIELD["p_o"]] - k.atmosphere
+        area = kernel.area(x, *self.braid)
+        m = p.muscle
+        force = kernel.tendon_force(pi, po, area, self._rubber(x), m.output_coeff,
+                                    m.axial_area, self.config.guided)
+        friction = kernel.friction_level(pi, po, area, m.friction_coeff, m.friction_const)
         tolerance = plugin.STROKE_TOLERANCE
-        if not -tolerance <= x <= self.muscle.geometry.max_contraction + tolerance:
-            self.status_bits |= plugin.STATUS_STROKE
+        if not -tolerance <= x <= self.braid[-1] + tolerance:
+            self._left_stroke(h, x)
         if not math.isfinite(x):  # MuJoCo's state is already bad: add nothing to it
-            force, friction = 0.0, self.params.muscle.friction_const
-        pi, po = self.plant.pressures
-        self.record.update(x=x, velocity=v, x_ref=x_ref, pi=pi, po=po, pi_cmd=pi_cmd,
-                           po_cmd=po_cmd, tension=force, friction=friction)
+            force, friction = 0.0, m.friction_const
+        for name, value in zip(("x", "velocity", "x_ref", "pi", "po", "pi_cmd", "po_cmd",
+                                "tension", "friction"),
+                               (x, v, x_ref, pi, po, pi_cmd, po_cmd, force, friction)):
+            h[_S + FIELD[name]] = value
         data.ctrl[self.force_actuator] = -force  # along the tendon's length
-        self.friction_row = set_friction_level(data, self.tendon, friction,
-                                               self.friction_row)
-        self.pending = (float(data.time), x, v, pi_cmd, po_cmd, ctl_state)
+        h[_FRICTION_ROW] = set_friction_level(data, self.tendon, friction,
+                                              int(h[_FRICTION_ROW]))
+        block[:] = h
 
-    def advance(self) -> None:
-        """Keep the controller's state, advance the regulators and chambers."""
-        if self.pending is None or self.stopped:
+    def _left_stroke(self, h: list[float], x: float) -> None:
+        """The plugin's left_stroke: STATUS_STROKE, and the first time since the reset one
+        warning line naming the tendon range that holds the muscle in its stroke."""
+        if not int(h[_S + FIELD["status"]]) & plugin.STATUS_STROKE:
+            x_max = self.braid[-1]
+            natural = self.length0 + self.config.contraction0  # the tendon's length at x = 0
+            print(f"WARNING: wpam_mj.muscle instance '{self.config.name}': contraction x = "
+                  f"{x:.6g} m left the stroke [0, {x_max:.6g}] m by more than "
+                  f"{plugin.STROKE_TOLERANCE:.6g} m (status {plugin.STATUS_STROKE}); limit "
+                  "its tendon from the full bag to the natural length: "
+                  f'range="{natural - x_max:.6g} {natural:.6g}" (plugin.tendon_range)',
+                  file=sys.stderr)
+        _set_status(h, plugin.STATUS_STROKE)
+
+    def _rubber(self, x: float) -> float:
+        return kernel.rubber_force(kernel.diameter(x, *self.braid_d),
+                                   self.params.muscle.rubber_stiffness,
+                                   self.params.braid.natural_diameter)
+
+    def _pi_feedforward(self, x_ref: float) -> float:
+        """The in-plugin Pi feedforward [Pa gauge] (control.pi_feedforward)."""
+        p, m = self.params, self.params.muscle
+        pi = kernel.equilibrium_pressure(
+            p.controller.po_feedforward, self.config.feedforward_load,
+            p.controller.feedforward_friction, kernel.area(x_ref, *self.braid),
+            self._rubber(x_ref), m.output_coeff, m.friction_coeff, m.friction_const,
+            m.axial_area)
+        return kernel.clip(pi, p.pneumatics.p_min, p.pneumatics.p_max)
+
+    def _rest(self, h: list[float], pi_cmd: float, po_cmd: float) -> None:
+        """The plugin's plant_rest: regulators settled on the commands, chambers at their
+        set points."""
+        k, n = self.k, self.k.delay_steps
+        queues = _S + len(plugin.STATE_FIELDS)
+        h[queues:queues + n] = [pi_cmd] * n
+        h[queues + n:queues + 2 * n] = [po_cmd] * n
+        for reg, chamber, command in (("pi_reg", "p_i", pi_cmd), ("po_reg", "p_o", po_cmd)):
+            h[_S + FIELD[reg]] = kernel.regulator_clamp(command, k.p_max)
+            h[_S + FIELD[chamber]] = h[_S + FIELD[reg]] + k.atmosphere
+
+    def advance(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
+        """After the step (the plugin's advance): the controller's state committed, the
+        regulators and chambers advanced from the values compute used."""
+        block = data.userdata[self.address:self.address + self.size]
+        h = block.tolist()
+        if not h[_STARTED] or h[_REFUSED] or _stopped(h):
             return
-        _, x, v, pi_cmd, po_cmd, ctl_state = self.pending
-        self.pending = None
-        self.controller.commit(ctl_state)
-        self.rest_pending = False
-        try:
-            self.plant.step(x, v, pi_cmd, po_cmd)
-        except SimulationDiverged:
-            self.status_bits |= plugin.STATUS_PRESSURE
-        self.record["pi_reg"], self.record["po_reg"] = self.plant.set_points
+        k, s = self.k, _S
+        if self.feedback:  # PoFeedback's commit
+            for name in ("integral", "derivative", "e"):
+                h[s + FIELD["e_prev" if name == "e" else name]] = h[s + FIELD[f"next_{name}"]]
+            h[s + FIELD["has_prev"]] = 1.0
+        h[s + FIELD["rest_pending"]] = 0.0
+        head, n = int(h[s + FIELD["head"]]), k.delay_steps
+        queues = s + len(plugin.STATE_FIELDS)
+        set_points = []
+        for i, (reg, cmd) in enumerate((("pi_reg", "pi_cmd"), ("po_reg", "po_cmd"))):
+            command = h[s + FIELD[cmd]]
+            if n:  # the dead time: this step's command in, the one n steps old out
+                slot = queues + i * n + head
+                command, h[slot] = h[slot], command
+            h[s + FIELD[reg]] = kernel.regulator_set_point(h[s + FIELD[reg]], command,
+                                                           k.p_max, k.lag_alpha)
+            set_points.append(h[s + FIELD[reg]])
+        if n:
+            h[s + FIELD["head"]] = (head + 1) % n
+        v = h[s + FIELD["velocity"]]
+        x = kernel.in_stroke(h[s + FIELD["x"]], self.braid[-1])
+        area = kernel.area(x, *self.braid)
+        vol = kernel.volume(x, *self.braid)
+        axial = self.params.muscle.axial_area
+        p_i = kernel.chamber_step(h[s + FIELD["p_i"]], set_points[0] + k.atmosphere,
+                                  kernel.inner_volume(vol, k.tube_volume), area, v,
+                                  k.conductance_i, k.critical_ratio, k.dt)
+        p_o = kernel.chamber_step(h[s + FIELD["p_o"]], set_points[1] + k.atmosphere,
+                                  kernel.outer_volume(vol, x, axial, k.bag_volume,
+                                                      k.tube_volume),
+                                  kernel.outer_dvdx(area, axial), v, k.conductance_o,
+                                  k.critical_ratio, k.dt)
+        h[s + FIELD["p_i"]], h[s + FIELD["p_o"]] = p_i, p_o
+        if not (p_i > 0.0 and p_o > 0.0 and math.isfinite(p_i) and math.isfinite(p_o)):
+            _set_status(h, plugin.STATUS_PRESSURE)
+        block[:] = h
+
+
+# The Python engine's own fields of a muscle's block of userdata, before the plugin's
+# state layout: whether the state was set to its start (0 in a new or reset MjData),
+# where the tendon's friction row was last step, whether the model's options were refused.
+HEADER = ("started", "friction_row", "refused")
+_STARTED, _FRICTION_ROW, _REFUSED = range(len(HEADER))
+_S = len(HEADER)  # where the plugin's layout starts in a block
+
+
+def _stopped(h: list[float]) -> bool:
+    """A muscle whose state left its range, or whose model changed, steps no more."""
+    return bool(int(h[_S + FIELD["status"]]) & (plugin.STATUS_PRESSURE | plugin.STATUS_MODEL))
+
+
+def _set_status(h: list[float], bit: int) -> None:
+    h[_S + FIELD["status"]] = float(int(h[_S + FIELD["status"]]) | bit)
+
+
+def step(model: mujoco.MjModel, data: mujoco.MjData, muscles: list[PythonMuscle],
+         nstep: int = 1) -> None:
+    """`nstep` physics steps of a model made by `python_model`, as ``mj_step`` steps the
+    plugin's: ``mj_step1`` (positions, velocities, constraint rows), the muscles' compute,
+    ``mj_step2`` (actuation, the solve, integration), their advance. No MuJoCo callback
+    is installed, so other models compile and other threads step meanwhile."""
+    for _ in range(nstep):
+        mujoco.mj_step1(model, data)
+        for muscle in muscles:
+            muscle.compute(model, data)
+        mujoco.mj_step2(model, data)
+        for muscle in muscles:
+            muscle.advance(model, data)
 
 
 _FRICTION_TENDON = int(mujoco.mjtConstraint.mjCNSTR_FRICTION_TENDON)
+_NO_FRICTION_ROW = {"constraint": int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT),
+                    "frictionloss": int(mujoco.mjtDisableBit.mjDSBL_FRICTIONLOSS)}
+
+
+def no_friction_row(model: mujoco.MjModel, instance: str, tendon: int, *,
+                    after: bool) -> str | None:
+    """The plugin's no_friction_row: the line saying why MuJoCo makes no friction row for
+    the muscle's tendon (its frictionloss not positive, or MuJoCo's constraint or
+    frictionloss flag disabled), at compile or `after` it; None while it makes one."""
+    prefix = f"wpam_mj.muscle instance '{instance}': "
+    stop = "; the muscle stops until it is changed back and the data reset"
+    name = model.tendon(tendon).name
+    loss = float(model.tendon_frictionloss[tendon])
+    if not loss > 0.0:
+        if after:
+            return (f"{prefix}tendon '{name}' frictionloss = {loss:.6g} after the model "
+                    "compiled; it needs a positive one (any value; the plugin sets the level "
+                    f"every step){stop}")
+        return (f"{prefix}tendon '{name}' needs a positive frictionloss (any value; the "
+                "plugin sets the level every step)")
+    for flag, bit in _NO_FRICTION_ROW.items():
+        if model.opt.disableflags & bit:
+            return (f"{prefix}MuJoCo's {flag} flag is disabled"
+                    f"{' after the model compiled' if after else ''}, so no friction row "
+                    f"carries the muscle's dry friction{stop if after else '; enable it'}")
+    return None
 
 
 def set_friction_level(data: mujoco.MjData, tendon: int, friction: float,
@@ -280,10 +443,15 @@ def _channel_error(spec: mujoco.MjSpec, instance: str, config: InstanceConfig,
     """The plugin's bind_channels on the spec: the line of the first channel error."""
     prefix = f"wpam_mj.muscle instance '{instance}': "
     control = plugin.control_mode(config.control)
-    n = len(acts)
-    if not control.required <= n <= len(control.channels):
-        return (f"{prefix}control = '{control.name}' takes {control.required} to "
-                f"{len(control.channels)} actuators (input channels), {n} name the instance")
+    n, nmax = len(acts), len(control.channels_for(config.params.outer_chamber))
+    nmin = min(control.required, nmax)
+    if n > nmax < len(control.channels):
+        return (f"{prefix}preset '{config.params.preset}' has no outer chamber, so no Po "
+                f"channel: control = '{control.name}' takes at most {nmax} actuator(s) on "
+                f"it, {n} name the instance; remove actuator '{acts[nmax].name or '(unnamed)'}'")
+    if not nmin <= n <= nmax:
+        return (f"{prefix}control = '{control.name}' takes {nmin} to {nmax} actuators "
+                f"(input channels), {n} name the instance")
     if acts[0].trntype != mujoco.mjtTrn.mjTRN_TENDON:
         return f"{prefix}its first actuator must act on a tendon (the muscle)"
     tendon = acts[0].target
@@ -306,8 +474,9 @@ def python_model(spec: mujoco.MjSpec) -> tuple[mujoco.MjModel, list[PythonMuscle
     Each plugin actuator becomes a motor of gear 0 in place (same name, index, ctrl and
     ctrlrange: an input channel), and each instance gets a force motor, named
     "<instance>_force", on its first actuator's tendon, appended after the model's
-    actuators. Returns the model and the muscles, one per instance. Raises ParameterError
-    with the compiled plugin's line for a configuration it refuses.
+    actuators; each muscle's state gets a block of ``userdata`` after the spec's own.
+    Returns the model and the muscles, one per instance. Raises ParameterError with the
+    compiled plugin's line for a configuration it refuses.
     """
     configs = instance_configs(spec)
     acts: dict[str, list] = {name: [] for name in configs}
@@ -333,36 +502,30 @@ def python_model(spec: mujoco.MjSpec) -> tuple[mujoco.MjModel, list[PythonMuscle
     for instance in configs:
         spec.add_actuator(name=f"{instance}_force", target=first_tendons[instance],
                           trntype=mujoco.mjtTrn.mjTRN_TENDON)
+    addresses, size = {}, spec.nuserdata
+    for instance, config in configs.items():
+        addresses[instance] = size
+        size += state_size(config, spec.option.timestep)
+    spec.nuserdata = size
     model = spec.compile()
     muscles = []
     for instance, config in configs.items():
-        tendon = model.tendon(first_tendons[instance])
-        if model.tendon_frictionloss[tendon.id] <= 0.0:
-            raise ParameterError(f"wpam_mj.muscle instance '{instance}': tendon "
-                                 f"'{tendon.name}' needs a positive frictionloss (any value;"
-                                 " the plugin sets the level every step)")
+        why = no_friction_row(model, instance, model.tendon(first_tendons[instance]).id,
+                              after=False)
+        if why is not None:
+            raise ParameterError(why)
         muscles.append(PythonMuscle(model, config,
                                     [model.actuator(a.name).id for a in acts[instance]],
-                                    model.actuator(f"{instance}_force").id))
+                                    model.actuator(f"{instance}_force").id,
+                                    addresses[instance]))
     return model, muscles
 
 
-@contextlib.contextmanager
-def stepping(model: mujoco.MjModel, muscles: list[PythonMuscle]) -> Iterator[None]:
-    """Install the muscles' compute as MuJoCo's control callback for this block only."""
-    address = model._address
-
-    def control(m: mujoco.MjModel, d: mujoco.MjData) -> None:
-        if m._address == address:  # the callback is global: other models pass through
-            for muscle in muscles:
-                muscle.compute(m, d)
-
-    previous = mujoco.get_mjcb_control()
-    mujoco.set_mjcb_control(control)
-    try:
-        yield
-    finally:
-        mujoco.set_mjcb_control(previous)
+def state_size(config: InstanceConfig, timestep: float) -> int:
+    """The userdata one muscle takes: `HEADER`, the plugin's named fields and its two
+    dead-time queues at this time step [s]."""
+    delay_steps = RunConstants.make(config.params, timestep, timestep).delay_steps
+    return len(HEADER) + len(plugin.STATE_FIELDS) + 2 * delay_steps
 
 
 # ---- a stand-in registration, so that MJCF naming the plugin parses without a compiler ----
@@ -399,7 +562,7 @@ _COMPUTE = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int
                             ctypes.c_int)
 _keep: list = []  # the registration's C objects live as long as the process
 INSTEAD = ("model, muscles = wpam_mj.simulation.engine.python_model(mujoco.MjSpec.from_file("
-           "PATH)), stepped inside `with engine.stepping(model, muscles):` (docs/plugin.md)")
+           "PATH)), stepped by engine.step(model, data, muscles) (docs/plugin.md)")
 
 
 def _refuse(model, data, instance) -> int:

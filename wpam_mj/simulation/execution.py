@@ -1,50 +1,57 @@
-"""One execution layer for every many-run job: studies, fits, calibration, the search.
+"""The one way to run many simulations: `execute`, for every many-run job (reproduce, the
+paper's studies, sweeps, linear studies, design studies, fits, calibration, the search).
 
-A job is a list of tasks. A task that is a plain simulation is a `SimulationTask`: its
-`runs()` (validated `Run`s, not yet simulated) and its `reduce(results)` (their
-`SimResult`s to the task's result: metrics, a response object). The layer simulates the
-runs of many such tasks together through `simulate.simulate_each` (`simulate_many`'s
-`mujoco.batch` batches: runs of one model layout and length share one) and reduces each
-task. Any other picklable object with `.run()` (and `.cost`) is run as it is.
+A job is a list of tasks, `Batch`es and `Run`s:
+  * a `SimulationTask` gives its `runs()` (validated `Run`s, not yet simulated) and its
+    `reduce(results)` (their `SimResult`s to the task's result: metrics, a response);
+  * any other picklable object with `.run()` (and `.cost`, a relative run time) runs as it
+    is: a figure, a file, a static fit;
+  * a `Batch` is a study's tasks and what turns their results into its response;
+  * a `Run` is one simulation; its result is its `SimResult`.
 
-Where it runs (`execute`'s `where`, the `Workers` of `infra.pool.open_workers`, their
-executor, or None):
+Where they run is chosen once, by `wpam_mj.infra.pool.open_workers` (its `Workers`, or
+what it takes: a number of cores, a `Cluster`, an executor):
+  * here (`--jobs N`): the runs of every `SimulationTask` simulated together on N
+    `mujoco.batch` threads in this process (runs of one model layout and length share a
+    batch; batches smaller than the threads run side by side, one thread each); the
+    other tasks on the local process pool, if there is one;
+  * a Dask cluster (`--scheduler`): each task (a `Batch`: its tasks together) shipped,
+    longest first, to a worker, which runs it through the same path on one batch thread.
+    A cluster whose scheduler or every worker is gone for `pool.LOST_AFTER_S` ends the
+    job with `pool.WorkersLost`, one line; what the job journaled is kept.
 
-  * here: None or one local slot runs everything in this process, one batch thread;
-    local processes (`--jobs N`, a `WorkerPool`) mean N cores here: the simulations run
-    in this process on N batch threads, and only tasks that are not simulations go to the
-    pool's processes;
-  * any other executor (a Dask cluster's, `--scheduler`): each task is shipped, longest
-    first, to a worker, which runs it through the same path on one batch thread.
-
-Results come back in task order and are bit-identical whatever the target: a run's
-record does not depend on its batch or the thread count (`simulate_many`), and the
-reduction is the same code as the task's own `run()`. A task that fails with
-SimulationDiverged, ParameterError or ArithmeticError (`FAILURES`: the run diverged, its
-inputs were refused, its metrics are undefined) is a `Failed` outcome; any other error
-is raised.
+Results come back in job order and are bit-identical whatever the target: a run's record
+does not depend on its batch or the thread count, and the reduction is the same code as
+the task's own serial `run()`. A task that fails with SimulationDiverged, ParameterError
+or ArithmeticError (`FAILURES`: the run diverged, its inputs were refused, its metrics
+are undefined) is a `Failed` outcome; any other error is raised.
 """
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import struct
-from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor
+import sys
+import time
+from concurrent.futures import FIRST_COMPLETED, CancelledError, Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 import numpy as np
+from tqdm import tqdm
 
 from wpam_mj.infra import termination
-from wpam_mj.infra.pool import Workers
+from wpam_mj.infra.pool import LOST_AFTER_S, Workers, WorkersLost, open_workers
 from wpam_mj.physics.params import ParameterError
 from wpam_mj.simulation.loop_contract import SimulationDiverged
 from wpam_mj.simulation.results import SimResult
-from wpam_mj.simulation.simulate import Run, simulate_each, simulate_run
+from wpam_mj.simulation.simulate import Run, _run_batch, _select_engine, run_plugin, simulate_run
 
 FAILURES = (SimulationDiverged, ParameterError, ArithmeticError)
 LOCAL_SLICE = 256  # our choice: tasks simulated at once here (bounds the records in memory)
 TASKS_PER_THREAD = 8  # ... and at least this many per batch thread, where there are
+LOST_POLL_S = 1.0  # how often a waiting job asks whether its cluster is still there
 
 
 class SimulationTask:
@@ -62,10 +69,201 @@ class SimulationTask:
 
 
 @dataclass(frozen=True)
+class _RunTask(SimulationTask):
+    """A bare `Run` as a task: its `SimResult`."""
+
+    job: Run
+
+    @property
+    def cost(self) -> float:
+        return float(len(self.job.inputs))
+
+    def runs(self) -> Sequence[Run]:
+        return [self.job]
+
+    def reduce(self, results: list[SimResult]) -> SimResult:
+        return results[0]
+
+
+@dataclass(frozen=True)
+class Batch:
+    """A study's tasks and what turns their results (in task order) into its response."""
+
+    tasks: Sequence
+    assemble: Callable[[list], Any]
+
+    @property
+    def cost(self) -> float:
+        return sum(getattr(t, "cost", 0.0) for t in self.tasks)
+
+
+@dataclass(frozen=True)
 class Failed:
     """The outcome of a task that failed with one of `FAILURES`."""
 
     error: Exception
+
+
+_RAISE = object()
+
+
+def execute(jobs: Sequence, workers: Any = None, *, failed: Any = _RAISE,
+            progress: bool = False, desc: str = "runs",
+            each: Callable[[int, Any], None] | None = None) -> list:
+    """Every job's result (a task's, a `Batch`'s response, a `Run`'s `SimResult`), in
+    job order, wherever `workers` runs them (module docstring).
+
+    workers: the `Workers` of `infra.pool.open_workers`, or what it takes (a number of
+      local cores, a `Cluster`, a concurrent.futures.Executor; None: this process).
+    failed: what stands for a task that failed with one of `FAILURES`: a value, or a
+      callable of the error (`Failed` keeps it); by default the first such failure (in
+      job order) is raised.
+    progress, desc: a progress bar on stderr, and its label.
+    each: called with (job index, result) as each job is done, so that a long job can
+      keep what is finished (a study's part files); with it, jobs start in the order
+      given, else longest first.
+    """
+    if not isinstance(workers, Workers):
+        with open_workers(workers) as opened:
+            return execute(jobs, opened, failed=failed, progress=progress, desc=desc,
+                           each=each)
+    jobs = [_RunTask(j) if isinstance(j, Run) else j for j in jobs]
+    units = [list(j.tasks) if isinstance(j, Batch) else [j] for j in jobs]
+    order = list(range(len(jobs))) if each is not None else \
+        sorted(range(len(jobs)), key=lambda k: -getattr(jobs[k], "cost", 0.0))
+    results: list = [None] * len(jobs)
+    with tqdm(total=sum(map(len, units)), desc=desc, unit="run", file=sys.stderr,
+              disable=not progress, leave=False) as bar:
+
+        def finish(k: int, outcomes: list) -> None:
+            bar.update(len(outcomes))
+            if each is None:
+                results[k] = outcomes  # judged below, in job order
+                return
+            results[k] = _result(jobs[k], outcomes, failed)
+            each(k, results[k])
+
+        run = _run_remote if workers.remote else _run_local
+        run([(k, units[k]) for k in order], workers, finish, each is not None)
+    if each is None:
+        results = [_result(job, outcomes, failed) for job, outcomes in zip(jobs, results)]
+    return results
+
+
+def _result(job, outcomes: list, failed: Any) -> Any:
+    """A job's result from its tasks' outcomes, each `Failed` one judged by `failed`."""
+    values = []
+    for o in outcomes:
+        if isinstance(o, Failed):
+            if failed is _RAISE:
+                raise o.error
+            o = failed(o.error) if callable(failed) else failed
+        values.append(o)
+    return job.assemble(values) if isinstance(job, Batch) else values[0]
+
+
+def _run_local(units: list[tuple[int, list]], workers: Workers,
+               finish: Callable[[int, list], None], in_order: bool) -> None:
+    """Units here: their simulations on `workers.slots` batch threads, consecutive units
+    together (up to LOCAL_SLICE tasks; in order, each unit is finished as soon as every
+    thread has had TASKS_PER_THREAD tasks), the other tasks on the local process pool."""
+    pool = workers.executor
+    pooled: dict[tuple[int, int], Future] = {}
+    window_size = TASKS_PER_THREAD * workers.slots if in_order else LOCAL_SLICE
+    try:
+        if pool is not None:  # tasks that are not simulations: longest first
+            mine = [(k, i, t) for k, tasks in units for i, t in enumerate(tasks)
+                    if not isinstance(t, SimulationTask)]
+            with termination.deferred():  # every future recorded, so that all are cancelled
+                for k, i, t in sorted(mine, key=lambda m: -getattr(m[2], "cost", 0.0)):
+                    pooled[k, i] = pool.submit(_ship, [t])
+        window: list[tuple[int, list]] = []
+        here: list = []  # the window's simulations
+        for n, (k, tasks) in enumerate(units):
+            window.append((k, tasks))
+            here += [t for i, t in enumerate(tasks) if (k, i) not in pooled]
+            if n + 1 < len(units) and len(here) < window_size:
+                continue
+            outcomes = iter(_run_here(here, workers.slots))
+            for j, ts in window:
+                mine = [pooled.get((j, i)) for i in range(len(ts))]
+                if any(f is not None and not f.done() for f in mine):
+                    _wait_pooled(pooled.values())
+                finish(j, [next(outcomes) if f is None else f.result()[0] for f in mine])
+            window, here = [], []
+    finally:
+        for fut in pooled.values():
+            fut.cancel()
+
+
+def _wait_pooled(futures) -> None:
+    """Until every pooled task is done; the first fault is raised as soon as it happens."""
+    done, _ = termination.wait(futures, concurrent.futures.FIRST_EXCEPTION)
+    for f in done:
+        if not f.cancelled() and f.exception() is not None:
+            raise f.exception()
+
+
+def _run_remote(units: list[tuple[int, list]], workers: Workers,
+                finish: Callable[[int, list], None], in_order: bool) -> None:
+    """Each unit shipped to the cluster as one task, finished as it comes back; a
+    cluster that can no longer run it raises `WorkersLost`."""
+    pending: dict[Future, int] = {}
+    try:
+        with termination.deferred():  # every future recorded, so that all are cancelled
+            for k, tasks in units:
+                pending[workers.executor.submit(_ship, tasks)] = k
+        probed = time.monotonic()
+        while pending:
+            done, _ = concurrent.futures.wait(pending, termination.SIGNAL_POLL_S,
+                                              FIRST_COMPLETED)
+            for fut in sorted(done, key=pending.__getitem__):
+                finish(pending.pop(fut), _shipped(fut, workers))
+            if not done and time.monotonic() - probed >= LOST_POLL_S:
+                probed = time.monotonic()
+                _check_alive(workers)
+    finally:
+        for fut in pending:
+            fut.cancel()
+
+
+def _shipped(fut: Future, workers: Workers) -> list:
+    """A shipped unit's outcomes; what the cluster made of losing it, as `WorkersLost`."""
+    try:
+        return fut.result()
+    except CancelledError:  # the client cancels what it can no longer track
+        _check_alive(workers, at_once=True)
+        raise
+    except Exception as err:
+        if type(err).__name__ in ("KilledWorker", "CommClosedError", "FutureCancelledError"):
+            raise WorkersLost(f"{workers.where}: {_lost_text(err)}; {_RESUME}") from None
+        raise
+
+
+_RESUME = "what finished is kept: run the command again (with --resume where it has one)"
+
+
+def _lost_text(err: Exception) -> str:
+    if type(err).__name__ == "KilledWorker":
+        return "workers died running one task (KilledWorker)"
+    return f"lost the cluster ({' '.join(str(err).split()) or type(err).__name__})"
+
+
+def _check_alive(workers: Workers, *, at_once: bool = False) -> None:
+    """Raise `WorkersLost` if the cluster is gone; `at_once`: a task was cancelled, so
+    wait (at most LOST_AFTER_S) for the client to say whether it was the cluster."""
+    why = workers.lost()
+    deadline = time.monotonic() + (LOST_AFTER_S + 2 * LOST_POLL_S if at_once else 0.0)
+    while why is None and time.monotonic() < deadline:
+        time.sleep(termination.SIGNAL_POLL_S)
+        why = workers.lost()
+    if why is not None:
+        raise WorkersLost(f"{workers.where}: {why}; {_RESUME}")
+
+
+def _ship(tasks: Sequence) -> list:
+    """Worker entry point (module level, so that every executor can pickle it)."""
+    return _run_here(tasks, 1)
 
 
 def _attempt(call: Callable[[], Any]) -> Any:
@@ -75,7 +273,7 @@ def _attempt(call: Callable[[], Any]) -> Any:
         return Failed(err)
 
 
-def run_here(tasks: Sequence, nthread: int = 1) -> list:
+def _run_here(tasks: Sequence, nthread: int = 1) -> list:
     """Outcomes of `tasks` in this process (the result, or `Failed`), in task order: the
     runs of every `SimulationTask` simulated together on `nthread` batch threads."""
     out: list = [None] * len(tasks)
@@ -91,7 +289,7 @@ def run_here(tasks: Sequence, nthread: int = 1) -> list:
             continue
         planned.append((k, len(runs), len(mine)))
         runs += mine
-    results = simulate_each(runs, nthread=nthread)
+    results = _simulate_runs(runs, nthread)
     for k, first, n in planned:
         got = results[first:first + n]
         failed = next((r for r in got if isinstance(r, SimulationDiverged)), None)
@@ -100,110 +298,46 @@ def run_here(tasks: Sequence, nthread: int = 1) -> list:
     return out
 
 
-def _ship(tasks: Sequence) -> list:
-    """Worker entry point (module level, so that every executor can pickle it)."""
-    return run_here(tasks, 1)
+def _simulate_runs(runs: list[Run], nthread: int) -> list[SimResult | SimulationDiverged]:
+    """Each run's `SimResult`, or the SimulationDiverged it raises, bit-identical to
+    `simulate_run(run)`: the runs the plugin takes share `mujoco.batch` batches (one per
+    model layout and length) on `nthread` threads (batches of fewer runs than threads run
+    side by side, one thread each); the others (no plugin, a controller only Python
+    defines) run one after another on the Python engine, as `simulate` runs them."""
+    done: dict[int, tuple] = {}
+    batched = [i for i, run in enumerate(runs)
+               if _select_engine("auto", run.control) is run_plugin]
+    models = {i: runs[i].spec.compile() for i in batched}
+    groups: dict[tuple, list[int]] = {}
+    for i in batched:
+        run, model = runs[i], models[i]
+        key = (len(run.inputs), run.record_every, model.nu, model.npluginstate, model.nq)
+        groups.setdefault(key, []).append(i)
 
+    def batch(ids: list[int], threads: int) -> None:
+        done.update(zip(ids, _run_batch([models[i] for i in ids],
+                                        [runs[i].inputs for i in ids],
+                                        runs[ids[0]].record_every, nthread=threads)))
 
-@dataclass(frozen=True)
-class _Target:
-    threads: int  # batch threads in this process
-    executor: Executor | None  # local: the pool for other tasks; remote: everything
-    remote: bool
-
-
-def _target(where: Workers | Executor | None) -> _Target:
-    executor = where.executor if isinstance(where, Workers) else where
-    if executor is not None and not isinstance(executor, Executor):
-        raise ParameterError(f"where = {where!r}: expected the Workers of "
-                             "wpam_mj.infra.pool.open_workers, a concurrent.futures.Executor "
-                             "or None (this process)")
-    if executor is None:
-        return _Target(1, None, False)
-    if isinstance(executor, ProcessPoolExecutor):  # local processes: this machine's cores
-        return _Target(executor._max_workers, executor, False)
-    return _Target(1, executor, True)
-
-
-def run_chunks(chunks: Sequence[Sequence], where: Workers | Executor | None,
-               finish: Callable[[int, list], None]) -> None:
-    """Run each chunk of tasks as one unit and hand `finish(i, outcomes)` chunk i's
-    outcomes (`run_here`) as it is done: here in order, consecutive chunks simulated
-    together until every batch thread has TASKS_PER_THREAD tasks; on a remote executor
-    as they arrive (submitted in the order given). On any failure or interruption, what
-    has not started is cancelled."""
-    target = _target(where)
-    if not target.remote:  # several chunks at once, so that every thread has runs
-        window: list[int] = []
-        for i, chunk in enumerate(chunks):
-            window.append(i)
-            if i + 1 < len(chunks) and \
-                    sum(len(chunks[j]) for j in window) < TASKS_PER_THREAD * target.threads:
-                continue
-            outcomes = run_here([t for j in window for t in chunks[j]], target.threads)
-            for j in window:
-                finish(j, outcomes[:len(chunks[j])])
-                outcomes = outcomes[len(chunks[j]):]
-            window = []
-        return
-    pending: dict[Future, int] = {}
-    try:
-        with termination.deferred():  # every future recorded, so that all are cancelled
-            for i, chunk in enumerate(chunks):
-                pending[target.executor.submit(_ship, list(chunk))] = i
-        while pending:
-            done, _ = termination.wait(pending, FIRST_COMPLETED)
-            for fut in sorted(done, key=pending.__getitem__):
-                finish(pending.pop(fut), fut.result())
-    finally:
-        for fut in pending:
-            fut.cancel()
-
-
-_RAISE = object()
-
-
-def execute(tasks: Sequence, where: Workers | Executor | None = None, *,
-            failed: Any = _RAISE) -> list:
-    """Every task's result, in task order, whatever `where` is (module docstring).
-
-    failed: what stands for a task that failed with one of `FAILURES`: a value, or a
-    callable of the error; by default the first such failure (in task order) is raised.
-    """
-    tasks = list(tasks)
-    target = _target(where)
-    order = sorted(range(len(tasks)), key=lambda k: -getattr(tasks[k], "cost", 0.0))
-    outcome: list = [None] * len(tasks)
-    pooled: dict[int, Future] = {}
-    try:
-        if target.remote:
-            chunks = [[k] for k in order]
+    small = []  # batches too small for the threads: several at once, one thread each
+    for ids in groups.values():
+        if len(ids) >= nthread:
+            batch(ids, nthread)
         else:
-            if target.executor is not None:  # tasks that are not simulations: the pool
-                with termination.deferred():
-                    pooled = {k: target.executor.submit(_ship, [tasks[k]]) for k in order
-                              if not isinstance(tasks[k], SimulationTask)}
-            mine = [k for k in order if k not in pooled]
-            chunks = [mine[s:s + LOCAL_SLICE] for s in range(0, len(mine), LOCAL_SLICE)]
-
-        def finish(i: int, outcomes: list) -> None:
-            for k, o in zip(chunks[i], outcomes):
-                outcome[k] = o
-
-        run_chunks([[tasks[k] for k in c] for c in chunks], where, finish)
-        termination.wait(pooled.values())
-        for k, fut in pooled.items():
-            (outcome[k],) = fut.result()
-    finally:
-        for fut in pooled.values():
-            fut.cancel()
-    out = []
-    for o in outcome:
-        if isinstance(o, Failed):
-            if failed is _RAISE:
-                raise o.error
-            o = failed(o.error) if callable(failed) else failed
-        out.append(o)
+            small.append(ids)
+    if small:
+        small.sort(key=lambda ids: -len(runs[ids[0]].inputs) * len(ids))  # longest first
+        with ThreadPoolExecutor(nthread) as threads:
+            futures = [threads.submit(batch, ids, 1) for ids in small]
+            termination.wait(futures, concurrent.futures.FIRST_EXCEPTION)
+            for fut in futures:
+                fut.result()
+    out: list[SimResult | SimulationDiverged] = []
+    for i, run in enumerate(runs):
+        try:
+            out.append(run.result(*done[i]) if i in done else simulate_run(run))
+        except SimulationDiverged as err:
+            out.append(err)
     return out
 
 

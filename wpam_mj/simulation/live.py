@@ -10,7 +10,6 @@ contraction and velocity from the tendon, the chamber pressures from the muscle'
 
 from __future__ import annotations
 
-import copy
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -20,7 +19,7 @@ from wpam_mj.simulation import engine
 from wpam_mj.simulation import plugin
 from wpam_mj.simulation.loop_contract import SimulationDiverged, state_failure
 from wpam_mj.simulation.model import INSTANCE, check_chamber_step, rig_spec
-from wpam_mj.physics.params import Params
+from wpam_mj.physics.params import ParameterError, Params
 from wpam_mj.paths import MODEL_XML
 
 @dataclass
@@ -39,6 +38,9 @@ class LiveRig:
     def build(cls, params: Params, load: float, dt: float, *,
               xml: str | Path = MODEL_XML) -> "LiveRig":
         check_chamber_step(params, dt)
+        if not params.outer_chamber:  # every live driver commands Po (simulate refuses it too)
+            raise ParameterError(f"the {params.preset} preset has no outer chamber for the "
+                                 "Po command a live rig takes; use a preset with one (wpam)")
         spec = rig_spec(params, load, dt, control="open", xml=xml)
         names = [f"{INSTANCE}_{c}" for c in plugin.CONTROL_BY_NAME["open"].channels]
         if plugin.available():
@@ -65,12 +67,10 @@ class LiveRig:
                 raise SimulationDiverged(state_failure(data.plugin_state[self.state:]))
         else:
             (muscle,) = self.muscles
-            with engine.stepping(self.model, self.muscles):
-                for _ in range(nstep):
-                    mujoco.mj_step(self.model, data)
-                    muscle.advance()
-                    if muscle.status:
-                        raise SimulationDiverged(muscle.status)
+            for _ in range(nstep):
+                engine.step(self.model, data, self.muscles)
+                if muscle.state(data)[plugin.FIELD["status"]]:
+                    raise SimulationDiverged(muscle.status(data))
         mujoco.mj_step1(self.model, data)
 
     def contraction(self, data: mujoco.MjData) -> float:
@@ -83,19 +83,15 @@ class LiveRig:
 
     def pressures(self, data: mujoco.MjData) -> tuple[float, float]:
         """Chamber gauge pressures (Pi, Po) [Pa] the next step's force uses."""
-        if self.muscles is None:
-            s = data.plugin_state
-            return (float(s[self.state + plugin.FIELD["p_i"]]) - self.atmosphere,
-                    float(s[self.state + plugin.FIELD["p_o"]]) - self.atmosphere)
-        return self.muscles[0].plant.pressures
+        s = data.plugin_state[self.state:] if self.muscles is None \
+            else self.muscles[0].state(data)
+        return (float(s[plugin.FIELD["p_i"]]) - self.atmosphere,
+                float(s[plugin.FIELD["p_o"]]) - self.atmosphere)
 
     def reset(self) -> None:
-        """After mj_resetData: the Python engine's muscle back to its start (the plugin's
-        state is reset by MuJoCo)."""
-        for muscle in self.muscles or ():
-            muscle.reset()
+        """After mj_resetData: nothing to do, on either engine (the muscle's state is in
+        the MjData, which MuJoCo resets)."""
 
     def copy(self) -> "LiveRig":
-        """A rig for a copy of the data: the Python engine's muscle state copied."""
-        return LiveRig(self.model, copy.deepcopy(self.muscles), self.channels, self.tendon,
-                       self.length0, self.state, self.atmosphere)
+        """A rig for a copy of the data: this one (the muscle's state is in the MjData)."""
+        return self

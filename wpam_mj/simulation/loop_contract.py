@@ -5,10 +5,9 @@ how a divergence is reported.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
-from wpam_mj.physics import pneumatics as pn
+from wpam_mj.physics import kernel
 from wpam_mj.physics.params import Params, check_whole_steps
 from wpam_mj.simulation.plugin import FIELD, STATE_FIELDS, status_message
 
@@ -54,11 +53,11 @@ class RunConstants:
         tau = p.time_constant
         return cls(
             dt=dt, record_every=record_every,
-            lag_alpha=1.0 if tau == 0.0 else -math.expm1(-dt / tau),
+            lag_alpha=kernel.lag_alpha(dt, tau),
             delay_steps=round(p.dead_time / dt), atmosphere=p.atmosphere, p_max=p.p_max,
             conductance_i=p.inner_conductance, conductance_o=p.outer_conductance,
             critical_ratio=p.critical_ratio,
             tube_volume=p.tube_volume,
-            bag_volume=pn.outer_bag_volume(params.braid.outer_bag_length,
-                                           params.braid.outer_bag_diameter),
+            bag_volume=kernel.outer_bag_volume(params.braid.outer_bag_length,
+                                               params.braid.outer_bag_diameter),
             start_at_rest=int(start_at_rest))

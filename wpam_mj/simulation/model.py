@@ -84,7 +84,8 @@ def rig_spec(params: Params, load: float, dt: float = 1e-3, *, control: str = "o
       load: hanging load [N]; the load mass is load / g.
       dt: physics time step [s].
       control: the plugin's control mode; the instance gets every input channel of it
-        (`wpam_mj.simulation.plugin.CONTROLS`), one actuator each, named after the channel.
+        (`wpam_mj.simulation.plugin.CONTROLS`) that the muscle type takes (no Po channel
+        without an outer chamber), one actuator each, named after the channel.
       start_at_rest: the regulators and chambers start settled at the first commands.
       feedforward_load: the load [N] the in-plugin Pi feedforward holds (used only when no
         Pi command channel is given; the rig always gives one).
@@ -114,7 +115,7 @@ def rig_spec(params: Params, load: float, dt: float = 1e-3, *, control: str = "o
     shipped = [a for a in spec.actuators if a.plugin.name == INSTANCE]
     for act in shipped:
         act.name = ""  # free the names for the run's channels
-    for channel in mode.channels:
+    for channel in mode.channels_for(params.outer_chamber):
         act = spec.add_actuator(name=f"{INSTANCE}_{channel}", target="muscle",
                                 trntype=mujoco.mjtTrn.mjTRN_TENDON)
         act.plugin = shipped[0].plugin  # the reference to the instance, as parsed

@@ -1,18 +1,17 @@
 /* The pneumatic muscle as a MuJoCo actuator plugin: "wpam_mj.muscle".
 
-   The compiled form of the Python engine (wpam_mj/simulation/engine.py), which is the readable
-   definition: each function below carries the name of the Python function it mirrors and
-   evaluates every expression in the Python order, so the two are bit-identical
-   (tests/test_plugin.py). The physics and its sources are in the Python modules:
-   BraidGeometry (wpam_mj/physics/geometry.py; Chou & Hannaford 1996), MuscleModel
-   (wpam_mj/physics/muscle.py; paper eqs. 1-7), Regulator, Chamber, mass_flow
-   (wpam_mj/physics/pneumatics.py; ISO 6358), PoFeedback and the Pi feedforward
-   (wpam_mj/control/controllers.py; paper §4). Every range the configuration must lie in is
-   the rule table of wpam_mj/physics/rules.py, generated into WPAM_RULES.
+   The physics is not here: it is wpam_mj/physics/kernel.py, written once, which
+   wpam_mj/physics/kernel_codegen.py writes into the generated header as C (kernel_*:
+   geometry, force, friction, the Pi feedforward, ISO 6358 flow, the chambers' Euler step,
+   the regulators' lag, the Po feedback) and which the Python engine
+   (wpam_mj/simulation/engine.py) calls as it is, so the two are bit-identical
+   (tests/test_plugin.py). This file holds the configuration, the handle table, the
+   callbacks and the state glue around those calls. Every range the configuration must lie
+   in is the rule table of wpam_mj/physics/rules.py, generated into WPAM_RULES.
 
    Built with -ffp-contract=off and without -ffast-math (no fused multiply-adds, no
    reassociation); libm's sqrt, pow, sin, cos, asin, expm1 are the functions Python's floats
-   call. min/max follow Python's builtins (first argument wins ties).
+   call. min/max follow Python's builtins (py_min, py_max of the generated header).
 
    One plugin instance is one muscle on one tendon. The actuators that name the instance
    are its input channels in model order (WPAM_CONTROLS; docs/plugin.md): all act on the
@@ -55,9 +54,6 @@
 #define WPAM_HI(NAME, key, unit, lo, hi, lo_open) hi,
 #define WPAM_LO_OPEN(NAME, key, unit, lo, hi, lo_open) lo_open,
 
-static double py_max(double a, double b) { return b > a ? b : a; }
-static double py_min(double a, double b) { return b < a ? b : a; }
-
 /* ---- enums and tables from the generated header ---- */
 
 #define AS_PARAM_ENUM(NAME, key, unit, lo, hi, lo_open) P_##NAME,
@@ -99,6 +95,8 @@ typedef struct {
   int control;                /* C_* */
   int start_at_rest;          /* 1: the first step's commands were held before the run */
   int guided;                 /* 1: end fittings held on one axis (MuscleModel.tendon_force) */
+  int outer_chamber;          /* 0: no outer bag for Po to fill (MuscleType.outer_chamber) */
+  const char* preset;         /* the preset's name */
   double feedforward_load;    /* load the Pi feedforward holds [N] */
   double contraction0;        /* contraction in the model's reference pose [m] */
   /* what the model determines: the model and options it was derived for */
@@ -110,12 +108,12 @@ typedef struct {
   int channel[WPAM_MAX_CHANNELS]; /* actuator ids of the input channels */
   int nchannel;
   double length0;             /* tendon length at which x = contraction0 [m] */
-  /* derived, each with the expression of the Python code it stands for */
-  double thread_sq, volume_denom, diameter_denom, max_contraction; /* BraidGeometry */
-  double lag_alpha;           /* RunConstants.lag_alpha */
-  int delay_steps;            /* RunConstants.delay_steps */
-  double bag_volume;          /* pneumatics.outer_bag_volume */
-  double pa_per_unit, integral0, kd;  /* PoFeedback */
+  /* derived once by the kernel's functions of the same names */
+  double thread_sq, volume_denom, diameter_denom, max_contraction; /* the braid */
+  double lag_alpha;           /* the regulators' lag */
+  int delay_steps;            /* the regulators' dead time in steps */
+  double bag_volume;          /* outer_bag_volume */
+  double pa_per_unit, integral0, kd;  /* the Po feedback's */
   /* this mjData's */
   const mjData* owner;
   int instance;
@@ -123,148 +121,78 @@ typedef struct {
   int friction_row;           /* where the tendon's friction row was last step */
 } Instance;
 
-/* ---- BraidGeometry (wpam_mj/physics/geometry.py): held to the stroke outside it ---- */
+/* ---- the kernel's functions (wpam_mj/physics/kernel.py) at an Instance's constants ---- */
 
-static double geom_in_stroke(const Instance* k, double x) {
-  return py_min(py_max(x, 0.0), k->max_contraction);
+static double in_stroke(const Instance* k, double x) {
+  return kernel_in_stroke(x, k->max_contraction);
 }
 
-static double geom_diameter(const Instance* k, double x) {
-  double L = k->p[P_BRAID_NATURAL_LENGTH] - geom_in_stroke(k, x);
-  return sqrt(k->thread_sq - L * L) / k->diameter_denom;
+static double area_at(const Instance* k, double x) {
+  return kernel_area(x, k->p[P_BRAID_NATURAL_LENGTH], k->thread_sq, k->volume_denom,
+                     k->max_contraction);
 }
 
-static double geom_volume(const Instance* k, double x) {
-  double L = k->p[P_BRAID_NATURAL_LENGTH] - geom_in_stroke(k, x);
-  return L * (k->thread_sq - L * L) / k->volume_denom;
+static double volume_at(const Instance* k, double x) {
+  return kernel_volume(x, k->p[P_BRAID_NATURAL_LENGTH], k->thread_sq, k->volume_denom,
+                       k->max_contraction);
 }
 
-static double geom_area(const Instance* k, double x) {
-  double L = k->p[P_BRAID_NATURAL_LENGTH] - geom_in_stroke(k, x);
-  return (3.0 * L * L - k->thread_sq) / k->volume_denom;
+static double rubber_at(const Instance* k, double x) {
+  return kernel_rubber_force(kernel_diameter(x, k->p[P_BRAID_NATURAL_LENGTH], k->thread_sq,
+                                             k->diameter_denom, k->max_contraction),
+                             k->p[P_MUSCLE_RUBBER_STIFFNESS], k->p[P_BRAID_NATURAL_DIAMETER]);
 }
 
-/* ---- MuscleModel (wpam_mj/physics/muscle.py); gauge pressures ---- */
-
-static double muscle_rubber_force(const Instance* k, double x) {
-  return mjPI * k->p[P_MUSCLE_RUBBER_STIFFNESS]
-         * (geom_diameter(k, x) - k->p[P_BRAID_NATURAL_DIAMETER]);
-}
-
-static double muscle_tension(const Instance* k, double x, double pi_gauge, double po_gauge) {
-  double dp = pi_gauge > po_gauge ? pi_gauge - po_gauge : 0.0;
-  return (k->p[P_MUSCLE_OUTPUT_COEFF] * (dp * geom_area(k, x) - muscle_rubber_force(k, x))
-          - k->p[P_MUSCLE_AXIAL_AREA] * po_gauge);
-}
-
-/* MuscleModel.tendon_force: a muscle pulls; only guided end fittings carry Po's push. */
-static double muscle_tendon_force(const Instance* k, double x, double pi_gauge,
-                                  double po_gauge) {
-  if (k->guided) {
-    double dp = pi_gauge > po_gauge ? pi_gauge - po_gauge : 0.0;
-    return (py_max(k->p[P_MUSCLE_OUTPUT_COEFF]
-                       * (dp * geom_area(k, x) - muscle_rubber_force(k, x)), 0.0)
-            - k->p[P_MUSCLE_AXIAL_AREA] * po_gauge);
-  }
-  return py_max(muscle_tension(k, x, pi_gauge, po_gauge), 0.0);
-}
-
-static double muscle_friction(const Instance* k, double x, double pi_gauge, double po_gauge) {
-  double dp = pi_gauge > po_gauge ? pi_gauge - po_gauge : 0.0;
-  return k->p[P_MUSCLE_FRICTION_COEFF] * dp * geom_area(k, x) + k->p[P_MUSCLE_FRICTION_CONST];
-}
-
-/* MuscleModel.equilibrium_pressure then control.pi_feedforward's clip: the Pi [Pa gauge]
-   that holds x_ref under the feedforward load at Po = po_feedforward, on the branch
-   feedforward_friction; p_max where the braid cannot hold it (inf, clipped). */
+/* The Pi [Pa gauge] that holds x_ref under the feedforward load at Po = po_feedforward on
+   the branch feedforward_friction, clipped to the regulator range (control.pi_feedforward). */
 static double pi_feedforward(const Instance* k, double x_ref) {
-  double s = k->p[P_CONTROLLER_FEEDFORWARD_FRICTION];
-  double po_gauge = k->p[P_CONTROLLER_PO_FEEDFORWARD];
-  double gain = (k->p[P_MUSCLE_OUTPUT_COEFF] - s * k->p[P_MUSCLE_FRICTION_COEFF])
-                * geom_area(k, x_ref);
-  double rhs = py_max(k->feedforward_load + k->p[P_MUSCLE_AXIAL_AREA] * po_gauge
-                      + k->p[P_MUSCLE_OUTPUT_COEFF] * muscle_rubber_force(k, x_ref)
-                      + s * k->p[P_MUSCLE_FRICTION_CONST], 0.0);
-  double pi_gauge = gain > 0.0 ? po_gauge + rhs / gain : INFINITY;
-  /* np.clip(pi, lo, hi) = min(max(pi, lo), hi) */
-  return py_min(py_max(pi_gauge, k->p[P_PNEUMATICS_P_MIN]), k->p[P_PNEUMATICS_P_MAX]);
+  const double* p = k->p;
+  double pi_gauge = kernel_equilibrium_pressure(
+      p[P_CONTROLLER_PO_FEEDFORWARD], k->feedforward_load, p[P_CONTROLLER_FEEDFORWARD_FRICTION],
+      area_at(k, x_ref), rubber_at(k, x_ref), p[P_MUSCLE_OUTPUT_COEFF],
+      p[P_MUSCLE_FRICTION_COEFF], p[P_MUSCLE_FRICTION_CONST], p[P_MUSCLE_AXIAL_AREA]);
+  return kernel_clip(pi_gauge, p[P_PNEUMATICS_P_MIN], p[P_PNEUMATICS_P_MAX]);
 }
 
-/* ---- pneumatics (wpam_mj/physics/pneumatics.py); absolute pressures ---- */
-
-static double iso6358_psi(double r, double b) {
-  double q;
-  if (r <= b) return 1.0;
-  if (r <= WPAM_R_LAMINAR) {
-    q = (r - b) / (1.0 - b);
-    return sqrt(1.0 - q * q);
-  }
-  q = (WPAM_R_LAMINAR - b) / (1.0 - b);
-  return sqrt(1.0 - q * q) * (1.0 - r) / (1.0 - WPAM_R_LAMINAR);
-}
-
-static double mass_flow(double source_abs, double chamber_abs, double c, double b) {
-  if (source_abs >= chamber_abs)
-    return c * WPAM_RHO_0 * source_abs * iso6358_psi(chamber_abs / source_abs, b);
-  return -c * WPAM_RHO_0 * chamber_abs * iso6358_psi(source_abs / chamber_abs, b);
-}
-
-/* Chamber.step: one explicit Euler step of dp/dt = (R T0 m_dot - p dV/dt) / V. */
+/* A chamber's step [Pa abs] (kernel.chamber_step) through this Instance's time step. */
 static double chamber_step(const Instance* k, double chamber_abs, double conductance,
                            double source_abs, double volume, double dvdx, double v) {
-  double m = mass_flow(source_abs, chamber_abs, conductance,
-                       k->p[P_PNEUMATICS_CRITICAL_RATIO]);
-  return chamber_abs + k->dt * (WPAM_RT0 * m - chamber_abs * dvdx * v) / volume;
+  return kernel_chamber_step(chamber_abs, source_abs, volume, dvdx, v, conductance,
+                             k->p[P_PNEUMATICS_CRITICAL_RATIO], k->dt);
 }
 
-/* Regulator.update: the command through the dead time (ring buffer `queue`, shared head),
-   clamped, then the first-order lag. Returns the new set point [Pa gauge]. */
+/* A regulator's step (Regulator.update): the command through the dead time (ring buffer
+   `queue`, shared head), then kernel.regulator_set_point. Returns the set point [Pa gauge]. */
 static double regulator_update(const Instance* k, double* set_gauge, double* queue,
                                int head, double command) {
-  double clamped;
   if (k->delay_steps) {
     double held = queue[head];
     queue[head] = command;
     command = held;
   }
-  clamped = py_min(py_max(command, 0.0), k->p[P_PNEUMATICS_P_MAX]);
-  *set_gauge += k->lag_alpha * (clamped - *set_gauge);
+  *set_gauge = kernel_regulator_set_point(*set_gauge, command, k->p[P_PNEUMATICS_P_MAX],
+                                          k->lag_alpha);
   return *set_gauge;
 }
 
-/* Regulator.rest */
+/* Regulator.rest: every command in flight and the set point at a held command. */
 static void regulator_rest(const Instance* k, double* set_gauge, double* queue,
                            double command) {
   int i;
   for (i = 0; i < k->delay_steps; i++) queue[i] = command;
-  *set_gauge = py_min(py_max(command, 0.0), k->p[P_PNEUMATICS_P_MAX]);
+  *set_gauge = kernel_regulator_clamp(command, k->p[P_PNEUMATICS_P_MAX]);
 }
 
-/* ---- PoFeedback.update (wpam_mj/control/controllers.py), split: evaluate, then commit ---- */
-
+/* kernel.po_feedback on the committed state s: the Po command, and what advance commits. */
 static double feedback_output(const Instance* k, const double* s, double x, double x_ref,
                               double po_ff, double* integral_next, double* derivative,
                               double* e_out) {
   const double* p = k->p;
-  double e = (x - x_ref) / WPAM_MM;
-  double e_prev = s[S_HAS_PREV] != 0.0 ? s[S_E_PREV] : e;
-  double integral = s[S_INTEGRAL] + e * k->dt;
   double u;
-  *derivative = (p[P_CONTROLLER_DERIVATIVE_FILTER] * s[S_DERIVATIVE] + (e - e_prev))
-                / (p[P_CONTROLLER_DERIVATIVE_FILTER] + k->dt);
-  u = (p[P_CONTROLLER_KP] * e + p[P_CONTROLLER_KI] * integral + k->kd * *derivative)
-      * k->pa_per_unit + po_ff;
-  *integral_next = s[S_INTEGRAL];
-  if (u > p[P_CONTROLLER_PO_CAP]) {
-    u = p[P_CONTROLLER_PO_CAP];
-    if (e < 0.0) *integral_next = integral;
-  } else if (u < p[P_PNEUMATICS_P_MIN]) {
-    u = p[P_PNEUMATICS_P_MIN];
-    if (e > 0.0) *integral_next = integral;
-  } else {
-    *integral_next = integral;
-  }
-  *e_out = e;
+  kernel_po_feedback(x, x_ref, po_ff, s[S_INTEGRAL], s[S_DERIVATIVE], s[S_E_PREV],
+                     s[S_HAS_PREV] != 0.0, p[P_CONTROLLER_KP], p[P_CONTROLLER_KI], k->kd,
+                     p[P_CONTROLLER_DERIVATIVE_FILTER], k->pa_per_unit, p[P_PNEUMATICS_P_MIN],
+                     p[P_CONTROLLER_PO_CAP], k->dt, &u, integral_next, derivative, e_out);
   return u;
 }
 
@@ -381,33 +309,28 @@ static int read_number(const mjModel* m, int instance, int index, double lo, dou
   return 0;
 }
 
-/* BraidGeometry.of: the braid's constants into k (thread length b, turns n). */
+/* The braid's constants into k (kernel.py's functions of the same names). */
 static void derive_geometry(Instance* k) {
   double angle = k->p[P_BRAID_BRAID_ANGLE], L0 = k->p[P_BRAID_NATURAL_LENGTH];
-  double b = L0 / cos(angle);
-  double n = b * sin(angle) / (mjPI * k->p[P_BRAID_NATURAL_DIAMETER]);
-  double radial = n * mjPI * k->p[P_BRAID_MAX_DIAMETER];
-  k->max_contraction = L0 - sqrt(b * b - radial * radial);
-  k->thread_sq = pow(b, 2.0);
-  k->volume_denom = 4.0 * mjPI * pow(n, 2.0);
-  k->diameter_denom = n * mjPI;
-}
-
-/* pneumatics.max_flow_slope: the largest |d m_dot / d p_chamber| [kg/(s Pa)]. */
-static double max_flow_slope(double conductance, double b) {
-  return conductance * WPAM_RHO_0 * iso6358_psi(WPAM_R_LAMINAR, b) / (1.0 - WPAM_R_LAMINAR);
+  double D0 = k->p[P_BRAID_NATURAL_DIAMETER];
+  double n = kernel_turns(L0, angle, D0);
+  k->max_contraction = kernel_max_contraction(L0, angle, D0, k->p[P_BRAID_MAX_DIAMETER]);
+  k->thread_sq = kernel_thread_square(L0, angle);
+  k->volume_denom = kernel_volume_denominator(n);
+  k->diameter_denom = kernel_diameter_denominator(n);
 }
 
 /* pneumatics.stable_timesteps: the longest stable step of each chamber's update [s]. */
 static void stable_timesteps(const Instance* k, double* dt_i, double* dt_o) {
   double b = k->p[P_PNEUMATICS_CRITICAL_RATIO], tube = k->p[P_PNEUMATICS_TUBE_VOLUME];
-  double bag = mjPI * k->p[P_BRAID_OUTER_BAG_DIAMETER] * k->p[P_BRAID_OUTER_BAG_DIAMETER]
-               * k->p[P_BRAID_OUTER_BAG_LENGTH] / 4.0;
+  double bag = kernel_outer_bag_volume(k->p[P_BRAID_OUTER_BAG_LENGTH],
+                                       k->p[P_BRAID_OUTER_BAG_DIAMETER]);
   double x_max = k->max_contraction;
-  double v_i = geom_volume(k, 0.0) + tube;
-  double v_o = bag + tube - geom_volume(k, x_max) - k->p[P_MUSCLE_AXIAL_AREA] * x_max;
-  *dt_i = v_i / (WPAM_RT0 * max_flow_slope(k->p[P_PNEUMATICS_INNER_CONDUCTANCE], b));
-  *dt_o = v_o / (WPAM_RT0 * max_flow_slope(k->p[P_PNEUMATICS_OUTER_CONDUCTANCE], b));
+  double v_i = kernel_inner_volume(volume_at(k, 0.0), tube);
+  double v_o = kernel_outer_volume(volume_at(k, x_max), x_max, k->p[P_MUSCLE_AXIAL_AREA], bag,
+                                   tube);
+  *dt_i = kernel_stable_timestep(v_i, k->p[P_PNEUMATICS_INNER_CONDUCTANCE], b);
+  *dt_o = kernel_stable_timestep(v_o, k->p[P_PNEUMATICS_OUTER_CONDUCTANCE], b);
 }
 
 /* The derived quantities of the rules (rules.DERIVED), into q; k's geometry derived. */
@@ -415,9 +338,9 @@ static void derive_quantities(Instance* k, double* q) {
   double d_bag = q[Q_BRAID_OUTER_BAG_DIAMETER];
   memcpy(k->p, q, sizeof(k->p));
   derive_geometry(k);
-  q[Q_LOCKING_ANGLE] = asin(py_min(1.0, sqrt(2.0 / 3.0) * q[Q_BRAID_NATURAL_DIAMETER]
-                                            / q[Q_BRAID_MAX_DIAMETER]));
-  q[Q_BAG_SECTION] = mjPI * (d_bag * d_bag) / 4.0;
+  q[Q_LOCKING_ANGLE] = kernel_locking_angle(q[Q_BRAID_NATURAL_DIAMETER],
+                                            q[Q_BRAID_MAX_DIAMETER]);
+  q[Q_BAG_SECTION] = kernel_bag_section(d_bag);
   q[Q_MAX_CONTRACTION] = k->max_contraction;
   stable_timesteps(k, &q[Q_INNER_STABLE_TIMESTEP], &q[Q_OUTER_STABLE_TIMESTEP]);
   q[Q_SHORTEST_TIMESTEP] = q[Q_PNEUMATICS_DEAD_TIME] / WPAM_MAX_QUEUE_STEPS;
@@ -445,16 +368,14 @@ static int check_rules(const mjModel* m, int instance, const double* q, char* er
 static void derive_constants(Instance* k) {
   double tau = k->p[P_PNEUMATICS_TIME_CONSTANT];
   k->delay_steps = (int)nearbyint(k->p[P_PNEUMATICS_DEAD_TIME] / k->dt); /* half-even */
-  k->lag_alpha = tau == 0.0 ? 1.0 : -expm1(-k->dt / tau);
-  k->bag_volume = mjPI * k->p[P_BRAID_OUTER_BAG_DIAMETER] * k->p[P_BRAID_OUTER_BAG_DIAMETER]
-                  * k->p[P_BRAID_OUTER_BAG_LENGTH] / 4.0;
+  k->lag_alpha = kernel_lag_alpha(k->dt, tau);
+  k->bag_volume = kernel_outer_bag_volume(k->p[P_BRAID_OUTER_BAG_LENGTH],
+                                          k->p[P_BRAID_OUTER_BAG_DIAMETER]);
   k->pa_per_unit = k->p[P_CONTROLLER_COMMAND_SCALE] * WPAM_MPA;
   k->kd = k->control == C_PID ? k->p[P_CONTROLLER_KD] : 0.0;
   k->integral0 = !CONTROL_FEEDBACK[k->control] ? 0.0
-                 : k->p[P_CONTROLLER_KI] > 0.0
-                     ? k->p[P_CONTROLLER_PO_FEEDFORWARD] / k->pa_per_unit
-                           / k->p[P_CONTROLLER_KI]
-                     : 0.0;
+                 : kernel_initial_integral(k->p[P_CONTROLLER_PO_FEEDFORWARD],
+                                           k->p[P_CONTROLLER_KI], k->pa_per_unit);
 }
 
 /* The configuration of `instance` for model m at its time step into k: every attribute
@@ -505,14 +426,51 @@ static int read_config(const mjModel* m, int instance, Instance* k, char* err, i
   }
   k->feedforward_load = q[Q_FEEDFORWARD_LOAD];
   k->contraction0 = q[Q_CONTRACTION0];
+  k->outer_chamber = PRESET_OUTER[preset];
+  k->preset = PRESETS[preset];
   derive_constants(k);
   return 0;
 }
 
-/* The input channels: every actuator naming the instance, in model order, all on the
-   muscle's tendon, which no other muscle pulls and whose friction row MuJoCo makes. */
-static int bind_channels(const mjModel* m, int instance, Instance* k, char* err, int nerr) {
+/* 1, with the line in err, when MuJoCo makes no friction row for the muscle's tendon, the
+   row its dry friction acts through (set_friction_level): the tendon's frictionloss is not
+   positive, or MuJoCo's constraint or frictionloss flag is disabled. At compile
+   (after = 0) the model is refused; after it (a model field or flag edited, as MuJoCo's
+   viewer allows) the muscle stops, as for its time step (current_for). */
+static int no_friction_row(const mjModel* m, int instance, int tendon, int after, char* err,
+                           int nerr) {
   const char* name = instance_name(m, instance);
+  const char* stop = "; the muscle stops until it is changed back and the data reset";
+  int flags = m->opt.disableflags;
+  if (m->tendon_frictionloss[tendon] <= 0.0) {
+    if (after)
+      snprintf(err, nerr, "wpam_mj.muscle instance '%s': tendon '%s' frictionloss = %.6g after "
+               "the model compiled; it needs a positive one (any value; the plugin sets the "
+               "level every step)%s", name, mj_id2name(m, mjOBJ_TENDON, tendon),
+               m->tendon_frictionloss[tendon], stop);
+    else
+      snprintf(err, nerr, "wpam_mj.muscle instance '%s': tendon '%s' needs a positive "
+               "frictionloss (any value; the plugin sets the level every step)", name,
+               mj_id2name(m, mjOBJ_TENDON, tendon));
+    return 1;
+  }
+  if (flags & (mjDSBL_CONSTRAINT | mjDSBL_FRICTIONLOSS)) {
+    snprintf(err, nerr, "wpam_mj.muscle instance '%s': MuJoCo's %s flag is disabled%s, so no "
+             "friction row carries the muscle's dry friction%s", name,
+             flags & mjDSBL_CONSTRAINT ? "constraint" : "frictionloss",
+             after ? " after the model compiled" : "", after ? stop : "; enable it");
+    return 1;
+  }
+  return 0;
+}
+
+/* The input channels: every actuator naming the instance, in model order, all on the
+   muscle's tendon, which no other muscle pulls and whose friction row MuJoCo makes. A
+   muscle without an outer chamber takes no Po channel (Control.channels_for). */
+static int bind_channels(const mjModel* m, int instance, Instance* k, char* err, int nerr) {
+  static const int NMAX_BARE[] = {WPAM_CONTROL_NMAX_BARE};
+  const char* name = instance_name(m, instance);
+  int nmin = CONTROL_NMIN[k->control], nmax = CONTROL_NMAX[k->control];
   int i, j;
   k->nchannel = 0;
   for (i = 0; i < m->nu; i++) {
@@ -520,11 +478,22 @@ static int bind_channels(const mjModel* m, int instance, Instance* k, char* err,
     if (k->nchannel < WPAM_MAX_CHANNELS) k->channel[k->nchannel] = i;
     k->nchannel++;
   }
-  if (k->nchannel < CONTROL_NMIN[k->control] || k->nchannel > CONTROL_NMAX[k->control]) {
+  if (!k->outer_chamber) {
+    nmax = NMAX_BARE[k->control];
+    nmin = nmax < nmin ? nmax : nmin;
+    if (k->nchannel > nmax && nmax < CONTROL_NMAX[k->control]) {
+      const char* extra = mj_id2name(m, mjOBJ_ACTUATOR, k->channel[nmax]);
+      snprintf(err, nerr, "wpam_mj.muscle instance '%s': preset '%s' has no outer chamber, "
+               "so no Po channel: control = '%s' takes at most %d actuator(s) on it, %d name "
+               "the instance; remove actuator '%s'", name, k->preset,
+               CONTROL_NAMES[k->control], nmax, k->nchannel, extra ? extra : "(unnamed)");
+      return -1;
+    }
+  }
+  if (k->nchannel < nmin || k->nchannel > nmax) {
     snprintf(err, nerr, "wpam_mj.muscle instance '%s': control = '%s' takes %d to %d "
              "actuators (input channels), %d name the instance", name,
-             CONTROL_NAMES[k->control], CONTROL_NMIN[k->control], CONTROL_NMAX[k->control],
-             k->nchannel);
+             CONTROL_NAMES[k->control], nmin, nmax, k->nchannel);
     return -1;
   }
   if (m->actuator_trntype[k->channel[0]] != mjTRN_TENDON) {
@@ -554,12 +523,7 @@ static int bind_channels(const mjModel* m, int instance, Instance* k, char* err,
       return -1;
     }
   }
-  if (m->tendon_frictionloss[k->tendon] <= 0.0) {
-    snprintf(err, nerr, "wpam_mj.muscle instance '%s': tendon '%s' needs a positive "
-             "frictionloss (any value; the plugin sets the level every step)", name,
-             mj_id2name(m, mjOBJ_TENDON, k->tendon));
-    return -1;
-  }
+  if (no_friction_row(m, instance, k->tendon, 0, err, nerr)) return -1;
   k->length0 = m->tendon_length0[k->tendon];
   return 0;
 }
@@ -680,17 +644,24 @@ static Instance* own_instance(const mjModel* m, mjData* d, int instance, double*
 }
 
 /* Whether k is current for model m and its options: the same model with its time step or
-   integrator edited after compile (MuJoCo's viewer allows it) is refused; another model
-   of the same state layout (mujoco.batch's set_models) is derived afresh. */
+   integrator edited after compile (MuJoCo's viewer allows it), or without the muscle's
+   friction row (no_friction_row), is refused; another model of the same state layout
+   (mujoco.batch's set_models) is derived afresh. */
 static int current_for(const mjModel* m, int instance, Instance* k, double* s) {
   static const char* const INTEGRATORS[] = {WPAM_INTEGRATORS};
   const int nintegrator = (int)(sizeof(INTEGRATORS) / sizeof(INTEGRATORS[0]));
   int integrator = m->opt.integrator;
   Instance fresh;
   char err[600];
-  if (k->model == m && k->dt == m->opt.timestep && k->integrator == integrator) {
+  int options = k->dt == m->opt.timestep && k->integrator == integrator;
+  if (k->model == m && options && !no_friction_row(m, instance, k->tendon, 1, err,
+                                                   sizeof(err))) {
     k->refused = 0; /* (changed back: the muscle steps again after mj_resetData) */
     return 1;
+  }
+  if (k->model == m && options) { /* err: why the friction row is missing */
+    refuse(k, s, err);
+    return 0;
   }
   if (k->model == m) {
     snprintf(err, sizeof(err), "wpam_mj.muscle instance '%s': the %s changed after the model "
@@ -736,7 +707,7 @@ static void read_commands(const mjModel* m, const mjData* d, const Instance* k, 
       s[S_INPUT0 + i] = c;
     command[i] = s[S_INPUT0 + i];
   }
-  if (CONTROL_FEEDBACK[k->control]) command[0] = geom_in_stroke(k, command[0]);
+  if (CONTROL_FEEDBACK[k->control]) command[0] = in_stroke(k, command[0]);
 }
 
 /* The friction level [N] of this step into this simulation's friction row of the muscle's
@@ -837,11 +808,26 @@ static void wpam_reset(const mjModel* m, mjtNum* plugin_state, void* plugin_data
   state_reset(k, plugin_state);
 }
 
+/* STATUS_STROKE, and the first time since the data's reset one MuJoCo warning naming the
+   tendon range that holds the muscle in its stroke (plugin.tendon_range). */
+static void left_stroke(const mjModel* m, int instance, const Instance* k, double* s,
+                        double x) {
+  double natural = k->length0 + k->contraction0; /* the tendon's length at x = 0 */
+  if (!((int)s[S_STATUS] & WPAM_STATUS_STROKE))
+    mju_warning("wpam_mj.muscle instance '%s': contraction x = %.6g m left the stroke [0, "
+                "%.6g] m by more than %.6g m (status %d); limit its tendon from the full bag "
+                "to the natural length: range=\"%.6g %.6g\" (plugin.tendon_range)",
+                instance_name(m, instance), x, k->max_contraction, WPAM_STROKE_TOLERANCE,
+                WPAM_STATUS_STROKE, natural - k->max_contraction, natural);
+  set_status(s, WPAM_STATUS_STROKE);
+}
+
 static void wpam_compute(const mjModel* m, mjData* d, int instance, int capability_bit) {
   double* s = d->plugin_state + m->plugin_stateadr[instance];
   Instance* k = instance_of(m, d, instance, s);
   double command[WPAM_MAX_CHANNELS] = {0.0};
-  double atmosphere, x, v, x_ref = NAN, pi_cmd, po_cmd, pi_gauge, po_gauge, force, friction;
+  double atmosphere, x, v, x_ref = NAN, pi_cmd, po_cmd, pi_gauge, po_gauge, area, force;
+  double friction;
   int i;
   (void)capability_bit;
   if (!k || stopped(s)) {
@@ -868,10 +854,13 @@ static void wpam_compute(const mjModel* m, mjData* d, int instance, int capabili
   if (s[S_REST_PENDING] != 0.0) plant_rest(k, s, pi_cmd, po_cmd);
   pi_gauge = s[S_P_I] - atmosphere;
   po_gauge = s[S_P_O] - atmosphere;
-  force = muscle_tendon_force(k, x, pi_gauge, po_gauge);
-  friction = muscle_friction(k, x, pi_gauge, po_gauge);
+  area = area_at(k, x);
+  force = kernel_tendon_force(pi_gauge, po_gauge, area, rubber_at(k, x),
+                              k->p[P_MUSCLE_OUTPUT_COEFF], k->p[P_MUSCLE_AXIAL_AREA], k->guided);
+  friction = kernel_friction_level(pi_gauge, po_gauge, area, k->p[P_MUSCLE_FRICTION_COEFF],
+                                   k->p[P_MUSCLE_FRICTION_CONST]);
   if (!(-WPAM_STROKE_TOLERANCE <= x && x <= k->max_contraction + WPAM_STROKE_TOLERANCE))
-    set_status(s, WPAM_STATUS_STROKE);
+    left_stroke(m, instance, k, s, x);
   if (!isfinite(x)) { /* MuJoCo's state is already bad: add nothing to it */
     force = 0.0;
     friction = k->p[P_MUSCLE_FRICTION_CONST];
@@ -912,16 +901,17 @@ static void wpam_advance(const mjModel* m, mjData* d, int instance) {
   set_o = regulator_update(k, &s[S_PO_REG], queue_o(k, s), head, s[S_PO_CMD]);
   if (k->delay_steps) s[S_HEAD] = (head + 1) % k->delay_steps;
   v = s[S_VELOCITY];
-  x = geom_in_stroke(k, s[S_X]);
-  area = geom_area(k, x);
-  vol = geom_volume(k, x);
+  x = in_stroke(k, s[S_X]);
+  area = area_at(k, x);
+  vol = volume_at(k, x);
   s[S_P_I] = chamber_step(k, s[S_P_I], k->p[P_PNEUMATICS_INNER_CONDUCTANCE],
-                          set_i + atmosphere, vol + k->p[P_PNEUMATICS_TUBE_VOLUME], area, v);
+                          set_i + atmosphere,
+                          kernel_inner_volume(vol, k->p[P_PNEUMATICS_TUBE_VOLUME]), area, v);
   s[S_P_O] = chamber_step(k, s[S_P_O], k->p[P_PNEUMATICS_OUTER_CONDUCTANCE],
                           set_o + atmosphere,
-                          k->bag_volume + k->p[P_PNEUMATICS_TUBE_VOLUME] - vol
-                              - k->p[P_MUSCLE_AXIAL_AREA] * x,
-                          -(area + k->p[P_MUSCLE_AXIAL_AREA]), v);
+                          kernel_outer_volume(vol, x, k->p[P_MUSCLE_AXIAL_AREA], k->bag_volume,
+                                              k->p[P_PNEUMATICS_TUBE_VOLUME]),
+                          kernel_outer_dvdx(area, k->p[P_MUSCLE_AXIAL_AREA]), v);
   if (!(s[S_P_I] > 0.0 && s[S_P_O] > 0.0 && isfinite(s[S_P_I]) && isfinite(s[S_P_O])))
     set_status(s, WPAM_STATUS_PRESSURE);
 }

@@ -12,7 +12,9 @@ Nothing is copied by hand between Python and C: `tables_header()` writes every p
 the rule table of `wpam_mj.physics.rules` (the instance's numbers, the derived quantities,
 the rules between quantities), the state layout `STATE_FIELDS` and its status bits, the
 control modes `CONTROLS` and the physical constants of `wpam_mj.physics.pneumatics` as C
-tables (floats as exact hex literals), and the library reports their hash, which must match.
+tables (floats as exact hex literals), and the muscle's physics, `wpam_mj.physics.kernel`,
+as C (`wpam_mj.physics.kernel_codegen.c_source`); the library reports the hash of it all,
+which must match, so a change of the kernel rebuilds the plugin.
 
 Set ``WPAM_MJ_NO_COMPILE=1`` to skip the build (`available()` is then False and the Python
 engine runs).
@@ -28,10 +30,10 @@ from pathlib import Path
 
 import mujoco
 
+from wpam_mj.physics import kernel_codegen
 from wpam_mj.physics import params as prm
-from wpam_mj.physics import pneumatics as pn
 from wpam_mj.physics import rules
-from wpam_mj.units import MM, MPA
+from wpam_mj.units import MPA
 
 NAME = "wpam_mj.muscle"
 SOURCE = Path(__file__).with_name("muscle_plugin.c")
@@ -62,7 +64,7 @@ INTEGRATORS = ("Euler", "RK4", "implicit", "implicitfast")
 # Bits of the "status" field (docs/plugin.md), 0 while the muscle is well:
 STATUS_STROKE = 1  # the contraction left the stroke [0, full bag] by more than the tolerance
 STATUS_PRESSURE = 2  # a chamber pressure left its range: the muscle stops
-STATUS_MODEL = 4  # the timestep or integrator changed after compile: the muscle stops
+STATUS_MODEL = 4  # the model changed under the muscle after compile: the muscle stops
 # How far past an end of its stroke the contraction may go before STATUS_STROKE [m]: a
 # soft joint or tendon limit at the end lets it by a little (on the rig's lower stop
 # 0.09 mm at 50 N; 1.0 mm at its harshest, a 1 N load under 0.5 MPa of Po).
@@ -80,8 +82,10 @@ def status_message(status: float, x: float, p_i: float, p_o: float) -> str:
     if bits & STATUS_PRESSURE:
         lines.append(f"chamber pressure Pi = {p_i!r} Pa, Po = {p_o!r} Pa (absolute)")
     if bits & STATUS_MODEL:
-        lines.append("the model's timestep or integrator changed after it compiled; the "
-                     "muscle stopped (change it back and reset, or recompile)")
+        lines.append("the model's timestep or integrator changed after it compiled, or its "
+                     "tendon's frictionloss or MuJoCo's friction flags left the muscle no "
+                     "friction row; the muscle stopped (change it back and reset, or "
+                     "recompile)")
     return "; ".join(lines)
 
 
@@ -94,6 +98,12 @@ class Control:
     channels: tuple[str, ...]
     required: int
     feedback: bool
+
+    def channels_for(self, outer_chamber: bool) -> tuple[str, ...]:
+        """The channels a muscle takes in this mode: without an outer chamber (rlam,
+        mckibben) there is nothing for Po to fill, so no Po command channel."""
+        return self.channels if outer_chamber else tuple(c for c in self.channels
+                                                         if c != "po_cmd")
 
 
 # Channel meanings: pi_cmd, po_cmd: regulator commands [Pa gauge]; x_ref: target
@@ -158,6 +168,46 @@ def state_of(model, data, instance: int | str = 0) -> dict[str, float]:
     return dict(zip(STATE_FIELDS, map(float, data.plugin_state[start:start + len(STATE_FIELDS)])))
 
 
+@dataclass(frozen=True)
+class TendonRange:
+    """The lengths [m] of a muscle's tendon across its stroke 0 <= x <= x_max: the range
+    to give the tendon (MJCF ``limited="true" range="lower upper"``) so that no load
+    stretches the braid past its natural length (it is inextensible there) nor contracts
+    it past the full bag."""
+
+    lower: float  # at the full bag, x = x_max: natural length - max_contraction
+    upper: float  # at the muscle's natural length, x = 0
+    max_contraction: float  # x_max, BraidGeometry.max_contraction
+
+    @property
+    def mjcf(self) -> str:
+        """The tendon's attributes that give this range."""
+        return f'limited="true" range="{self.lower:.6g} {self.upper:.6g}"'
+
+
+def tendon_range(model, instance: int | str = 0) -> TendonRange:
+    """The range of the tendon of a muscle of a compiled `model` (instance by id or name).
+
+    x = contraction0 + (tendon length at qpos0 - tendon length) (docs/plugin.md), so the
+    tendon is `upper` = tendon_length0 + contraction0 long at the natural length (x = 0)
+    and `upper` - x_max at the full bag, x_max from the instance's braid parameters
+    (`wpam_mj.physics.geometry.BraidGeometry`). Compile the model once (with any range or
+    none) and give its tendon this one."""
+    from wpam_mj.physics.geometry import BraidGeometry  # noqa: PLC0415 (no cycle at import)
+    from wpam_mj.simulation.engine import InstanceConfig  # noqa: PLC0415 (it imports this module)
+
+    if isinstance(instance, str):
+        instance = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_PLUGIN, instance)
+    name = mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_PLUGIN, instance)
+    config = InstanceConfig.from_config(name, config_of(model, instance),
+                                        model.opt.timestep, int(model.opt.integrator))
+    first = list(model.actuator_plugin).index(instance)  # the channel carrying the force
+    natural = (float(model.tendon_length0[model.actuator_trnid[first, 0]])
+               + config.contraction0)
+    x_max = BraidGeometry.from_params(config.params.braid).max_contraction
+    return TendonRange(natural - x_max, natural, x_max)
+
+
 def status_of(model, data, instance: int | str = 0) -> str:
     """The one line of a muscle's `status` in `data` ("" while it is well)."""
     s = state_of(model, data, instance)
@@ -215,18 +265,18 @@ def tables_header() -> str:
                   f"ENTRY({c.name.upper()}, {c.name}, {c.required}, {len(c.channels)}, "
                   f"{int(c.feedback)})" for c in CONTROLS),
               f'#define WPAM_CONTROL_LIST "{", ".join(CONTROL_BY_NAME)}"',
+              "#define WPAM_CONTROL_NMAX_BARE " + ", ".join(
+                  str(len(c.channels_for(False))) for c in CONTROLS),
               f"#define WPAM_MAX_CHANNELS {MAX_CHANNELS}",
               "#define WPAM_INTEGRATORS " + ", ".join(f'"{n}"' for n in INTEGRATORS),
               "#define WPAM_INSTANCE_KEYS " + " ".join(f'"{k}",' for k in INSTANCE_KEYS),
-              f"#define WPAM_RT0 {_c(pn.RT0)}", f"#define WPAM_RHO_0 {_c(pn.RHO_0)}",
-              f"#define WPAM_R_LAMINAR {_c(pn.R_LAMINAR)}", f"#define WPAM_MM {_c(MM)}",
               f"#define WPAM_MPA {_c(MPA)}",
               f"#define WPAM_MAX_QUEUE_STEPS {_c(rules.MAX_QUEUE_STEPS)}",
               f"#define WPAM_STROKE_TOLERANCE {_c(STROKE_TOLERANCE)}",
               f"#define WPAM_STATUS_STROKE {STATUS_STROKE}",
               f"#define WPAM_STATUS_PRESSURE {STATUS_PRESSURE}",
               f"#define WPAM_STATUS_MODEL {STATUS_MODEL}"]
-    body = "\n".join(lines) + "\n"
+    body = "\n".join(lines) + "\n" + kernel_codegen.c_source()  # the physics
     digest = hashlib.sha256(body.encode()).hexdigest()[:16]
     return body + f'#define WPAM_TABLES_HASH "{digest}"\n'
 

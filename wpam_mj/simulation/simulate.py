@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import sys
 import threading
-from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import mujoco
@@ -103,7 +102,8 @@ class Run:
                                  "stay 0 (open loop with --po-down 0)")
         spec = rig_spec(params, load, dt, control=control, start_at_rest=drive.start_at_rest)
         inputs = np.column_stack([getattr(drive, name)
-                                  for name in plugin.control_mode(control).channels])
+                                  for name in plugin.control_mode(control).channels_for(
+                                      params.outer_chamber)])
         return cls(spec, inputs, k.record_every, load, dt, control, params.preset)
 
     def result(self, rec: np.ndarray, failure: tuple[int, str] | None) -> SimResult:
@@ -191,10 +191,10 @@ def _record_shape(n: int, record_every: int) -> tuple[int, int]:
 def run_plugin(spec: mujoco.MjSpec, inputs: np.ndarray, record_every: int):
     """Run the rig `spec` on the compiled plugin with one row of `inputs` (the instance's
     channels) per step. Returns (record, None) or (record so far, (step, reason))."""
-    return run_batch([spec.compile()], [inputs], record_every, nthread=1)[0]
+    return _run_batch([spec.compile()], [inputs], record_every, nthread=1)[0]
 
 
-def run_batch(models: list[mujoco.MjModel], inputs: list[np.ndarray], record_every: int, *,
+def _run_batch(models: list[mujoco.MjModel], inputs: list[np.ndarray], record_every: int, *,
               nthread: int = 1) -> list[tuple[np.ndarray, tuple[int, str] | None]]:
     """Runs of rig models of one layout (same sizes) and one length on `mujoco.batch`,
     `nthread` threads, in chunks of `CHUNK_STEPS` (results do not depend on nthread).
@@ -231,82 +231,26 @@ def run_batch(models: list[mujoco.MjModel], inputs: list[np.ndarray], record_eve
     return list(zip(recs, failures))
 
 
-def simulate_many(runs: list[Run], *, nthread: int = 1) -> list[SimResult]:
-    """Many validated runs on the plugin through `mujoco.batch` on `nthread` threads:
-    runs of one model layout and length share a batch. Bit-identical to `simulate` on
-    each run, at any thread count. Raises SimulationDiverged for the first failed run."""
-    if not plugin.available():
-        raise RuntimeError(f"the compiled plugin is unavailable ({plugin.unavailable_reason()})")
-    out = simulate_each(runs, nthread=nthread)
-    for r in out:
-        if isinstance(r, SimulationDiverged):
-            raise r
-    return out
-
-
-def simulate_each(runs: list[Run], *,
-                  nthread: int = 1) -> list[SimResult | SimulationDiverged]:
-    """Each run's `SimResult`, or the SimulationDiverged it raises, bit-identical to
-    `simulate_run(run)`: the runs the plugin takes share `mujoco.batch` batches (one per
-    model layout and length) on `nthread` threads (batches of fewer runs than threads run
-    side by side, one thread each); the others (no plugin, a controller only Python
-    defines) run one after another on the Python engine, as `simulate` runs them."""
-    done: dict[int, tuple] = {}
-    batched = [i for i, run in enumerate(runs) if _select_engine("auto", run.control)
-               is run_plugin]
-    models = {i: runs[i].spec.compile() for i in batched}
-    groups: dict[tuple, list[int]] = {}
-    for i in batched:
-        run, model = runs[i], models[i]
-        key = (len(run.inputs), run.record_every, model.nu, model.npluginstate, model.nq)
-        groups.setdefault(key, []).append(i)
-
-    def batch(ids: list[int], threads: int) -> None:
-        done.update(zip(ids, run_batch([models[i] for i in ids], [runs[i].inputs for i in ids],
-                                       runs[ids[0]].record_every, nthread=threads)))
-
-    small = []  # batches too small for the threads: several at once, one thread each
-    for ids in groups.values():
-        if len(ids) >= nthread:
-            batch(ids, nthread)
-        else:
-            small.append(ids)
-    if small:
-        small.sort(key=lambda ids: -len(runs[ids[0]].inputs) * len(ids))  # longest first
-        with ThreadPoolExecutor(nthread) as threads:
-            futures = [threads.submit(batch, ids, 1) for ids in small]
-            termination.wait(futures, FIRST_EXCEPTION)
-            for fut in futures:
-                fut.result()
-    out: list[SimResult | SimulationDiverged] = []
-    for i, run in enumerate(runs):
-        try:
-            out.append(run.result(*done[i]) if i in done else simulate_run(run))
-        except SimulationDiverged as err:
-            out.append(err)
-    return out
-
-
 def run_python(spec: mujoco.MjSpec, inputs: np.ndarray, record_every: int):
     """`run_plugin` on the Python engine (`wpam_mj.simulation.engine`): the reference."""
-    model, (muscle,) = pyengine.python_model(spec)
+    model, muscles = pyengine.python_model(spec)
+    (muscle,) = muscles
     data = mujoco.MjData(model)
     n = len(inputs)
     rec = np.zeros(_record_shape(n, record_every))
     channels = muscle.channels
-    ctrl, dt, record = data.ctrl, model.opt.timestep, muscle.record
-    names = REC_FIELDS[1:]
+    ctrl, dt = data.ctrl, model.opt.timestep
+    status, recorded = plugin.FIELD["status"], len(REC_FIELDS) - 1
     j = 0
-    with pyengine.stepping(model, [muscle]):
-        for step in range(n):
-            for channel, value in zip(channels, inputs[step]):
-                ctrl[channel] = value
-            mujoco.mj_step(model, data)
-            muscle.advance()
-            if muscle.status:
-                return rec, (step, muscle.status)
-            if step % record_every == 0:
-                rec[0, j] = step * dt
-                rec[1:, j] = [record[name] for name in names]
-                j += 1
+    for step in range(n):
+        for channel, value in zip(channels, inputs[step]):
+            ctrl[channel] = value
+        pyengine.step(model, data, muscles)
+        state = muscle.state(data)
+        if state[status]:
+            return rec, (step, state_failure(state))
+        if step % record_every == 0:
+            rec[0, j] = step * dt
+            rec[1:, j] = state[:recorded]
+            j += 1
     return rec, None

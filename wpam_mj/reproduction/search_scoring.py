@@ -1,0 +1,160 @@
+"""How `wpam search` scores a point: every finding's signed margin, the record journaled
+for it, and the objectives differential evolution minimises over those records.
+
+A point's runs are the paper's targets (`calibrate.PaperTargets`); its score is calibrate's
+one cost (1/2 |r|^2) and the signed margin of every finding (`FINDINGS`, in units of each
+margin's scale, >= 0 holds), so that a search's archive is also a measured feasibility map
+(`wpam_mj.reproduction.findings_map`). Journals keep the margins, so every objective
+replays any journal.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Sequence
+
+from wpam_mj.experiments.protocol import Protocol
+from wpam_mj.paper import CALIBRATION_HEADROOM
+from wpam_mj.physics.params import Params, ParameterError
+from wpam_mj.reproduction import findings
+from wpam_mj.reproduction.calibrate import PaperTargets
+
+PO_RISE_SCALE_MPA = 0.01
+STEP_PP_MM = 0.2  # a converged plateau (Fig. 14: "quickly converges"); our reading
+TRACK_MM = 5.0  # half a 10 mm step: a PI staircase worse than this does not follow it
+FAILED_COST = 1e6  # DE needs a finite cost where a simulation fails
+
+# The findings of `wpam reproduce` (`findings.FINDINGS`), then two the paper shows without a
+# number: settled steps (Figs. 12-15) and Po rising with load (Fig. 15, §4.2).
+FINDING_TEXT = {**{name: f.short for name, f in findings.FINDINGS.items()},
+                "steps_settle": "PI steps settle: error <= Table 2's split, p-p <= 0.2 mm",
+                "po_rises_with_load": "plateau-mean Po rises with load"}
+FINDINGS = tuple(FINDING_TEXT)
+PAPER_CHECKS = tuple(findings.FINDINGS)  # the eight that `wpam reproduce` checks
+
+
+def _worst(margins) -> float:
+    return min(m.margin / m.scale for m in margins)
+
+
+def finding_margins(scores, table2) -> dict[str, float]:
+    """Each finding's worst margin in units of its scale (>= 0: holds)."""
+    checks = [*findings.table2_checks(table2), *scores.sweep_checks]
+    out = {c.name: _worst(c.margins) for c in checks}
+    steps = [min((lim - e) / lim, (STEP_PP_MM - p) / STEP_PP_MM)
+             for e, p, lim in zip(scores.step_error_mm["pi"], scores.step_pp_mm["pi"],
+                                  scores.step_limit_mm)]
+    po = scores.po_plateau_mpa
+    out["steps_settle"] = min(steps)
+    out["po_rises_with_load"] = min((b - a) / PO_RISE_SCALE_MPA for a, b in zip(po, po[1:]))
+    return out
+
+
+@dataclass(frozen=True)
+class Record:
+    """One evaluated point: coordinates, cost, margins (None: failed) and the figures."""
+
+    u: tuple[float, ...]
+    cost: float
+    margins: dict[str, float] | None
+    figures: dict | None
+    # wall seconds into the search when it was scored (None: not recorded)
+    seconds: float | None = field(default=None, compare=False)
+
+    @property
+    def tracks(self) -> bool:
+        """Whether the point ran and its PI staircase follows the targets at all. A muscle
+        that never moves meets the feedback row vacuously (no loop): such points are not
+        reproductions of the experiments and stay out of the map and the choice."""
+        return self.margins is not None and \
+            max(self.figures["step_error_mm"]["pi"]) <= TRACK_MM
+
+    @property
+    def held(self) -> int:
+        """How many of the paper's checks (`wpam reproduce`'s, PAPER_CHECKS) hold."""
+        return 0 if self.margins is None else sum(self.margins[f] >= 0.0
+                                                  for f in PAPER_CHECKS)
+
+    def as_json(self) -> dict:
+        return {"u": list(self.u), "cost": self.cost, "margins": self.margins,
+                "figures": self.figures, "seconds": self.seconds}
+
+    @classmethod
+    def from_json(cls, d: dict) -> "Record":
+        return cls(tuple(d["u"]), d["cost"], d["margins"], d["figures"], d.get("seconds"))
+
+
+# ---- objectives: what DE minimises (journals keep margins, so either replays any journal)
+
+SHORTFALL_CAP = 3.0  # scale units: one far miss counts as three near ones, no more
+
+
+def shortfall(rec: Record, wanted: Sequence[str] = (*PAPER_CHECKS, "steps_settle")) -> float:
+    """The "checks" objective: how far the point falls short of every check of `wpam
+    reproduce` and of settled PI steps (or of the findings `wanted`), each shortfall in
+    units of its margin's scale measured from CALIBRATION_HEADROOM past its limit and
+    capped at SHORTFALL_CAP (0: all met with headroom). Unlike calibrate's cost it asks
+    no more of a finding than its check does, so a point's value falls only by meeting
+    checks."""
+    if rec.margins is None:
+        return rec.cost  # failed or screened out: the same large cost as "cost"
+    return sum(min(max(0.0, CALIBRATION_HEADROOM - rec.margins[f]), SHORTFALL_CAP)
+               for f in wanted)
+
+
+def findings_shortfall(rec: Record) -> float:
+    """The "findings" objective: the checks' shortfall with every finding of FINDINGS
+    asked, Po rising with load among them (what "checks" may trade away)."""
+    return shortfall(rec, FINDINGS)
+
+
+OBJECTIVES = {"cost": lambda rec: rec.cost, "checks": shortfall,
+              "findings": findings_shortfall}
+OBJECTIVE_TEXT = {"cost": "calibrate's cost 1/2 |r|^2", "checks": "checks' summed shortfall",
+                  "findings": "findings' summed shortfall"}
+
+
+def _figures(scores) -> dict:
+    """The numbers a reader checks a point by (display units)."""
+    return {"table2_po_row": list(scores.table2_po_row),
+            "feedback_row": list(scores.feedback_row),
+            "step_error_mm": {c: list(v) for c, v in scores.step_error_mm.items()},
+            "step_pp_mm": {c: list(v) for c, v in scores.step_pp_mm.items()},
+            "step_limit_mm": list(scores.step_limit_mm),
+            "po_plateau_mpa": list(scores.po_plateau_mpa),
+            "failed": list(scores.sweep_failed)}
+
+
+@dataclass(frozen=True)
+class Targets:
+    """The paper's targets under one protocol: `tasks` to run, `score` of their results
+    as (residual vector of calibrate's cost, finding margins, figures)."""
+
+    dt: float
+    protocol: Protocol
+
+    def tasks(self, params: Params) -> list:
+        return PaperTargets(self.dt, self.protocol).tasks(params)
+
+    def score(self, params: Params, results: list):
+        model = PaperTargets(self.dt, self.protocol)
+        r = model.residuals(params, results)
+        scores, table2 = model.scores_and_table2(params, results)
+        return r, finding_margins(scores, table2), _figures(scores)
+
+
+def score(targets, params: Params, results: list | None) -> tuple[float, dict | None,
+                                                                    dict | None]:
+    """(cost, margins, figures) of a point from its runs' results (None: failed)."""
+    if results is None:
+        return FAILED_COST, None, None
+    try:
+        r, margins, figures = targets.score(params, results)
+    except (ParameterError, ArithmeticError):
+        return FAILED_COST, None, None
+    cost = 0.5 * float(r @ r)
+    if not math.isfinite(cost):
+        return FAILED_COST, None, None
+    return cost, margins, figures
+
