@@ -129,8 +129,8 @@ def test_the_checks_objective_counts_each_shortfall_once_and_caps_it():
     assert scoring.shortfall(far) == scoring.SHORTFALL_CAP
     failed = scoring.Record((0.5,), scoring.FAILED_COST, None, None)
     assert scoring.shortfall(failed) == scoring.FAILED_COST
-    falls = scoring.Record((0.5,), 7.0, {**margins, "po_rises_with_load": -0.5}, {})
-    assert scoring.shortfall(falls) == 0.0  # "checks" may trade Po's rise away ...
+    falls = scoring.Record((0.5,), 7.0, {**margins, "po_cap_light_slow": -0.5}, {})
+    assert scoring.shortfall(falls) == 0.0  # "checks" may trade an extra away ...
     assert scoring.findings_shortfall(falls) == pytest.approx(  # ... "findings" may not
         0.5 + paper.CALIBRATION_HEADROOM)
 

@@ -28,10 +28,10 @@ from wpam_mj import paper
 from wpam_mj.experiments.paper_studies import StepTask, sweep_batch
 from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
 from wpam_mj.infra.files import write_text_atomic
-from wpam_mj.infra.pool import Batch, TaskPool, submit_batches
-from wpam_mj.physics.params import Params, ParameterError, check_int, check_range, fitted_parameters
+from wpam_mj.physics.params import Params, check_int, check_range, fitted_parameters
 from wpam_mj.reproduction import findings
 from wpam_mj.reproduction.margins import Check
+from wpam_mj.simulation.execution import Batch, Failed, execute
 
 # Unmeasured plant parameters: the fitted ones, and the line's ISO 6358 critical ratio and
 # the tube volume (estimates; models/README.md)
@@ -145,15 +145,18 @@ def robustness(nominal: Params, n: int = 32, *, seed: int = 0, rel: float = DEFA
                protocol: Protocol = SHIPPED) -> Robustness:
     """Run every study of `wpam reproduce` on `n` plants sampled around `nominal`."""
     plants = sampled_plants(nominal, sample_deviations(n, seed, rel))
+    jobs_ = [b for p in plants for b in _plant_batches(p, protocol, dt)]
+    results = execute(jobs_, jobs, failed=Failed, progress=progress, desc="robustness")
     outcomes = []
-    with TaskPool(jobs, progress=progress, desc="robustness") as pool:
-        pending = [(p, submit_batches(pool, _plant_batches(p, protocol, dt))) for p in plants]
-        for plant, (t2, open_step, sw) in pending:
-            try:
-                outcomes.append(_outcome(plant, t2(), open_step(), sw()))
-            except (ParameterError, ArithmeticError, RuntimeError) as err:
-                first = str(err).splitlines()[0] if str(err) else type(err).__name__
-                outcomes.append(PlantOutcome(plant.plant_deviation, (), {}, first))
+    for i, plant in enumerate(plants):
+        t2, open_step, sw = results[3 * i:3 * i + 3]
+        failed = next((r for r in (t2, open_step, sw) if isinstance(r, Failed)), None)
+        if failed is None:
+            outcomes.append(_outcome(plant, t2, open_step, sw))
+        else:
+            first = str(failed.error).splitlines()[0] if str(failed.error) else \
+                type(failed.error).__name__
+            outcomes.append(PlantOutcome(plant.plant_deviation, (), {}, first))
     return Robustness(tuple(outcomes), rel, seed)
 
 
