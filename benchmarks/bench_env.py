@@ -14,7 +14,9 @@ policy, so only the layers differ). Figures in control steps per second of wall 
   gymnasium.make         the same through `gymnasium.make` (its order-enforcing and
                          passive-checker wrappers)
 The ratio column is the reference's time per control step over the row's; the overhead
-column is the extra time per control step [us].
+column is the extra time per control step [us]. Target: both env.step rows at least 0.5
+(tests/test_gym_env.py holds a looser floor). On a shared machine read it beside the load
+average printed with it.
 
 Run: python benchmarks/bench_env.py [--steps N] [--repeats R]
 """

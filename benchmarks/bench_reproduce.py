@@ -60,25 +60,34 @@ def time_reproduce(out: Path) -> tuple[float, float]:
     return wall, peak
 
 
-def time_sweep(jobs: int) -> float:
+def time_sweep(jobs: int, **kwargs) -> float:
+    """Wall time [s] of the paper's sweep (or `paper_studies.sweep(**kwargs)`'s)."""
     params = preset("wpam")
     t0 = time.perf_counter()
-    sweep(params, keep=(), jobs=jobs)
+    sweep(params, keep=(), jobs=jobs, **kwargs)
     return time.perf_counter() - t0
 
 
-def figures(repeats: int = 3, out: Path | None = None) -> list[Figure]:
-    """Reproduce wall time and peak memory (best of `repeats`), and the sweep speed-up."""
-    with tempfile.TemporaryDirectory() as tmp:
-        wall, peak = min(time_reproduce(out or Path(tmp) / "reproduce") for _ in range(repeats))
+QUICK_SWEEP = dict(loads=(100.0,), freqs=(2.0,), controllers=("pi", "pid"))  # run_all --quick
+
+
+def figures(repeats: int = 3, out: Path | None = None, quick: bool = False) -> list[Figure]:
+    """Reproduce wall time and peak memory (best of `repeats`), and the sweep speed-up;
+    `quick`: a two-run sweep only (run_all --quick: does it still run?)."""
+    rows = []
+    if not quick:
+        with tempfile.TemporaryDirectory() as tmp:
+            wall, peak = min(time_reproduce(out or Path(tmp) / "reproduce")
+                             for _ in range(repeats))
+        rows = [Figure("reproduce wall time [s]", wall, "<=", 10.0),
+                Figure("reproduce peak memory [MB]", peak, "<", 500.0)]
     serial = parallel = float("inf")
     capacity = 0.0
     for _ in range(repeats):  # alternately, so that a busy spell hits both
-        serial = min(serial, time_sweep(1))
-        parallel = min(parallel, time_sweep(2))
+        serial = min(serial, time_sweep(1, **(QUICK_SWEEP if quick else {})))
+        parallel = min(parallel, time_sweep(2, **(QUICK_SWEEP if quick else {})))
         capacity = max(capacity, parallel_capacity(1))
-    return [Figure("reproduce wall time [s]", wall, "<=", 10.0),
-            Figure("reproduce peak memory [MB]", peak, "<", 500.0),
+    return [*rows,
             Figure("sweep, 1 job [s]", serial, ""),
             Figure("sweep, 2 jobs [s]", parallel, ""),
             Figure("sweep speed-up, 2 jobs vs 1 [x]", serial / parallel, ">=", 1.7),

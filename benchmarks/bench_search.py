@@ -37,6 +37,7 @@ from scipy.stats import qmc
 
 from common import Figure
 from wpam_mj.infra.pool import Cluster, WorkerPool, open_workers
+from wpam_mj.experiments.protocol import SHIPPED
 from wpam_mj.physics.params import preset
 from wpam_mj.reproduction import search
 from wpam_mj.simulation import execution
@@ -94,7 +95,11 @@ class _Guarded:
 
 def measure(n_points: int, dask: bool = True) -> list[dict]:
     points = screened_points(n_points)
-    tasks = _tasks(points)
+    return measure_tasks(_tasks(points), len(points), dask)
+
+
+def measure_tasks(tasks: list, n_points: int, dask: bool = True) -> list[dict]:
+    """Each mode's wall and CPU time for `tasks` (the runs of `n_points` points)."""
     rows, outcomes = [], {}
 
     def timed(name: str, run, extra_cpu=lambda: 0.0) -> None:
@@ -121,18 +126,22 @@ def measure(n_points: int, dask: bool = True) -> list[dict]:
             timed("dask", lambda: execution.execute(tasks, workers, failed=None), remote_cpu)
     same = len({result_bytes(out) for out in outcomes.values()}) == 1
     for r in rows:
-        r.update(points=len(points), runs=len(tasks), identical=same)
+        r.update(points=n_points, runs=len(tasks), identical=same)
     return rows
 
 
-def figures(n_points: int = 2) -> list[Figure]:
-    """For run_all: the layer's points per CPU-second against the pool's."""
-    rows = {r["mode"]: r for r in measure(n_points)}
+def figures(n_points: int = 2, quick: bool = False) -> list[Figure]:
+    """For run_all: the layer's points per CPU-second against the pool's; `quick`: the two
+    shortest runs of the shipped plant, no screen, no Dask (run_all --quick: does it still run?)."""
+    shipped = sorted(search.Targets(search.SEARCH_DT, SHIPPED).tasks(preset("wpam")),
+                     key=lambda t: t.cost)[:2]
+    rows = {r["mode"]: r for r in (measure_tasks(shipped, 1, dask=False) if quick
+                                   else measure(n_points))}
     per_cpu = {m: r["points"] / r["cpu"] for m, r in rows.items()}
+    dask = [] if quick else [Figure("search pts/CPU-s, layer Dask 2 / pool [x]",
+                                    per_cpu["dask"] / per_cpu["pool"], "")]
     return [Figure("search pts/CPU-s, layer local / pool [x]",
-                   per_cpu["local"] / per_cpu["pool"], ""),
-            Figure("search pts/CPU-s, layer Dask 2 / pool [x]",
-                   per_cpu["dask"] / per_cpu["pool"], ""),
+                   per_cpu["local"] / per_cpu["pool"], ""), *dask,
             Figure("search outcomes identical (1 = yes)", float(rows["pool"]["identical"]),
                    ">=", 1.0)]
 

@@ -28,11 +28,11 @@ import numpy as np
 from scipy.optimize import minimize
 
 from wpam_mj import paper, preset
-from wpam_mj.experiments.drives import SineSpec, sine_run
 from wpam_mj.physics.params import MM, MPA, Params, plausible_range
 from wpam_mj.infra.files import write_text_atomic
-from wpam_mj.infra.pool import WorkerPool
-from wpam_mj.experiments.paper_studies import StaticTask, StepTask
+from wpam_mj.infra.pool import Workers, open_workers
+from wpam_mj.experiments.paper_studies import SineTask, StaticTask, StepTask
+from wpam_mj.simulation.execution import execute
 
 FREE = ("braid.braid_angle", "muscle.output_coeff", "muscle.friction_coeff",
         "muscle.friction_const", "muscle.axial_area", "pneumatics.outer_conductance",
@@ -56,29 +56,22 @@ def params_at(u: np.ndarray, reading: float) -> Params:
 SETTLE_S = 5.0  # the last 5 s of each 10 s plateau
 
 
-def _job(args):
-    """One run's figures: a static loop's area, a PI staircase's settled errors and plateau
-    means, or a sine's highest regulator Po."""
-    kind, params, load, extra = args
-    if kind == "static":
-        return StaticTask(params, load, extra, DT).run().area
-    if kind == "step":
-        run = StepTask(params, load, "pi", DT).run()
-        return (run.worst_error(SETTLE_S), run.worst_peak_to_peak(SETTLE_S), run.area,
-                float(np.mean(run.po_mean)))
-    return float(sine_run(params, load, "pi", SineSpec(extra)).po_reg.max())
-
-
-def cost(params: Params, pool: WorkerPool) -> float:
+def cost(params: Params, workers: Workers) -> float:
+    """The joint cost of `params` from its runs: each PI staircase's settled errors and
+    plateau means, each static loop's area, each sine's highest regulator Po."""
     loads = paper.LOADS_N
-    jobs = ([("step", params, f, 0.0) for f in loads]
-            + [("static", params, f, po) for f in loads for po in (0.0, 0.04 * MPA)]
-            + [("sine", params, 50.0, 0.1), ("sine", params, 150.0, 0.5)])
+    tasks = ([StepTask(params, f, "pi", DT) for f in loads]
+             + [StaticTask(params, f, po, DT) for f in loads for po in (0.0, 0.04 * MPA)]
+             + [SineTask(params, 50.0, "pi", 0.1, DT, True),
+                SineTask(params, 150.0, "pi", 0.5, DT, True)])
     try:
-        out = list(pool.map(_job, jobs))
+        out = execute(tasks, workers)
     except Exception:  # noqa: BLE001 (a parameter set the simulator refuses costs the most)
         return 1e9
-    steps, static, (po_slow, po_fast) = out[:3], out[3:9], out[9:]
+    steps = [(r.worst_error(SETTLE_S), r.worst_peak_to_peak(SETTLE_S), r.area,
+              float(np.mean(r.po_mean))) for r in out[:3]]
+    static = [loop.area for loop in out[3:9]]
+    po_slow, po_fast = (float(r.po_reg.max()) for _, r in out[9:])
     t2 = [static[2 * i + 1] / static[2 * i] for i in range(3)]
     fb = [area / static[2 * i] for i, (_, _, area, _) in enumerate(steps)]
     c = sum(math.log(v / paper.TABLE2["open_po"][f]) ** 2 for v, f in zip(t2, loads))
@@ -98,12 +91,12 @@ def main() -> int:
     ap.add_argument("--nm-from", type=int, default=2,
                     help="start Nelder-Mead from the n-th best sample (default 2)")
     ap.add_argument("--nm-evals", type=int, default=160, help="Nelder-Mead evaluations")
-    ap.add_argument("--jobs", type=int, default=2, help="worker processes")
+    ap.add_argument("--jobs", type=int, default=2, help="cores (batch threads)")
     args = ap.parse_args()
     rng = np.random.default_rng(args.seed)
     samples = [(rng.uniform(size=len(FREE)), float(rng.choice(READINGS)))
                for _ in range(args.samples)]
-    with WorkerPool(args.jobs) as pool:
+    with open_workers(args.jobs) as pool:
         scored = []
         for i, (u, reading) in enumerate(samples):
             scored.append((cost(params_at(u, reading), pool), i))

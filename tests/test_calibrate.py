@@ -177,7 +177,7 @@ def test_an_interrupted_calibration_resumes_from_its_journal(tmp_path, monkeypat
     with pytest.raises(KeyboardInterrupt):
         cal.calibrate(out=out, jobs=1, progress=False, max_nfev=4)
     assert cal.journal_path(out).exists() and not out.exists()
-    journaled = estimation.Journal(cal.journal_path(out), keep=True).size
+    journaled = estimation.ResidualJournal(cal.journal_path(out), keep=True).size
     _Quadratic.runs, _Quadratic.stop_after = 0, None
     resumed = cal.calibrate(out=out, jobs=1, progress=False, max_nfev=4, resume=True)
     rerun = _Quadratic.runs

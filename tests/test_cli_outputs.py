@@ -277,8 +277,8 @@ def _running(pid: int) -> bool:
 
 @pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="needs Linux /proc")
 def test_sigterm_stops_workers_and_cleans_up(tmp_path):
-    proc = subprocess.Popen([sys.executable, "-m", "wpam_mj", "static", "--compare-presets",
-                             "--load", "100", "--jobs", "2", "--out", "o", "--dt", "0.001"],
+    proc = subprocess.Popen([sys.executable, "-m", "wpam_mj", "synth", "--jobs", "2",
+                             "--out", "o"],  # its tasks are no simulations: a process pool
                             cwd=tmp_path, env=_env(), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 60

@@ -71,7 +71,7 @@ def test_a_local_run_and_a_two_worker_dask_cluster_agree_bit_for_bit(cluster):
     with open_workers(Cluster(cluster.scheduler_address)) as workers:
         assert workers.slots == 2 and workers.where.startswith("Dask")
         remote = execution.execute(TASKS, workers, failed=str)
-        bare = execution.execute(TASKS, workers.executor, failed=str)  # as `executor_for`
+        bare = execution.execute(TASKS, workers.executor, failed=str)  # a bare executor
     local = execution.execute(TASKS, None, failed=str)
     assert (result_bytes(remote) == result_bytes(bare) == result_bytes(local)
             == result_bytes(_serial(TASKS)))
@@ -172,3 +172,107 @@ def test_search_and_calibrate_take_a_scheduler(tmp_path, monkeypatch, capsys, co
     err = capsys.readouterr().err.strip()
     assert err == ("wpam: error: Dask scheduler tcp://127.0.0.1:1: Dask distributed is not "
                    'installed; pip install ".[cluster]"'), err
+
+
+# ---- a cluster that fails: bounded time, one line, a resumable job (issue 37, item 7)
+
+
+class _Nap:
+    """A task that is not a simulation and takes a moment."""
+
+    cost = 1.0
+
+    def run(self) -> float:
+        import time  # noqa: PLC0415
+
+        time.sleep(0.5)
+        return 1.0
+
+
+@pytest.fixture
+def quick_loss(monkeypatch):
+    """A cluster is given up after 1 s instead of 10 s."""
+    from wpam_mj.infra import pool  # noqa: PLC0415
+
+    monkeypatch.setattr(pool, "LOST_AFTER_S", 1.0)
+    monkeypatch.setattr(execution, "LOST_AFTER_S", 1.0)
+    monkeypatch.setattr(execution, "LOST_POLL_S", 0.2)
+
+
+def _bare_scheduler():
+    distributed = pytest.importorskip("distributed")
+    return distributed.LocalCluster(n_workers=0, processes=False, dashboard_address=None)
+
+
+def test_a_cluster_without_workers_ends_the_job_in_one_line(quick_loss, capfd):
+    """Before: the scheduler waited for a worker forever, and so did the command."""
+    import time  # noqa: PLC0415
+    from wpam_mj.infra.pool import WorkersLost  # noqa: PLC0415
+
+    with _bare_scheduler() as cluster, open_workers(Cluster(cluster.scheduler_address)) as w:
+        start = time.monotonic()
+        with pytest.raises(WorkersLost, match=r"every worker is gone") as lost:
+            execution.execute([_Nap()], w)
+        assert time.monotonic() - start < 10.0
+    assert "\n" not in str(lost.value) and "run the command again" in str(lost.value)
+    assert capfd.readouterr().err == ""  # no traceback from Dask's loggers
+
+
+def test_a_scheduler_that_dies_ends_the_job_in_one_line(quick_loss, capfd):
+    import threading  # noqa: PLC0415
+    import time  # noqa: PLC0415
+    from wpam_mj.infra.pool import WorkersLost  # noqa: PLC0415
+
+    cluster = _bare_scheduler()
+    with open_workers(Cluster(cluster.scheduler_address)) as w:
+        threading.Timer(0.5, cluster.close).start()
+        start = time.monotonic()
+        with pytest.raises(WorkersLost, match=r"the scheduler is gone"):
+            execution.execute([_Nap()], w)
+        assert time.monotonic() - start < 10.0
+    assert capfd.readouterr().err == ""
+
+
+def test_a_scheduler_address_that_is_not_dask_is_refused_in_one_line(tmp_path, capsys):
+    """Before: a 64-line traceback ending 'Unable to allocate 3.01 EiB'."""
+    pytest.importorskip("distributed")
+    import socket  # noqa: PLC0415
+    import threading  # noqa: PLC0415
+
+    server = socket.create_server(("127.0.0.1", 0))
+
+    def answer() -> None:  # an HTTP server's answer to whatever it is sent
+        while True:
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                return
+            conn.sendall(b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n" * 64)
+            conn.close()
+
+    threading.Thread(target=answer, daemon=True).start()
+    address = f"tcp://127.0.0.1:{server.getsockname()[1]}"
+    try:
+        assert main(["search", "--maxiter", "0", "--popsize", "1", "--scheduler", address,
+                     "--out", str(tmp_path / "o")]) == 2
+    finally:
+        server.close()
+    err = capsys.readouterr().err.strip()
+    assert err == (f"wpam: error: Dask scheduler {address}: the service there does not "
+                   "answer as a Dask scheduler"), err
+
+
+def test_a_study_whose_cluster_is_gone_says_so_in_one_line_and_resumes_here(
+        quick_loss, tmp_path, capsys):
+    spec = tmp_path / "s.toml"
+    spec.write_text('experiment = "step"\ndt = 5e-3\n[fixed]\nduration = 33.0\n'
+                    '[vary]\nmethod = "list"\n[vary.values]\nload = [60, 100]\n')
+    out = tmp_path / "study"
+    with _bare_scheduler() as cluster:
+        code = main(["study", str(spec), "--scheduler", cluster.scheduler_address,
+                     "--out", str(out), "--no-progress"])
+    err = capsys.readouterr().err.strip()
+    assert code == 1 and err.count("\n") == 0 and "every worker is gone" in err, err
+    assert main(["study", str(spec), "--out", str(out), "--resume", "--jobs", "1",
+                 "--no-progress"]) == 0
+    assert (out / "study.csv").read_text().count("\n") == 3  # header and both runs

@@ -122,17 +122,18 @@ def test_an_interrupted_fit_resumes_from_its_journal_without_rerunning(tmp_path)
     model, path = Counted(t, 0.2 * t + 4.0), tmp_path / "fit.journal.json"
     resumed = False
     with pytest.raises(KeyboardInterrupt):
-        estimation.fit(model, preset(), FREE, journal=estimation.Journal(path))
-    journaled = estimation.Journal(path, keep=True).size
+        estimation.fit(model, preset(), FREE, journal=estimation.ResidualJournal(path))
+    journaled = estimation.ResidualJournal(path, keep=True).size
     assert journaled == 4
     resumed, before = True, len(runs)
-    again = estimation.fit(model, preset(), FREE, journal=estimation.Journal(path, keep=True))
+    again = estimation.fit(model, preset(), FREE,
+                           journal=estimation.ResidualJournal(path, keep=True))
     replayed = len(runs) - before
     runs.clear()
     whole = estimation.fit(model, preset(), FREE)
     assert again.params == whole.params and np.array_equal(again.residuals, whole.residuals)
     assert replayed == len(runs) - journaled  # the journaled sets were not run again
-    assert estimation.Journal(tmp_path / "new.json", keep=True).size == 0
+    assert estimation.ResidualJournal(tmp_path / "new.json", keep=True).size == 0
 
 
 # ---- the simulator: replay and a reduced recovery

@@ -38,7 +38,8 @@ method = "list"
 load = [50, 60, 70, 80, 90, 100, 110, 120]
 """
 STATIC = ("static", "--compare-presets", "--load", "100", "--jobs", "2", "--out", "o",
-          "--dt", "0.001")
+          "--dt", "0.001")  # runs on two batch threads in the command's process
+POOL = ("synth", "--jobs", "2", "--out", "o")  # tasks that are not simulations: two processes
 needs_proc = pytest.mark.skipif(not Path("/proc/self/task").exists(), reason="Linux /proc")
 
 
@@ -65,15 +66,25 @@ def _wait_until(condition, bound_s: float) -> bool:
     return True
 
 
+def _threads(pid: int) -> int:
+    try:
+        return len(os.listdir(f"/proc/{pid}/task"))
+    except OSError:
+        return 0
+
+
 def _start(tmp_path: Path, *argv: str) -> tuple[subprocess.Popen, list[int]]:
-    """Start `wpam argv` and return it once its two pool workers exist (a study: once its
-    runs have started, on batch threads in the command's own process)."""
+    """Start `wpam argv` and return it once its runs have started: the two pool workers
+    of `synth` exist; a study has its parts folder; `static`'s output folder is claimed
+    and its batch threads run, in the command's own process."""
     (tmp_path / "spec.toml").write_text(STUDY)
     proc = subprocess.Popen([sys.executable, "-m", "wpam_mj", *argv], cwd=tmp_path,
                             env={**os.environ, "PYTHONPATH": str(ROOT)},
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    started = (lambda: (tmp_path / "o" / "parts").exists()) if argv[0] == "study" else \
-        (lambda: len(_children(proc.pid)) >= 2)
+    started = {"study": lambda: (tmp_path / "o" / "parts").exists(),
+               "synth": lambda: len(_children(proc.pid)) >= 2,
+               "static": lambda: (tmp_path / "o").exists() and _threads(proc.pid) >= 3,
+               }[argv[0]]
     if not _wait_until(lambda: started() or proc.poll() is not None, 120):
         proc.kill()
         pytest.fail("the runs never started")
@@ -84,10 +95,12 @@ def _start(tmp_path: Path, *argv: str) -> tuple[subprocess.Popen, list[int]]:
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP],
                          ids=lambda s: s.name)
 @pytest.mark.parametrize("argv, delay", [
-    (STATIC, 0.0),  # while the pool starts
-    (STATIC, 0.5),  # while it runs
+    (STATIC, 0.0),  # while the batch threads start
+    (STATIC, 0.5),  # while they run
+    (POOL, 0.0),  # while the pool starts
+    (POOL, 0.5),  # while it runs
     (("study", "spec.toml", "--jobs", "2", "--out", "o"), 0.3),
-], ids=["static-at-start", "static-running", "study"])
+], ids=["static-at-start", "static-running", "pool-at-start", "pool-running", "study"])
 def test_a_signal_ends_the_command_at_once_with_its_status(tmp_path, sig, argv, delay):
     proc, workers = _start(tmp_path, *argv)
     time.sleep(delay)
@@ -161,7 +174,8 @@ def test_temporary_files_of_stopped_workers_go_with_the_command(tmp_path):
 
 @needs_proc
 def test_pool_workers_exit_when_the_parent_is_killed(tmp_path):
-    proc, workers = _start(tmp_path, *STATIC)
+    proc, workers = _start(tmp_path, *POOL)
+    assert len(workers) >= 2
     proc.kill()  # SIGKILL: no handler runs in the parent
     proc.communicate(timeout=60)
     assert _wait_until(lambda: not any(_alive(w) for w in workers), 2.0), "orphans left"

@@ -168,9 +168,9 @@ def test_a_sweep_point_whose_load_never_moved_is_flagged_in_csv_json_and_text(he
 
 def test_figures_carry_the_flag():
     from matplotlib.figure import Figure
-    fig = writers.flag_still(Figure(), ["static wpam 100 N"])
+    fig = writers.mark_still_on_figure(Figure(), ["static wpam 100 N"])
     assert any("never moved" in t.get_text() and "100 N" in t.get_text() for t in fig.texts)
-    assert not writers.flag_still(Figure(), []).texts
+    assert not writers.mark_still_on_figure(Figure(), []).texts
 
 
 def test_a_muscle_that_lifts_nothing_says_so_instead_of_an_empty_range(here, capsys):

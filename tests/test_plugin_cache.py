@@ -22,7 +22,7 @@ import mujoco
 import pytest
 
 
-from wpam_mj.simulation import engine, plugin, plugin_build
+from wpam_mj.simulation import plugin, plugin_build, stand_in
 
 ROOT = Path(__file__).resolve().parents[1]
 STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143, signal.SIGHUP: 129}
@@ -258,7 +258,7 @@ def test_a_build_prunes_libraries_unused_for_a_month_and_dead_builds(tmp_path):
 def test_the_stand_in_layout_is_the_headers(tmp_path):
     """mjpPlugin is read from mjplugin.h, not mirrored by hand: each field's offset is
     the one the C compiler gives (where there is one) and the size is the struct's."""
-    struct = engine._plugin_struct()
+    struct = stand_in._plugin_struct()
     names = [name for name, _ in struct._fields_]
     assert names[:5] == ["name", "nattribute", "attributes", "capabilityflags", "needstage"]
     assert {"nstate", "init", "reset", "compute"} <= set(names)

@@ -3,6 +3,7 @@ for bit, autoreset semantics, the reward, the residual task's PI, refusals."""
 
 from __future__ import annotations
 
+import importlib
 import re
 
 import numpy as np
@@ -284,3 +285,12 @@ def test_make_vec_takes_the_settings_in_gymnasiums_vector_kwargs_spelling() -> N
     with pytest.raises(ParameterError, match="engine given twice"):
         make_vec("wpam_mj/WPAMTrack-v0", 2, vector_kwargs={"engine": "serial"},
                  engine="batch")
+
+
+def test_the_sb3_module_names_the_learn_extra_where_sb3_is_missing() -> None:
+    if importlib.util.find_spec("stable_baselines3") is not None:
+        pytest.skip("the learn extra is installed: tests/test_sb3.py runs instead")
+    with pytest.raises(ImportError, match=re.escape(
+            'needs stable-baselines3 (No module named \'stable_baselines3\'): install the '
+            'learn extra, pip install ".[learn]"')):
+        importlib.import_module("wpam_mj.environments.sb3")

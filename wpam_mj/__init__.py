@@ -51,7 +51,7 @@ with _termination.importing("wpam_mj"):
     from wpam_mj.control.controllers import CONTROLS
     from wpam_mj.physics.muscle_types import MUSCLE_TYPES
     from wpam_mj.physics.params import Params, ParameterError, preset
-    from wpam_mj.simulation import engine as _engine
+    from wpam_mj.simulation import stand_in as _stand_in
     from wpam_mj.simulation import plugin as _plugin
     from wpam_mj.simulation.loop_contract import SimulationDiverged
     from wpam_mj.simulation.results import SimResult
@@ -62,7 +62,7 @@ with _termination.importing("wpam_mj"):
     # Where the plugin cannot be built, a stand-in lets MJCF naming it parse for the Python
     # engine.
     if _plugin.load() is None:
-        _engine.register_stand_in()
+        _stand_in.register_stand_in()
 
     if _importlib_util.find_spec("gymnasium") is not None:  # the optional `rl` extra
         from wpam_mj.environments.registry import register_all as _register_all

@@ -15,7 +15,8 @@ from wpam_mj.physics.params import MPA, PRESETS
 # --gain-reading: controller.command_scale [MPa/u] (docs/physics.md, the unitless gains)
 GAIN_READINGS = {"mpa-per-mm": 1.0, "volts-5": 0.1, "volts-10": 0.05}
 JOBS_PER_CPU = 4  # --jobs above this many per CPU is refused: no run gains from it
-JOBS_HELP = (f"parallel worker processes [count], 1 to {JOBS_PER_CPU} per CPU (default: the "
+JOBS_HELP = (f"cores [count]: the runs on as many mujoco.batch threads, figures and files "
+             f"on as many processes; 1 to {JOBS_PER_CPU} per CPU (default: the "
              f"number of CPUs, {pool.default_jobs()}); never more than the command has "
              "runs; results do not depend on it")
 

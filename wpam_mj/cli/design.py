@@ -9,7 +9,7 @@ import time
 from pathlib import Path
 
 from wpam_mj.cli.arguments import JOBS_HELP, float_list, out_path, scheduler_option
-from wpam_mj.cli.runs import (amplitude_m, flag_still, jobs_option, out_dir_of, print_json,
+from wpam_mj.cli.runs import (amplitude_m, note_still_loads, jobs_option, out_dir_of, print_json,
                               run_id_of, run_options, writable_dir, write_run_manifest, wrote)
 from wpam_mj.experiments.drives import SINE_MEAN_MM
 from wpam_mj.infra import pool
@@ -72,15 +72,15 @@ def _cmd_linear(args: argparse.Namespace) -> int:
     rid = run_id_of(args, run.params, settings)
     stem = f"linear_{load:g}N"
     still = cmp.still_points()
-    written = {figures.save_figure(writers.flag_still(cmp.plot(), still), out / f"{stem}.png",
-                                   run_id=rid): {},
+    figure = writers.mark_still_on_figure(cmp.plot(), still)
+    written = {figures.save_figure(figure, out / f"{stem}.png", run_id=rid): {},
                write_text_atomic(out / f"{stem}.csv", cmp.csv_text()): {"load_moved": not still}}
     manifest = write_run_manifest(args, out, rid, run.params, settings, written)
     if args.json:
         print_json(cmp.as_json())
     else:
         print(cmp.text())
-    flag_still([(f"linear {point}", False) for point in still], args.json)
+    note_still_loads([(f"linear {point}", False) for point in still], args.json)
     if not args.json:
         wrote([*written, manifest])
     return 0

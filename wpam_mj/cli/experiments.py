@@ -8,7 +8,7 @@ import dataclasses
 from wpam_mj import paper
 from wpam_mj.cli.arguments import (float_list, json_option, loop_area_option, name_list,
                                    out_dir_option, ramp_time_option)
-from wpam_mj.cli.runs import (amplitude_m, flag_still, flag_unsettled, liftable_loads,
+from wpam_mj.cli.runs import (amplitude_m, note_still_loads, flag_unsettled, liftable_loads,
                               out_dir_of, output_modules, params_of, print_json, run_id_of,
                               run_options, settled, write_run_manifest, wrote)
 from wpam_mj.control.controllers import CONTROLS, check_control
@@ -105,7 +105,7 @@ def _cmd_static(args: argparse.Namespace) -> int:
               f"falls, {ramp_time:g} s ramps):")
         for lp in loops:
             print(f"  {lp.preset:>8} {lp.load:>6g} N: {lp.area_mpa_mm:.4g} MPa mm")
-    flag_still([(f"static {lp.preset} {lp.load:g} N", m) for lp, m in zip(loops, moved)],
+    note_still_loads([(f"static {lp.preset} {lp.load:g} N", m) for lp, m in zip(loops, moved)],
                 args.json)
     if not args.json:
         wrote([*written, manifest])
@@ -136,7 +136,7 @@ def _cmd_step(args: argparse.Namespace) -> int:
                                                            res.pi_mean, res.po_mean)]})
     else:
         print(tables.step_text(res))
-    flag_still([(f"step {res.preset} {load:g} N {control}", moved)], args.json)
+    note_still_loads([(f"step {res.preset} {load:g} N {control}", moved)], args.json)
     flag_unsettled(f"step {res.preset} {load:g} N {control}", res, args.json)
     if not args.json:
         wrote([*written, manifest])
@@ -169,7 +169,7 @@ def _cmd_table2(args: argparse.Namespace) -> int:
     else:
         print(tables.table2_text(t2))
         print(findings.checks_text(findings.table2_checks(t2)))
-    flag_still(still, args.json)
+    note_still_loads(still, args.json)
     if not args.json:
         wrote([*written, manifest])
     return 0
@@ -201,7 +201,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     else:
         print(tables.sweep_text(sw))
         print(findings.checks_text(findings.sweep_checks(sw, po_cap)))
-    flag_still([(f"sweep {point}", False) for point in writers.still_points(sw)], args.json)
+    note_still_loads([(f"sweep {point}", False) for point in writers.still_points(sw)], args.json)
     if not args.json:
         wrote([*written, manifest])
     return 0

@@ -115,6 +115,11 @@ def _main(argv: Sequence[str] | None) -> int:
     except OSError as err:
         print(f"wpam: error: {_one_line(err)}", file=sys.stderr)
         return 1
+    except MemoryError:  # what the run budgets did not foresee: one line, no traceback
+        what = f"wpam {args.command}" if args is not None else "wpam"
+        print(f"wpam: error: {what} ran out of the memory this process may use (ulimit -v, "
+              "or the machine's); give it smaller inputs or more memory", file=sys.stderr)
+        return 1
     except KeyboardInterrupt as stop:  # SIGINT, SIGTERM, SIGHUP (`wpam_mj.infra.termination`)
         stop = stop if isinstance(stop, Interrupted) else Interrupted()
         print(f"wpam: {stop.message}", file=sys.stderr)

@@ -152,7 +152,7 @@ def write_run_manifest(args: argparse.Namespace, out: Path, rid: str, params: Pa
     return path
 
 
-def flag_still(what: Sequence[tuple[str, bool]], to_stderr: bool) -> None:
+def note_still_loads(what: Sequence[tuple[str, bool]], to_stderr: bool) -> None:
     """One line for each run (or group of runs) whose load never moved (its numbers mean
     nothing)."""
     from wpam_mj.experiments.feasibility import MOVE_MIN_MM  # noqa: PLC0415

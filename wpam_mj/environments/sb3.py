@@ -27,8 +27,8 @@ from wpam_mj.physics.params import ParameterError
 try:
     from stable_baselines3.common.vec_env import VecEnv
 except ImportError as err:  # the optional extra
-    raise ImportError(f"wpam_mj.environments.sb3 needs stable-baselines3 ({err}): pip "
-                      "install 'wpam-mj[learn]' (docs/learning.md)") from None
+    raise ImportError(f"wpam_mj.environments.sb3 needs stable-baselines3 ({err}): install "
+                      "the learn extra, pip install \".[learn]\" (docs/learning.md)") from None
 
 SB3_AUTORESET = "SameStep"  # what SB3's VecEnv protocol is
 

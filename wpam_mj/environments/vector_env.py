@@ -21,8 +21,11 @@ tests/test_vector_env.py). Two engines step the physics:
            is the serial environment's.
   "serial" each environment's `WPAMEnv.step` in turn (the reference, and the engine
            where the compiled plugin is unavailable).
-"auto" takes "batch" when the plugin is available. During a batched episode the
-environments' own MuJoCo data is not advanced: `envs.envs[i]` keeps its reset state.
+"auto" takes "batch" when the plugin is available and every episode's plugin state has
+one size (a randomized dead time may not: `varying_state_size`). Both engines check the
+actions once, as one `WPAMEnv` does (`dm_env_task.check_actions`). During a batched
+episode the environments' own MuJoCo data is not advanced: `envs.envs[i]` keeps its reset
+state.
 """
 
 from __future__ import annotations

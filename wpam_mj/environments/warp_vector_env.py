@@ -20,7 +20,8 @@ import dataclasses
 import mujoco
 import numpy as np
 
-from wpam_mj.environments.vector_env import _BatchedEpisodes
+from wpam_mj.environments.vector_env import DEAD_TIME, _BatchedEpisodes
+from wpam_mj.physics.params import ParameterError
 from wpam_mj.simulation import warp_muscle
 from wpam_mj.simulation.loop_contract import state_failure
 from wpam_mj.simulation.model import rig_spec
@@ -55,8 +56,10 @@ class WarpEpisodes(_BatchedEpisodes):
         physics = env.physics
         spec = rig_spec(physics.params, physics.load(), physics.timestep(), control="open")
         self.per_world = model_fields_per_load(model)
+        ranges = env.task.randomize.ranges if env.task.randomize is not None else {}
+        dead_time = max(ranges.get(DEAD_TIME, (0.0, 0.0))[1], physics.params.value(DEAD_TIME))
         self.sim = WarpBatch([spec] * n, self.device, per_world=self.per_world,
-                             nsub=self.n_sub)
+                             nsub=self.n_sub, delay=round(dead_time / physics.timestep()))
         self.sim.reset()
         host = self.sim.host_view()
         self.ten_length, self.ten_velocity = host["ten_length"], host["ten_velocity"]
@@ -105,7 +108,7 @@ def check_backend(backend: str) -> str:
     """A physics backend of the vector environment: "mujoco" (`mujoco.batch`, the default)
     or "warp" (MuJoCo Warp; needs the gpu extra), refused in one line otherwise."""
     if backend not in BACKENDS:
-        raise ValueError(f"backend = {backend!r}; valid: {', '.join(BACKENDS)}")
+        raise ParameterError(f"backend = {backend!r}; valid: {', '.join(BACKENDS)}")
     if backend == "warp":
         warp_muscle.require_warp()
     return backend

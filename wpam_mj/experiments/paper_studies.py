@@ -140,11 +140,11 @@ def table2(params: Params, *, loads: Iterable[float] = LOADS_N,
            progress: bool = False, ramp_time: float = STATIC_RAMP_S) -> Table2Result:
     """Run the open-loop ramps (Po = 0 and Po = `po_down` [Pa], each direction lasting
     `ramp_time` [s]) and the PI staircase at each load [N], and compute the Table 2 areas."""
-    batch = table2_batch(params, loads=loads, po_down=po_down, dt=dt, ramp_time=ramp_time)
+    batch = _table2_batch(params, loads=loads, po_down=po_down, dt=dt, ramp_time=ramp_time)
     return execute([batch], jobs, progress=progress, desc="table 2")[0]
 
 
-def table2_batch(params: Params, *, loads: Iterable[float] = LOADS_N,
+def _table2_batch(params: Params, *, loads: Iterable[float] = LOADS_N,
                  po_down: float = PO_DOWN_STATIC_MPA * MPA, dt: float = 1e-3,
                  ramp_time: float = STATIC_RAMP_S) -> Batch:
     """The runs of `table2` as a `Batch` (to run together with other studies)."""

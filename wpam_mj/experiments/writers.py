@@ -83,7 +83,7 @@ def run_metadata(result: SimResult) -> dict:
     return {**result.metadata(), "load_moved": load_moved(result)}
 
 
-def flag_still(fig, still: Sequence[str]):
+def mark_still_on_figure(fig, still: Sequence[str]):
     """`fig` with one red line naming the runs whose load never moved (their numbers
     mean nothing), so that a figure never shows them as results unmarked."""
     if still:
@@ -103,7 +103,7 @@ def write_static_outputs(out: Path, loops: Sequence[StaticLoop], *,
     po = "" if po_down == 0.0 else f"_po{mpa_label(po_down)}MPa"
     stem = "static_presets" if compare_presets else f"static_{loops[0].preset}"
     still = [f"{lp.preset} {lp.load:g} N" for lp in loops if not load_moved(lp.result)]
-    written[figures.save_figure(flag_still(figures.static_figure(loops), still),
+    written[figures.save_figure(mark_still_on_figure(figures.static_figure(loops), still),
                                 out / f"{stem}{po}.png", run_id=run_id)] = {}
     return written
 
@@ -113,7 +113,7 @@ def write_step_outputs(out: Path, run: StepRun, *,
     """The run's CSV and its figure (`wpam step`)."""
     name = step_csv_name(run)
     return {run.result.to_csv(out / name): run_metadata(run.result),
-            figures.save_figure(flag_still(figures.step_figure([run.result]),
+            figures.save_figure(mark_still_on_figure(figures.step_figure([run.result]),
                                            [] if load_moved(run.result) else [name[:-4]]),
                                 out / name.replace(".csv", ".png"), run_id=run_id): {}}
 
@@ -122,7 +122,7 @@ def write_table2_outputs(out: Path, t2: Table2Result, *,
                          run_id: str | None = None) -> dict[Path, dict]:
     """table2.json, table2.csv and table2.png (`wpam table2`)."""
     return {**dict.fromkeys(write_table2(out, t2), {}),
-            figures.save_figure(flag_still(figures.table2_figure(t2), table2_still(t2)),
+            figures.save_figure(mark_still_on_figure(figures.table2_figure(t2), table2_still(t2)),
                                 out / "table2.png", run_id=run_id): {}}
 
 
@@ -140,10 +140,10 @@ def write_sweep_outputs(out: Path, sw: SweepResult, key: SweepKey, po_cap: float
     `key` (`wpam sweep`); po_cap [Pa] is drawn in the Po panel."""
     series = sw.series[key]
     return {**dict.fromkeys(write_sweep(out, sw), {}),
-            figures.save_figure(flag_still(figures.sweep_figure(sw), still_points(sw)),
+            figures.save_figure(mark_still_on_figure(figures.sweep_figure(sw), still_points(sw)),
                                 out / "sweep_gain_phase.png", run_id=run_id): {},
             series.to_csv(out / sine_csv_name(key)): run_metadata(series),
-            figures.save_figure(flag_still(figures.sine_figure(series, key[1], po_cap),
+            figures.save_figure(mark_still_on_figure(figures.sine_figure(series, key[1], po_cap),
                                            [] if load_moved(series) else [sine_csv_name(key)[:-4]]),
                                 out / sine_csv_name(key).replace(".csv", ".png"),
                                 run_id=run_id): {}}

@@ -48,7 +48,7 @@ from scipy.optimize import least_squares
 from wpam_mj.simulation.execution import execute
 from wpam_mj.physics.params import (Params, ParameterError, describe_with_ranges, fitted_parameters,
                                     plausible_range)
-from wpam_mj.infra.pool import executor_for
+from wpam_mj.infra.pool import Workers, open_workers
 from wpam_mj.infra.files import write_text_atomic
 
 DIFF_STEP = 1e-3  # forward-difference step in scaled coordinates (see the module doc)
@@ -135,12 +135,7 @@ class ResidualModel(Protocol):
     def residuals(self, params: Params, results: list) -> np.ndarray: ...
 
 
-def run_task(task):
-    """Worker entry point (module level, so a process pool can pickle it)."""
-    return task.run()
-
-
-class Journal:
+class ResidualJournal:
     """Residual vectors by parameter set, kept in a JSON file (`path`; None: in memory)
     after every evaluation. A deterministic search interrupted and run again with the
     journal replays what it had done without running it, so it loses at most the
@@ -183,8 +178,9 @@ class Journal:
             self.path.unlink(missing_ok=True)
 
 
-def evaluate(model: ResidualModel, trials: Sequence[Params], executor: Executor | None = None,
-             journal: Journal | None = None) -> list[np.ndarray | None]:
+def evaluate(model: ResidualModel, trials: Sequence[Params],
+             executor: Workers | Executor | None = None,
+             journal: ResidualJournal | None = None) -> list[np.ndarray | None]:
     """Residual vectors of `model` at each parameter set (None where its simulation
     failed or its parameters are invalid). All tasks of all trials run at once on the
     execution layer (`wpam_mj.simulation.execution.execute`: the simulations on batch
@@ -192,7 +188,7 @@ def evaluate(model: ResidualModel, trials: Sequence[Params], executor: Executor 
     Sets found in the `journal` are not run again; the others are recorded in it."""
     if journal is not None:
         todo = [p for p in trials if p not in journal]
-        journal.record({Journal.key(p): r for p, r in zip(todo, evaluate(model, todo,
+        journal.record({ResidualJournal.key(p): r for p, r in zip(todo, evaluate(model, todo,
                                                                            executor))})
         return [journal.get(p) for p in trials]
     groups: list[list | None] = []
@@ -336,22 +332,23 @@ class _Objective:
 
 
 def fit(model: ResidualModel, start: Params, free: Sequence[FreeParameter], *,
-        jobs: int = 1, executor: Executor | None = None, diff_step: float = DIFF_STEP,
+        jobs: int = 1, executor: Workers | Executor | None = None,
+        diff_step: float = DIFF_STEP,
         max_nfev: int = 60, xtol: float = 1e-4, ftol: float = 1e-6,
         method: str = "dogbox", progress: bool = False,
-        journal: Journal | None = None) -> FitResult:
+        journal: ResidualJournal | None = None) -> FitResult:
     """Fit the `free` parameters of `start` to `model`'s residuals (module docstring).
     A start value outside its bounds starts at the nearest bound.
 
     Args:
-      jobs: worker processes of the local pool used when no `executor` is given (1: run
-        in this process).
-      executor: any concurrent.futures.Executor (e.g. dask.distributed's); not shut down.
+      jobs: this machine's cores used when no `executor` is given (1: one batch thread).
+      executor: the `Workers` of `infra.pool.open_workers`, or any
+        concurrent.futures.Executor (e.g. dask.distributed's); not shut down.
       diff_step: forward-difference step in scaled coordinates.
       max_nfev: most residual evaluations of the search (Jacobians not counted).
       xtol, ftol: scipy's termination tolerances (xtol on the scaled coordinates).
       method: scipy's bounded method, "dogbox" or "trf".
-      journal: keeps every evaluation (`Journal`): a fit interrupted and run again with
+      journal: keeps every evaluation (`ResidualJournal`): a fit interrupted and run again with
         the same journal replays its steps instead of running them.
     """
     if not free:
@@ -359,7 +356,7 @@ def fit(model: ResidualModel, start: Params, free: Sequence[FreeParameter], *,
     names = [p.name for p in free]
     if len(set(names)) != len(names):
         raise ParameterError(f"a parameter is freed twice: {', '.join(names)}")
-    with executor_for(jobs, executor) as ex:
+    with open_workers(jobs if executor is None else executor) as ex:
         obj = _Objective(model, start, free, ex, diff_step, progress, journal, max_nfev)
         z0 = np.array([p.to_z(p.value(start)) for p in free])
         res = least_squares(obj.fun, z0, jac=obj.jac, bounds=(0.0, 1.0), method=method,

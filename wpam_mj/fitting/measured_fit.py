@@ -41,7 +41,7 @@ from wpam_mj.infra.budget import check_run
 from wpam_mj.fitting.measurements import Experiment
 from wpam_mj.simulation.model import DT_RANGE_S, check_dt
 from wpam_mj.physics.params import MM, Params, ParameterError
-from wpam_mj.infra.pool import executor_for
+from wpam_mj.infra.pool import open_workers
 from wpam_mj.simulation.execution import SimulationTask, execute
 from wpam_mj.simulation.results import SimResult
 from wpam_mj.simulation.simulate import Drive, Run, simulate_run
@@ -216,7 +216,7 @@ def fit_data(start: Params, experiments: Sequence[Experiment],
         check_replay(e, coarse.dt)
     model = DataModel(tuple(experiments), dt)
     everything = DataModel((*experiments, *holdout), dt)
-    with executor_for(jobs, executor) as ex:
+    with open_workers(jobs if executor is None else executor) as ex:
         rough = estimation.fit(coarse, start, free, executor=ex, max_nfev=max_nfev,
                                ftol=RELATIVE_COST_TOL, xtol=1e-3, progress=progress)
         result = estimation.fit(model, rough.params, free, executor=ex, max_nfev=max_nfev,

@@ -27,8 +27,10 @@ from __future__ import annotations
 
 import io
 import math
+from array import array
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -106,77 +108,125 @@ class Experiment:
 
 def read_experiment(path: str | Path, params: Params) -> Experiment:
     """Read and check one measurement CSV against the muscle `params` (regulator range,
-    braid limit). Raises ParameterError with one line naming file, line and column."""
+    braid limit). Raises ParameterError with one line naming file, line and column, or
+    saying that the file is too large for the memory this process may use."""
     path = check_regular_file(path, "measurement file")
     try:
-        text = path.read_text()
+        cols, where = _read_columns(path)
+        _check(cols, params, where)
+        check_duration(f"{path} (rows from {cols['time_s'][0]:g} to {cols['time_s'][-1]:g} s)",
+                       float(cols["time_s"][-1] - cols["time_s"][0]))
+        si = {_UNITS[c][0]: v * _UNITS[c][1] for c, v in cols.items()}
     except (OSError, UnicodeDecodeError) as err:
         raise ParameterError(f"{path}: cannot read ({getattr(err, 'strerror', None) or err})") \
             from None
-    where = _Where(path)
-    lines = [(i + 1, ln) for i, ln in enumerate(text.splitlines())
-             if ln.strip() and not ln.lstrip().startswith("#")]
-    if not lines:
+    except MemoryError:
+        raise ParameterError(f"{path}: {path.stat().st_size / 1e6:.0f} MB of data does not fit "
+                             "in the memory this process may use; split the experiment into "
+                             "shorter files") from None
+    load = float(si.pop("load")[0])
+    return Experiment(name=path.stem, load=load, **si, path=path)
+
+
+def _is_data(line: str) -> bool:
+    """A line that is neither blank nor a '#' comment."""
+    return bool(line.strip()) and not line.lstrip().startswith("#")
+
+
+def _read_columns(path: Path) -> tuple[dict[str, np.ndarray], "_Where"]:
+    """The known columns of the file as float arrays (x_ref_mm NaN in its gaps). Numbers
+    are parsed by numpy straight into arrays (a file of millions of rows needs little more
+    memory than its numbers); a file numpy refuses, or holding a gap or a non-finite
+    value, is read again cell by cell to name the line and column at fault."""
+    with path.open(encoding="utf-8") as fh:
+        header_line, header = next(((i, ln) for i, ln in enumerate(fh, 1) if _is_data(ln)),
+                                   (0, ""))
+    if not header_line:
         raise ParameterError(f"{path}: no header row (expected columns {', '.join(REQUIRED)})")
-    header_line, header = lines[0]
+    where = _Where(path, header_line)
     names = [h.strip() for h in header.split(",")]
     missing = [c for c in REQUIRED if c not in names]
     if missing:
         raise ParameterError(f"{where.at(header_line)}: missing column(s) {', '.join(missing)} "
                              f"(header has {', '.join(names)})")
-    rows = lines[1:]
-    if len(rows) < MIN_ROWS:
-        raise ParameterError(f"{path}: {len(rows)} data rows; at least {MIN_ROWS} needed")
-    where.line_numbers = np.array([n for n, _ in rows])
-    cells = []
-    for n, ln in rows:
-        parts = ln.split(",")
-        if len(parts) != len(names):
-            raise ParameterError(f"{where.at(n)}: {len(parts)} values, the header has "
-                                 f"{len(names)} columns")
-        cells.append(parts)
-    table = np.array(cells, dtype=object)
-    cols = {c: _column(table[:, names.index(c)], c, where, allow_gaps=c == "x_ref_mm")
-            for c in (*REQUIRED, *OPTIONAL) if c in names}
-    _check(cols, params, where)
-    check_duration(f"{path} (rows from {cols['time_s'][0]:g} to {cols['time_s'][-1]:g} s)",
-                   float(cols["time_s"][-1] - cols["time_s"][0]))
-    si = {_UNITS[c][0]: v * _UNITS[c][1] for c, v in cols.items()}
-    load = float(si.pop("load")[0])
-    return Experiment(name=path.stem, load=load, **si, path=path)
+    known = [c for c in (*REQUIRED, *OPTIONAL) if c in names]
+    gaps = {names.index("x_ref_mm"): _number_or_gap} if "x_ref_mm" in names else None
+    try:
+        table = np.loadtxt(path, delimiter=",", comments="#", skiprows=header_line,
+                           ndmin=2, converters=gaps, encoding="utf-8")
+    except ValueError:
+        table = None
+    if table is not None and table.shape[1] == len(names):
+        cols = {c: table[:, names.index(c)] for c in known}
+        if all(np.isfinite(v).all() if c != "x_ref_mm" else not np.isinf(v).any()
+               for c, v in cols.items()):
+            if len(table) < MIN_ROWS:
+                raise ParameterError(f"{path}: {len(table)} data rows; at least {MIN_ROWS} "
+                                     "needed")
+            return cols, where
+    return _read_cells(path, names, known, where), where
+
+
+def _number_or_gap(cell: str) -> float:
+    """x_ref_mm's cells: an empty cell is a gap (NaN)."""
+    return float(cell) if cell.strip() else math.nan
+
+
+def _read_cells(path: Path, names: list[str], known: list[str],
+                where: "_Where") -> dict[str, np.ndarray]:
+    """The known columns, line by line into compact arrays, with one line naming the first
+    bad row or cell."""
+    index = {c: names.index(c) for c in known}
+    out = {c: array("d") for c in known}
+    rows = 0
+    with path.open(encoding="utf-8") as fh:
+        for n, ln in enumerate(fh, 1):
+            if n <= where.header_line or not _is_data(ln):
+                continue
+            parts = ln.rstrip("\r\n").split(",")
+            if len(parts) != len(names):
+                raise ParameterError(f"{where.at(n)}: {len(parts)} values, the header has "
+                                     f"{len(names)} columns")
+            for c, i in index.items():
+                out[c].append(_cell(parts[i], c, lambda: where.at(n, c)))
+            rows += 1
+    if rows < MIN_ROWS:
+        raise ParameterError(f"{path}: {rows} data rows; at least {MIN_ROWS} needed")
+    return {c: np.array(v) for c, v in out.items()}
 
 
 class _Where:
-    """Names a place in the file: `file line N column c`."""
+    """Names a place in the file: `file line N column c`; data row i's line is found by
+    reading the file again, only when an error names it."""
 
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        self.line_numbers = np.zeros(0, dtype=int)
+    def __init__(self, path: Path, header_line: int) -> None:
+        self.path, self.header_line = path, header_line
 
     def at(self, line: int, column: str | None = None) -> str:
         return f"{self.path} line {line}" + (f" column {column}" if column else "")
 
     def row(self, i: int, column: str) -> str:
-        return self.at(int(self.line_numbers[i]), column)
+        with self.path.open(encoding="utf-8") as fh:
+            data = (n for n, ln in enumerate(fh, 1) if n > self.header_line and _is_data(ln))
+            return self.at(next(n for k, n in enumerate(data) if k == i), column)
 
 
-def _column(cells: np.ndarray, name: str, where: _Where, *, allow_gaps: bool) -> np.ndarray:
-    out = np.empty(len(cells))
-    for i, c in enumerate(cells):
-        s = c.strip()
-        if s == "" or s.lower() == "nan":
-            if not allow_gaps:
-                raise ParameterError(f"{where.row(i, name)}: empty or NaN (a gap in the "
-                                     "data; every row needs a value)")
-            out[i] = math.nan
-            continue
-        try:
-            out[i] = float(s)
-        except ValueError:
-            raise ParameterError(f"{where.row(i, name)}: {s!r} is not a number") from None
-        if not math.isfinite(out[i]):
-            raise ParameterError(f"{where.row(i, name)}: {s!r} is not a finite number")
-    return out
+def _cell(text: str, column: str, place: Callable[[], str]) -> float:
+    """One cell's number; a gap (empty or NaN, then NaN) only in x_ref_mm. `place` names
+    the cell in an error."""
+    s = text.strip()
+    if s == "" or s.lower() == "nan":
+        if column != "x_ref_mm":
+            raise ParameterError(f"{place()}: empty or NaN (a gap in the data; every row "
+                                 "needs a value)")
+        return math.nan
+    try:
+        value = float(s)
+    except ValueError:
+        raise ParameterError(f"{place()}: {s!r} is not a number") from None
+    if not math.isfinite(value):
+        raise ParameterError(f"{place()}: {s!r} is not a finite number")
+    return value
 
 
 def _check(cols: dict[str, np.ndarray], params: Params, where: _Where) -> None:

@@ -16,9 +16,11 @@ them (docs/cluster.md).
 from __future__ import annotations
 
 import ctypes
+import logging
 import os
 import signal
 import sys
+import time
 from concurrent.futures import BrokenExecutor, Executor, Future, ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -196,16 +198,6 @@ def open_workers(jobs: int | Cluster | Workers | Executor | None = 1,
             yield Workers(pool, jobs, f"{jobs} local cores")
 
 
-@contextmanager
-def executor_for(jobs: int | Cluster = 1,
-                 executor: Executor | None = None) -> Iterator[Executor | None]:
-    """`executor` if given (the caller's: not shut down here), else the executor of
-    `open_workers(jobs)` (None: run in this process), for code that hands it on to
-    `wpam_mj.simulation.execution.execute` (which reads it back as the same `Workers`)."""
-    with open_workers(jobs if executor is None else executor) as workers:
-        yield workers.executor
-
-
 def _given(where: Workers | Executor | None) -> Workers:
     """The `Workers` of an executor opened elsewhere."""
     if where is None or isinstance(where, Workers):
@@ -228,10 +220,13 @@ def _dask_executor(address: str) -> Iterator[Workers]:
     with _quiet_dask():
         try:
             client = Client(address, timeout=CONNECT_TIMEOUT_S)
-        except Exception as err:  # noqa: BLE001 (OSError, a timeout, or what a service
-            # that is not Dask makes of its answer: a frame length of exabytes)
+        except (OSError, ValueError) as err:  # TimeoutError is an OSError
             raise ParameterError(f"Dask scheduler {address}: cannot connect "
-                                 f"({_reason(err)}); is it a Dask scheduler?") from None
+                                 f"({_reason(err)})") from None
+        except Exception:  # noqa: BLE001 (what Dask makes of another service's answer:
+            # a frame length of exabytes, MemoryError)
+            raise ParameterError(f"Dask scheduler {address}: the service there does not "
+                                 "answer as a Dask scheduler") from None
         try:
             slots = sum(client.nthreads().values())  # threads of the workers connected now
             executor = client.get_executor()
@@ -242,6 +237,7 @@ def _dask_executor(address: str) -> Iterator[Workers]:
                 raise
             executor.shutdown(wait=True)
         finally:
+            _UNHEALTHY_SINCE.pop(id(client), None)
             client.close(timeout=CONNECT_TIMEOUT_S)
 
 
@@ -255,13 +251,10 @@ _UNHEALTHY_SINCE: dict[int, float] = {}  # client id -> since when it could run 
 def _dask_lost(client) -> str | None:
     """Why `client` can no longer run tasks: its scheduler unreachable, or no worker,
     for LOST_AFTER_S (the scheduler would wait for a worker forever)."""
-    import time  # noqa: PLC0415
-
-    address = client.scheduler.address
     if client.status != "running":
-        why = f"the scheduler {address} is gone"
+        why = f"the scheduler is gone (no answer for {LOST_AFTER_S:g} s)"
     elif not client.scheduler_info().get("workers"):  # refreshed by the client every 2 s
-        why = f"no worker is connected to {address}"
+        why = f"every worker is gone (none for {LOST_AFTER_S:g} s)"
     else:
         _UNHEALTHY_SINCE.pop(id(client), None)
         return None
@@ -273,9 +266,9 @@ def _dask_lost(client) -> str | None:
 def _quiet_dask() -> Iterator[None]:
     """Dask's own logging off while we use it: its errors reach the command as one line
     (`WorkersLost`, a refused address), not as the tracebacks its loggers print."""
-    import logging  # noqa: PLC0415
-
-    loggers = [logging.getLogger(name) for name in ("distributed", "tornado", "asyncio")]
+    names = [n for n in logging.root.manager.loggerDict
+             if n.split(".")[0] in ("distributed", "tornado", "asyncio")]
+    loggers = [logging.getLogger(n) for n in ("distributed", "tornado", "asyncio", *names)]
     levels = [lg.level for lg in loggers]
     for lg in loggers:
         lg.setLevel(logging.CRITICAL + 1)

@@ -104,9 +104,7 @@ def parse(module: types.ModuleType = kernel_module) -> Kernel:
 
 def _check_body(f: Function, functions: dict[str, Function], module: types.ModuleType,
                 constants: dict[str, float]) -> None:
-    body = list(f.tree.body)
-    if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
-        body = body[1:]  # the docstring
+    body = _docstring_free(f.tree.body)
     if not body or not isinstance(body[-1], ast.Return) or body[-1].value is None:
         raise _fail(f.tree, f"{f.name} must end with its one return")
     known = {name for name, _ in f.args}
@@ -197,6 +195,7 @@ def _check_call(call: ast.Call, f: Function, functions: dict[str, Function]) -> 
 
 
 def _docstring_free(body: list[ast.stmt]) -> list[ast.stmt]:
+    """A function's statements after its docstring."""
     if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
         return body[1:]
     return body

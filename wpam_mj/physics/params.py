@@ -160,7 +160,7 @@ class Pneumatics(_Validated):
     p_max: float = _p(0.5 * MPA, "Pa", 0.0, 1.0 * MPA, "ITV2031 range, paper §2.3")
     time_constant: float = _p(0.083, "s", 0.0, 5.0,
                               "ITV-series first-order lag identified from echo-step data "
-                              "(porcaro_2026, scripts/itv_models.py: 83 ms)",
+                              "(porcaro_2026's regulator models: 83 ms)",
                               plausible=(0.05, 0.1), measured=True)
     dead_time: float = _p(0.02, "s", 0.0, 1.0,
                           "ITV-series dead time identified from echo-step data "

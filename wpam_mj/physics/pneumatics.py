@@ -108,7 +108,7 @@ def stable_timesteps(geometry: BraidGeometry, axial_area: float, bag_length: flo
             kernel.stable_timestep(v_o, conductance_o, b))
 
 
-def stable_dt(params: Params) -> tuple[float, str]:
+def largest_stable_dt(params: Params) -> tuple[float, str]:
     """The largest stable time step [s] of this parameter set (`stable_timesteps`) and the
     conductance that sets it."""
     pn, b = params.pneumatics, params.braid

@@ -37,7 +37,6 @@ from __future__ import annotations
 import math
 import sys
 import time
-from concurrent.futures import Executor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,9 +48,10 @@ from wpam_mj.fitting import estimation
 from wpam_mj.experiments.drives import STATIC_TOP_MM
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import MM, MPA, Params, ParameterError, check_int, check_range, preset
-from wpam_mj.infra.pool import executor_for
+from wpam_mj.infra.pool import Workers, open_workers
 from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
 from wpam_mj.infra.files import write_text_atomic
+from wpam_mj.simulation.execution import execute
 from wpam_mj.experiments.paper_studies import PLATEAU_SETTLE_S, sweep_batch
 
 # The parameters fitted to the paper, by name: the plant parameters a fit frees by default
@@ -271,11 +271,11 @@ def random_starts(start: Params, samples: int, seed: int) -> list[Params]:
     return out
 
 
-def _best_start(model: PaperTargets, candidates: list[Params], ex: Executor | None,
-                journal: estimation.Journal, progress: bool) -> Params:
+def _best_start(model: PaperTargets, candidates: list[Params], ex: Workers,
+                journal: estimation.ResidualJournal, progress: bool) -> Params:
     """The candidate of least cost (the first on ties: the given start)."""
     costs = []
-    batch = 8 if ex is not None else 1
+    batch = 8 if ex.remote or ex.slots > 1 else 1
     started = time.perf_counter()
     for i in range(0, len(candidates), batch):
         chunk = candidates[i:i + batch]
@@ -318,10 +318,10 @@ def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
     journal_file = None if out is None else journal_path(Path(out))
     if resume and (journal_file is None or not journal_file.exists()):
         raise ParameterError(f"--resume: no journal {journal_file} of an interrupted fit")
-    journal = estimation.Journal(journal_file, keep=resume)
+    journal = estimation.ResidualJournal(journal_file, keep=resume)
     model = PaperTargets(dt, protocol)
     started = time.perf_counter()
-    with executor_for(jobs) as ex:
+    with open_workers(jobs) as ex:
         if samples:
             params = _best_start(model, random_starts(params, samples, seed), ex, journal,
                                  progress)
@@ -330,8 +330,7 @@ def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
                              diff_step=DIFF_STEP, progress=progress, journal=journal)
         (first,) = estimation.evaluate(model, [params], ex, journal=journal)
         tasks = model.tasks(fit.params)  # once more, for the figures behind the residuals
-        results = [t.run() for t in tasks] if ex is None else \
-            list(ex.map(estimation.run_task, tasks))
+        results = execute(tasks, ex)
     # the fit, then the protocol readings it started from (written with it)
     fitted = {n: fit.params.value(n) for n in (*FREE, *KEPT)}
     result = CalibrationResult(fit.params, fitted, cost=0.5 * float(fit.residuals @ fit.residuals),

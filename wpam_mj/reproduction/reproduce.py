@@ -106,11 +106,12 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
         files.update(dict.fromkeys((out / name for name in figs), {}))
         return [_FigureTask(out / name, *spec, run_id) for name, spec in figs.items()]
 
-    # The runs of all studies at once, longest first; then every CSV and figure.
+    # Table 2's and the comparisons' runs; then the sweep's runs here while their CSVs and
+    # figures are drawn on the pool; then the sweep's.
     with open_workers(jobs) as workers:
-        t2, (open_step, *preset_runs), sw = execute(
-            [table2_batch(params, protocol, dt=dt), Batch(extra, list),
-             sweep_batch(params, dt=dt)], workers, progress=progress, desc="reproduce")
+        t2, (open_step, *preset_runs) = execute(
+            [table2_batch(params, protocol, dt=dt), Batch(extra, list)], workers,
+            progress=progress, desc="reproduce")
         outputs = (
             csv_tasks((*t2.open_loops, *t2.po_loops), static_csv_name)
             + csv_tasks(t2.feedback_runs, step_csv_name)
@@ -138,9 +139,11 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
                                            dict(title="Step response at 100 N: open loop vs "
                                                       "PI on Po (cf. Figs. 12-13)"))}))
 
+        sw, *_ = execute([sweep_batch(params, dt=dt), *outputs], workers, progress=progress,
+                         desc="sweep")
         fig_key = figure_run_key(paper.LOADS_N, paper.SWEEP_FREQS_HZ,
                                  paper.SWEEP_CONTROLLERS)
-        outputs += (
+        outputs = (
             [csv_task(data / sine_csv_name(fig_key), sw.series[fig_key])]
             + figure_tasks({
                 "fig17_frequency_response.png": ("sweep_figure", (sw,), {}),

@@ -34,7 +34,6 @@ import json
 import math
 import sys
 import time
-from concurrent.futures import Executor
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Sequence
@@ -44,7 +43,7 @@ from scipy.optimize import differential_evolution
 
 from wpam_mj.paper import TABLE2_PO_RTOL
 from wpam_mj.fitting import estimation
-from wpam_mj.infra.pool import executor_for
+from wpam_mj.infra.pool import Workers, open_workers
 from wpam_mj.reproduction.calibrate import FREE
 from wpam_mj.reproduction.search_scoring import OBJECTIVES, Record, Targets, score
 from wpam_mj.physics.params import (Params, ParameterError, check_range,
@@ -120,6 +119,17 @@ def _point_task(arg: tuple) -> Point | None:
     return Point(params, protocol, err, region.names)
 
 
+@dataclass(frozen=True)
+class _StaticFit:
+    """`_point_task` as a task of the execution layer."""
+
+    key: tuple
+    cost = 1.0
+
+    def run(self) -> Point | None:
+        return _point_task(self.key)
+
+
 def point_of(u: Sequence[float], base: Params, region: Region = GLOBAL) -> Point:
     """The point at coordinates `u` (one per dim of `region`, in [0, 1]) on top of
     `base`, with its fit (computed once per point)."""
@@ -144,7 +154,7 @@ def _key(u: Sequence[float]) -> str:
     return hashlib.sha256(repr([round(float(x), 12) for x in u]).encode()).hexdigest()[:24]
 
 
-class Journal:
+class PointJournal:
     """Records by coordinates, appended as JSON lines to `path` (None: in memory), after a
     first line {"settings": ...} naming the search they belong to (`search_settings`;
     None: a journal written before journals recorded them)."""
@@ -180,9 +190,9 @@ class Journal:
 
 class Evaluator:
     """Scores lists of coordinates: journaled points are replayed, the rest run together
-    on `executor`, longest runs first (None: here, one after the other)."""
+    on `executor` (the `Workers` of `open_workers`), longest runs first."""
 
-    def __init__(self, base: Params, journal: Journal, executor: Executor | None,
+    def __init__(self, base: Params, journal: PointJournal, executor: Workers,
                  targets=None, progress: bool = False, planned: int = 0,
                  region: Region = GLOBAL, objective: str = "cost") -> None:
         self.base, self.journal, self.executor = base, journal, executor
@@ -246,8 +256,8 @@ class Evaluator:
         """Each coordinate's point with its static fit, the fits run on the workers."""
         keys = [(tuple(float(x) for x in u), self.base, self.region) for u in us]
         todo = [k for k in dict.fromkeys(keys) if k not in _POINTS]
-        fitted = (map(_point_task, todo) if self.executor is None
-                  else self.executor.map(_point_task, todo))
+        from wpam_mj.simulation.execution import execute  # noqa: PLC0415 (the one layer)
+        fitted = execute([_StaticFit(k) for k in todo], self.executor)
         for k, point in zip(todo, fitted):
             _POINTS[k] = point
         return [_POINTS[k] for k in keys]
@@ -325,7 +335,7 @@ _SETTING_FLAGS = {"seed": "--seed", "popsize": "--popsize", "free": "--free",
                   "radius": "--radius"}
 
 
-def check_same_search(journal: Journal, ours: dict, what: str,
+def check_same_search(journal: PointJournal, ours: dict, what: str,
                       keys: Sequence[str] = ("seed", "popsize", "free", "radius", "base")
                       ) -> None:
     """ParameterError naming the first setting of `keys` in which the search asked for
@@ -404,11 +414,11 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
     path = None if out is None else Path(out) / "journal.jsonl"
     if resume and path is None:
         raise ParameterError("--resume: an in-memory search has no journal to resume")
-    journal = Journal(path, keep=resume, settings=settings)
+    journal = PointJournal(path, keep=resume, settings=settings)
     if resume:
         check_same_search(journal, settings, "--resume")
     started = time.perf_counter()
-    with executor_for(jobs) as ex:
+    with open_workers(jobs) as ex:
         ev = Evaluator(base, journal, ex, targets, progress,
                        planned_evaluations(popsize, maxiter, len(bounds)), region, objective)
         res = differential_evolution(
@@ -438,4 +448,4 @@ def convergence(records: Sequence[Record],
 def load_records(out: Path) -> list[Record]:
     """Every record of the journal in `out` (a finished or interrupted search);
     ParameterError where there is none."""
-    return list(Journal(Path(out) / "journal.jsonl", keep=True).records.values())
+    return list(PointJournal(Path(out) / "journal.jsonl", keep=True).records.values())

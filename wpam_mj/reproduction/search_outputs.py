@@ -15,7 +15,7 @@ from wpam_mj.fitting import estimation
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.physics.params import Params, ParameterError, preset
 from wpam_mj.reproduction import findings_map
-from wpam_mj.reproduction.search import (GLOBAL, Journal, Point, Region, check_same_search,
+from wpam_mj.reproduction.search import (GLOBAL, PointJournal, Point, Region, check_same_search,
                                          convergence, point_of, region_of, search,
                                          search_settings)
 from wpam_mj.reproduction.search_scoring import (OBJECTIVE_TEXT, OBJECTIVES, PAPER_CHECKS,
@@ -61,7 +61,7 @@ def write_map(out: Path, base: Params, objective: str = "cost",
     refused where there is no journal, no point in it, or it is of another region or base
     point than `free` and `base` say (`radius` is only checked: `region_of`)."""
     region, _ = region_of(free, radius)
-    journal = Journal(Path(out) / "journal.jsonl", keep=True)
+    journal = PointJournal(Path(out) / "journal.jsonl", keep=True)
     check_same_search(journal, search_settings(
         base, None if free is None else region.names), "--map-only", ("free", "base"))
     if not journal.records:

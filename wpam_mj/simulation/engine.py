@@ -27,9 +27,7 @@ tests/test_plugin.py checks that the plugin is bit-identical to this.
 
 from __future__ import annotations
 
-import ctypes
 import math
-import re
 import sys
 from dataclasses import dataclass
 
@@ -148,6 +146,10 @@ class PythonMuscle:
                       g.max_contraction)
         self.braid_d = (params.braid.natural_length, g.thread_sq, g.diameter_denom,
                         g.max_contraction)
+        self.x_max = g.max_contraction
+        # (channel index, actuator, its ctrlrange where it is limited) of each channel
+        self.inputs = tuple((i, a, limits)
+                            for i, (a, limits) in enumerate(zip(channels, self.ctrl_limits)))
         self.k = RunConstants.make(params, self.dt, self.dt)
         controller = make_controller(config.control, params, self.dt)
         # the Po feedback's constants (PoFeedback's), and its integral at the start
@@ -163,18 +165,18 @@ class PythonMuscle:
         block = data.userdata[self.address:self.address + self.size]
         if block[_STARTED] == 0.0:
             block[:] = self._initial()
-        return block[len(HEADER):]
+        return block[_S:]
 
     def _initial(self) -> list[float]:
         """Vented chambers, empty regulators, controller at its bumpless start (the
         plugin's state_reset), after the header of a started muscle."""
-        s = [0.0] * self.size
-        s[_STARTED] = 1.0
-        state = dict(x_ref=math.nan, p_i=self.k.atmosphere, p_o=self.k.atmosphere,
-                     integral=self.integral0, rest_pending=float(self.config.start_at_rest))
-        for name, value in state.items():
-            s[len(HEADER) + FIELD[name]] = value
-        return s
+        h = [0.0] * self.size
+        h[_STARTED] = 1.0
+        h[_X_REF] = math.nan
+        h[_P_I] = h[_P_O] = self.k.atmosphere
+        h[_INTEGRAL] = self.integral0
+        h[_REST_PENDING] = float(self.config.start_at_rest)
+        return h
 
     def status(self, data: mujoco.MjData) -> str:
         """Why the muscle's state in `data` left its range, in one line ("" while it has
@@ -210,29 +212,28 @@ class PythonMuscle:
         clamped to its ctrlrange where limited, a non-finite one replaced by the channel's
         last finite value (0 at the start), x_ref held to the stroke under feedback."""
         command = [0.0] * plugin.MAX_CHANNELS
-        for i, (a, limits) in enumerate(zip(self.channels, self.ctrl_limits)):
+        for i, a, limits in self.inputs:
             c = float(ctrl[a])
             if limits is not None:
                 c = min(max(c, limits[0]), limits[1])
             if math.isfinite(c):
-                h[_S + FIELD[f"input{i}"]] = c
-            command[i] = h[_S + FIELD[f"input{i}"]]
+                h[_INPUTS[i]] = c
+            command[i] = h[_INPUTS[i]]
         if self.feedback:
-            command[0] = kernel.in_stroke(command[0], self.braid[-1])
+            command[0] = kernel.in_stroke(command[0], self.x_max)
         return command
 
     def compute(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
         """The step's force and friction level (the plugin's compute): after the constraint
         rows are made, before actuation and the solve; the controller's output is kept
         in the state for `advance` to commit."""
-        self.state(data)
         block = data.userdata[self.address:self.address + self.size]
-        h = block.tolist()
+        h = block.tolist() if block[_STARTED] else self._initial()
         if self._options_changed(model, h) or _stopped(h):
             block[:] = h
             data.ctrl[self.force_actuator] = 0.0
             return
-        p, k = self.params, self.k
+        k, m = self.k, self.params.muscle
         x = self.config.contraction0 + (self.length0 - float(data.ten_length[self.tendon]))
         v = -float(data.ten_velocity[self.tendon])
         command = self._commands(data.ctrl, h)
@@ -241,34 +242,25 @@ class PythonMuscle:
         if self.feedback:
             x_ref = command[0]
             pi_cmd = command[1] if nchannel > 1 else self._pi_feedforward(x_ref)
-            kp, ki, kd, tf, pa_per_unit, lo, hi = self.gains
-            po_cmd, *after = kernel.po_feedback(
-                x, x_ref, command[2] if nchannel > 2 else 0.0, h[_S + FIELD["integral"]],
-                h[_S + FIELD["derivative"]], h[_S + FIELD["e_prev"]],
-                h[_S + FIELD["has_prev"]] != 0.0, kp, ki, kd, tf, pa_per_unit, lo, hi,
-                self.dt)
-            for name, value in zip(("next_integral", "next_derivative", "next_e"), after):
-                h[_S + FIELD[name]] = value
+            po_cmd, h[_NEXT_INTEGRAL], h[_NEXT_DERIVATIVE], h[_NEXT_E] = kernel.po_feedback(
+                x, x_ref, command[2] if nchannel > 2 else 0.0, h[_INTEGRAL], h[_DERIVATIVE],
+                h[_E_PREV], h[_HAS_PREV] != 0.0, *self.gains, self.dt)
         else:
             pi_cmd, po_cmd = command[0], command[1]
-        if h[_S + FIELD["rest_pending"]] != 0.0:
+        if h[_REST_PENDING] != 0.0:
             self._rest(h, pi_cmd, po_cmd)
-        pi = h[_S + FIELD["p_i"]] - k.atmosphere
-        po = h[_S + FIELD["p_o"]] - k.atmosphere
+        pi = h[_P_I] - k.atmosphere
+        po = h[_P_O] - k.atmosphere
         area = kernel.area(x, *self.braid)
-        m = p.muscle
         force = kernel.tendon_force(pi, po, area, self._rubber(x), m.output_coeff,
                                     m.axial_area, self.config.guided)
         friction = kernel.friction_level(pi, po, area, m.friction_coeff, m.friction_const)
         tolerance = plugin.STROKE_TOLERANCE
-        if not -tolerance <= x <= self.braid[-1] + tolerance:
+        if not -tolerance <= x <= self.x_max + tolerance:
             self._left_stroke(h, x)
         if not math.isfinite(x):  # MuJoCo's state is already bad: add nothing to it
             force, friction = 0.0, m.friction_const
-        for name, value in zip(("x", "velocity", "x_ref", "pi", "po", "pi_cmd", "po_cmd",
-                                "tension", "friction"),
-                               (x, v, x_ref, pi, po, pi_cmd, po_cmd, force, friction)):
-            h[_S + FIELD[name]] = value
+        h[_X:_FRICTION + 1] = x, v, x_ref, pi, po, pi_cmd, po_cmd, force, friction
         data.ctrl[self.force_actuator] = -force  # along the tendon's length
         h[_FRICTION_ROW] = set_friction_level(data, self.tendon, friction,
                                               int(h[_FRICTION_ROW]))
@@ -277,8 +269,8 @@ class PythonMuscle:
     def _left_stroke(self, h: list[float], x: float) -> None:
         """The plugin's left_stroke: STATUS_STROKE, and the first time since the reset one
         warning line naming the tendon range that holds the muscle in its stroke."""
-        if not int(h[_S + FIELD["status"]]) & plugin.STATUS_STROKE:
-            x_max = self.braid[-1]
+        if not int(h[_STATUS]) & plugin.STATUS_STROKE:
+            x_max = self.x_max
             natural = self.length0 + self.config.contraction0  # the tendon's length at x = 0
             print(f"WARNING: wpam_mj.muscle instance '{self.config.name}': contraction x = "
                   f"{x:.6g} m left the stroke [0, {x_max:.6g}] m by more than "
@@ -307,12 +299,12 @@ class PythonMuscle:
         """The plugin's plant_rest: regulators settled on the commands, chambers at their
         set points."""
         k, n = self.k, self.k.delay_steps
-        queues = _S + len(plugin.STATE_FIELDS)
-        h[queues:queues + n] = [pi_cmd] * n
-        h[queues + n:queues + 2 * n] = [po_cmd] * n
-        for reg, chamber, command in (("pi_reg", "p_i", pi_cmd), ("po_reg", "p_o", po_cmd)):
-            h[_S + FIELD[reg]] = kernel.regulator_clamp(command, k.p_max)
-            h[_S + FIELD[chamber]] = h[_S + FIELD[reg]] + k.atmosphere
+        h[_QUEUES:_QUEUES + n] = [pi_cmd] * n
+        h[_QUEUES + n:_QUEUES + 2 * n] = [po_cmd] * n
+        h[_PI_REG] = kernel.regulator_clamp(pi_cmd, k.p_max)
+        h[_PO_REG] = kernel.regulator_clamp(po_cmd, k.p_max)
+        h[_P_I] = h[_PI_REG] + k.atmosphere
+        h[_P_O] = h[_PO_REG] + k.atmosphere
 
     def advance(self, model: mujoco.MjModel, data: mujoco.MjData) -> None:
         """After the step (the plugin's advance): the controller's state committed, the
@@ -321,39 +313,34 @@ class PythonMuscle:
         h = block.tolist()
         if not h[_STARTED] or h[_REFUSED] or _stopped(h):
             return
-        k, s = self.k, _S
+        k, axial = self.k, self.params.muscle.axial_area
         if self.feedback:  # PoFeedback's commit
-            for name in ("integral", "derivative", "e"):
-                h[s + FIELD["e_prev" if name == "e" else name]] = h[s + FIELD[f"next_{name}"]]
-            h[s + FIELD["has_prev"]] = 1.0
-        h[s + FIELD["rest_pending"]] = 0.0
-        head, n = int(h[s + FIELD["head"]]), k.delay_steps
-        queues = s + len(plugin.STATE_FIELDS)
-        set_points = []
-        for i, (reg, cmd) in enumerate((("pi_reg", "pi_cmd"), ("po_reg", "po_cmd"))):
-            command = h[s + FIELD[cmd]]
-            if n:  # the dead time: this step's command in, the one n steps old out
-                slot = queues + i * n + head
-                command, h[slot] = h[slot], command
-            h[s + FIELD[reg]] = kernel.regulator_set_point(h[s + FIELD[reg]], command,
-                                                           k.p_max, k.lag_alpha)
-            set_points.append(h[s + FIELD[reg]])
-        if n:
-            h[s + FIELD["head"]] = (head + 1) % n
-        v = h[s + FIELD["velocity"]]
-        x = kernel.in_stroke(h[s + FIELD["x"]], self.braid[-1])
+            h[_INTEGRAL], h[_DERIVATIVE], h[_E_PREV] = h[_NEXT_INTEGRAL:_NEXT_E + 1]
+            h[_HAS_PREV] = 1.0
+        h[_REST_PENDING] = 0.0
+        pi_cmd, po_cmd = h[_PI_CMD], h[_PO_CMD]
+        n = k.delay_steps
+        if n:  # the dead time: this step's commands in, those n steps old out
+            head = int(h[_HEAD])
+            i, o = _QUEUES + head, _QUEUES + n + head
+            pi_cmd, h[i], po_cmd, h[o] = h[i], pi_cmd, h[o], po_cmd
+            h[_HEAD] = (head + 1) % n
+        set_i = h[_PI_REG] = kernel.regulator_set_point(h[_PI_REG], pi_cmd, k.p_max,
+                                                         k.lag_alpha)
+        set_o = h[_PO_REG] = kernel.regulator_set_point(h[_PO_REG], po_cmd, k.p_max,
+                                                         k.lag_alpha)
+        v = h[_VELOCITY]
+        x = kernel.in_stroke(h[_X], self.x_max)
         area = kernel.area(x, *self.braid)
         vol = kernel.volume(x, *self.braid)
-        axial = self.params.muscle.axial_area
-        p_i = kernel.chamber_step(h[s + FIELD["p_i"]], set_points[0] + k.atmosphere,
-                                  kernel.inner_volume(vol, k.tube_volume), area, v,
-                                  k.conductance_i, k.critical_ratio, k.dt)
-        p_o = kernel.chamber_step(h[s + FIELD["p_o"]], set_points[1] + k.atmosphere,
-                                  kernel.outer_volume(vol, x, axial, k.bag_volume,
-                                                      k.tube_volume),
-                                  kernel.outer_dvdx(area, axial), v, k.conductance_o,
-                                  k.critical_ratio, k.dt)
-        h[s + FIELD["p_i"]], h[s + FIELD["p_o"]] = p_i, p_o
+        p_i = h[_P_I] = kernel.chamber_step(h[_P_I], set_i + k.atmosphere,
+                                            kernel.inner_volume(vol, k.tube_volume), area, v,
+                                            k.conductance_i, k.critical_ratio, k.dt)
+        p_o = h[_P_O] = kernel.chamber_step(h[_P_O], set_o + k.atmosphere,
+                                            kernel.outer_volume(vol, x, axial, k.bag_volume,
+                                                                k.tube_volume),
+                                            kernel.outer_dvdx(area, axial), v,
+                                            k.conductance_o, k.critical_ratio, k.dt)
         if not (p_i > 0.0 and p_o > 0.0 and math.isfinite(p_i) and math.isfinite(p_o)):
             _set_status(h, plugin.STATUS_PRESSURE)
         block[:] = h
@@ -367,13 +354,33 @@ _STARTED, _FRICTION_ROW, _REFUSED = range(len(HEADER))
 _S = len(HEADER)  # where the plugin's layout starts in a block
 
 
+def _at(*names: str) -> tuple[int, ...]:
+    """Where the plugin's state fields `names` lie in a muscle's block."""
+    return tuple(_S + FIELD[name] for name in names)
+
+
+(_X, _VELOCITY, _X_REF, _PI_CMD, _PO_CMD, _FRICTION, _PI_REG, _PO_REG, _P_I, _P_O, _INTEGRAL,
+ _DERIVATIVE, _E_PREV, _HAS_PREV, _NEXT_INTEGRAL, _NEXT_DERIVATIVE, _NEXT_E, _REST_PENDING,
+ _STATUS, _HEAD) = _at(
+    "x", "velocity", "x_ref", "pi_cmd", "po_cmd", "friction", "pi_reg", "po_reg", "p_i", "p_o",
+    "integral", "derivative", "e_prev", "has_prev", "next_integral", "next_derivative",
+    "next_e", "rest_pending", "status", "head")
+_INPUTS = _at(*(f"input{i}" for i in range(plugin.MAX_CHANNELS)))
+_QUEUES = _S + len(plugin.STATE_FIELDS)  # the dead-time queues: Pi's, then Po's
+# compute writes x .. friction in one slice, advance reads the next_* in one: in this order
+assert _at("x", "velocity", "x_ref", "pi", "po", "pi_cmd", "po_cmd", "tension", "friction") \
+    == tuple(range(_X, _FRICTION + 1))
+assert _at("next_integral", "next_derivative", "next_e") == tuple(range(_NEXT_INTEGRAL,
+                                                                        _NEXT_E + 1))
+
+
 def _stopped(h: list[float]) -> bool:
     """A muscle whose state left its range, or whose model changed, steps no more."""
-    return bool(int(h[_S + FIELD["status"]]) & (plugin.STATUS_PRESSURE | plugin.STATUS_MODEL))
+    return bool(int(h[_STATUS]) & (plugin.STATUS_PRESSURE | plugin.STATUS_MODEL))
 
 
 def _set_status(h: list[float], bit: int) -> None:
-    h[_S + FIELD["status"]] = float(int(h[_S + FIELD["status"]]) | bit)
+    h[_STATUS] = float(int(h[_STATUS]) | bit)
 
 
 def step(model: mujoco.MjModel, data: mujoco.MjData, muscles: list[PythonMuscle],
@@ -394,6 +401,7 @@ def step(model: mujoco.MjModel, data: mujoco.MjData, muscles: list[PythonMuscle]
 _FRICTION_TENDON = int(mujoco.mjtConstraint.mjCNSTR_FRICTION_TENDON)
 _NO_FRICTION_ROW = {"constraint": int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT),
                     "frictionloss": int(mujoco.mjtDisableBit.mjDSBL_FRICTIONLOSS)}
+_NO_ROW_FLAGS = _NO_FRICTION_ROW["constraint"] | _NO_FRICTION_ROW["frictionloss"]
 
 
 def no_friction_row(model: mujoco.MjModel, instance: str, tendon: int, *,
@@ -401,10 +409,12 @@ def no_friction_row(model: mujoco.MjModel, instance: str, tendon: int, *,
     """The plugin's no_friction_row: the line saying why MuJoCo makes no friction row for
     the muscle's tendon (its frictionloss not positive, or MuJoCo's constraint or
     frictionloss flag disabled), at compile or `after` it; None while it makes one."""
+    loss = float(model.tendon_frictionloss[tendon])
+    if loss > 0.0 and not model.opt.disableflags & _NO_ROW_FLAGS:
+        return None  # the usual case, every step: nothing to say
     prefix = f"wpam_mj.muscle instance '{instance}': "
     stop = "; the muscle stops until it is changed back and the data reset"
     name = model.tendon(tendon).name
-    loss = float(model.tendon_frictionloss[tendon])
     if not loss > 0.0:
         if after:
             return (f"{prefix}tendon '{name}' frictionloss = {loss:.6g} after the model "
@@ -526,76 +536,3 @@ def state_size(config: InstanceConfig, timestep: float) -> int:
     dead-time queues at this time step [s]."""
     delay_steps = RunConstants.make(config.params, timestep, timestep).delay_steps
     return len(HEADER) + len(plugin.STATE_FIELDS) + 2 * delay_steps
-
-
-# ---- a stand-in registration, so that MJCF naming the plugin parses without a compiler ----
-
-def _plugin_struct() -> type[ctypes.Structure]:
-    """ctypes' mjpPlugin, field for field as the installed mujoco's mjplugin.h declares
-    it (pointers, function pointers and ints; any other field type is refused)."""
-    header = (plugin.MUJOCO_DIR / "include" / "mujoco" / "mjplugin.h").read_text()
-    found = re.search(r"typedef struct mjpPlugin_ \{(.*?)\} mjpPlugin;", header, re.S)
-    if found is None:
-        raise RuntimeError("mjplugin.h declares no mjpPlugin")
-    fields = []
-    for declaration in re.sub(r"//[^\n]*|/\*.*?\*/", "", found.group(1), flags=re.S).split(";"):
-        declaration = " ".join(declaration.split())
-        callback = re.fullmatch(r"[^(]*\(\s*\*\s*(\w+)\s*\)\s*\(.*\)", declaration)
-        field = re.fullmatch(r"(.*?)\s*(\w+)", declaration)
-        if callback:
-            fields.append((callback.group(1), ctypes.c_void_p))
-        elif field and "*" in field.group(1):
-            fields.append((field.group(2), ctypes.c_void_p))
-        elif field and field.group(1) == "int":
-            fields.append((field.group(2), ctypes.c_int))
-        elif declaration:
-            raise RuntimeError(f"mjplugin.h: mjpPlugin field '{declaration}' is of a type the "
-                               "stand-in does not lay out")
-    return type("MjpPlugin", (ctypes.Structure,), {"_fields_": fields})
-
-
-_NSTATE = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_int)
-_INIT = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int)
-_RESET = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p,
-                          ctypes.c_int)
-_COMPUTE = ctypes.CFUNCTYPE(None, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int,
-                            ctypes.c_int)
-_keep: list = []  # the registration's C objects live as long as the process
-INSTEAD = ("model, muscles = wpam_mj.simulation.engine.python_model(mujoco.MjSpec.from_file("
-           "PATH)), stepped by engine.step(model, data, muscles) (docs/plugin.md)")
-
-
-def _refuse(model, data, instance) -> int:
-    print(f"wpam_mj: this model's muscles need the compiled plugin, unavailable here "
-          f"({plugin.unavailable_reason()}); load it on the Python engine instead: {INSTEAD}",
-          file=sys.stderr)
-    return -1
-
-
-def register_stand_in() -> None:
-    """Register a ``wpam_mj.muscle`` that declares the plugin's attributes and computes
-    nothing, so that an MJCF naming the plugin parses where the compiled plugin cannot be
-    built; `python_model` then removes it before compiling, and compiling such a model
-    directly fails, with one line saying what to call instead. Does nothing when a
-    plugin of that name is registered (the compiled one, or the stand-in already)."""
-    from wpam_mj.simulation import plugin_build  # noqa: PLC0415 (loaded only here)
-
-    if plugin.available() or plugin_build.registered():
-        return
-    names = plugin.attribute_names()
-    attributes = (ctypes.c_char_p * len(names))(*[n.encode() for n in names])
-    name = ctypes.create_string_buffer(plugin.NAME.encode())
-    # init fails: a model compiled with the stand-in itself has no muscle and must not run
-    callbacks = (_NSTATE(lambda m, i: 0), _INIT(_refuse),
-                 _RESET(lambda m, s, p, i: None), _COMPUTE(lambda m, d, i, c: None))
-    lib = plugin_build.libmujoco()
-    stand_in = _plugin_struct()()
-    lib.mjp_defaultPlugin(ctypes.byref(stand_in))
-    stand_in.name = ctypes.addressof(name)
-    stand_in.nattribute = len(names)
-    stand_in.attributes = ctypes.addressof(attributes)
-    stand_in.capabilityflags = 1  # mjPLUGIN_ACTUATOR
-    for field, callback in zip(("nstate", "init", "reset", "compute"), callbacks):
-        setattr(stand_in, field, ctypes.cast(callback, ctypes.c_void_p).value)
-    lib.mjp_registerPlugin(ctypes.byref(stand_in))
-    _keep.extend([stand_in, name, attributes, callbacks])

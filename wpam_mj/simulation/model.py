@@ -13,7 +13,7 @@ from pathlib import Path
 
 import mujoco
 
-from wpam_mj.simulation import engine
+from wpam_mj.simulation import engine, stand_in
 from wpam_mj.simulation import plugin
 from wpam_mj.physics import pneumatics
 from wpam_mj.physics.geometry import BraidGeometry
@@ -65,9 +65,10 @@ INSTANCE = "muscle"  # the rig's plugin instance
 
 def check_chamber_step(params: Params, dt: float) -> None:
     """Refuse a dt [s] at which the explicit chamber update would be unstable
-    (`wpam_mj.physics.pneumatics.stable_dt`), naming the conductance and the dt it needs; every
-    path that steps the muscle calls it (the plugin refuses the same at compile time)."""
-    limit, name = pneumatics.stable_dt(params)
+    (`wpam_mj.physics.pneumatics.largest_stable_dt`), naming the conductance and the dt it
+    needs; every path that steps the muscle calls it (the plugin refuses the same at
+    compile time)."""
+    limit, name = pneumatics.largest_stable_dt(params)
     if dt > limit:
         raise ParameterError(f"{name} = {params.value(name):g} m^3/(s Pa) fills its chamber "
                              f"too fast for dt = {dt:g} s (the explicit chamber update "
@@ -94,7 +95,7 @@ def rig_spec(params: Params, load: float, dt: float = 1e-3, *, control: str = "o
     params = params.plant  # the simulated plant (`Params.plant_deviation`)
     load = check_load(load)
     dt = check_dt(dt)
-    engine.register_stand_in()
+    stand_in.register_stand_in()
     spec = mujoco.MjSpec.from_file(str(xml))
     spec.option.timestep = dt
     spec.option.gravity = (0.0, 0.0, -STANDARD_GRAVITY)
@@ -130,6 +131,6 @@ def build_model(params: Params, load: float, dt: float = 1e-3, *,
     the muscle): for readers of its mechanics (the linear model, drawing) and the
     bare-step benchmark. Compiled at a step the chambers can take (the rule table refuses
     a longer one), as only its mechanics are read."""
-    dt = min(dt, pneumatics.stable_dt(params)[0])
+    dt = min(dt, pneumatics.largest_stable_dt(params)[0])
     model, _ = engine.python_model(rig_spec(params, load, dt, xml=xml))
     return model

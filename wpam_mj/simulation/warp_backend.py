@@ -19,6 +19,7 @@ one batch per model layout and length, the record as the plugin's, in float32.
 from __future__ import annotations
 
 import dataclasses
+import sys
 
 import mujoco
 import numpy as np
@@ -56,10 +57,14 @@ class WarpBatch:
     """Worlds of one model layout, each its own MjSpec, stepped together on `device`.
 
     per_world: model fields held per world whether or not they differ now (those a later
-    `load_world` changes); nsub: the physics steps of one `step_synced`."""
+    `load_world` changes); nsub: the physics steps of one `step_synced`; delay: room for
+    dead-time queues of at least this many steps (a later `load_world` may need more)."""
+
+    force_host_copies = False  # tests: the CUDA path's host copies on the CPU device
 
     def __init__(self, specs: list[mujoco.MjSpec], device: str = "cpu", *,
-                 per_world: tuple[str, ...] | list[str] = (), nsub: int = 1) -> None:
+                 per_world: tuple[str, ...] | list[str] = (), nsub: int = 1,
+                 delay: int = 0) -> None:
         wp, mjw = warp_muscle.require_warp()
         self.wp, self.mjw = wp, mjw
         self.device = check_device(device)
@@ -67,7 +72,7 @@ class WarpBatch:
         built: dict[int, tuple] = {}  # one compile per distinct spec
         for spec in specs:
             if id(spec) not in built:
-                built[id(spec)] = engine.python_model(spec)
+                built[id(spec)] = engine.python_model(spec.copy())  # (it edits the spec)
         worlds = [built[id(spec)] for spec in specs]
         self.models = [model for model, _ in worlds]
         mjm = self.models[0]
@@ -94,7 +99,7 @@ class WarpBatch:
         cache: dict[int, dict] = {}
         values = [cache.setdefault(id(m), warp_muscle.world_values(
             m.config, m.length0, self.dt, len(m.channels))) for m in self.muscles]
-        self.delay = int(max(v["delay_steps"] for v in values))
+        self.delay = int(max(delay, *(v["delay_steps"] for v in values)))
         self.width = len(plugin.STATE_FIELDS) + 2 * self.delay
         self._initial = self._initial_state(values)
         self.kernels = warp_muscle.kernels()
@@ -110,17 +115,23 @@ class WarpBatch:
         self._graphs: dict[int, object] = {}
         self._host: dict[str, np.ndarray] = {}
         self._staged: set[str] = set()
+        # host mirrors are copies kept in step on CUDA (views on the CPU device, unless a
+        # test asks for the CUDA path's copies there)
+        self.host_copies = self.device.startswith("cuda") or self.force_host_copies
 
     def _put_model(self, mjm: mujoco.MjModel, per_world: set[str]):
         """`mujoco_warp.put_model`, with every batched field that differs between the worlds'
         models, or is named in `per_world`, held per world."""
         self.per_world = {}
+        distinct = list({id(m): m for m in self.models}.values())  # compared once each
+        which = {id(m): k for k, m in enumerate(distinct)}
+        index = np.array([which[id(m)] for m in self.models])
         for name in _batched_fields(self.mjw):
             if not hasattr(mjm, name):
                 continue
-            values = [np.asarray(getattr(m, name)) for m in self.models]
+            values = [np.asarray(getattr(m, name)) for m in distinct]
             if name in per_world or any(not np.array_equal(v, values[0]) for v in values[1:]):
-                self.per_world[name] = np.stack(values)
+                self.per_world[name] = np.stack(values)[index]
         model = self.mjw.put_model(mjm, batch_sizes={n: self.nworld for n in self.per_world})
         for name, stacked in self.per_world.items():
             arr = getattr(model, name)
@@ -178,14 +189,23 @@ class WarpBatch:
                 self._steps(nstep, forward)  # load every kernel before capturing
                 for a, saved in zip(self._state_arrays(), state):
                     wp.copy(a, saved)  # the warm-up leaves no trace
-                with wp.ScopedCapture() as capture:
-                    self._steps(nstep, forward)
-                self._graphs[key] = capture.graph
-            wp.capture_launch(self._graphs[key])
+                try:
+                    with wp.ScopedCapture() as capture:
+                        self._steps(nstep, forward)
+                    self._graphs[key] = capture.graph
+                except Exception as err:  # noqa: BLE001 (no graphs here: launch each kernel)
+                    print(f"wpam_mj: CUDA graph capture failed ({err}); stepping without",
+                          file=sys.stderr)
+                    self._graphs[key] = None
+            if self._graphs[key] is None:
+                self._steps(nstep, forward)
+            else:
+                wp.capture_launch(self._graphs[key])
 
     def _state_arrays(self) -> list:
         d = self.data
-        return [d.qpos, d.qvel, d.act, d.time, d.qacc_warmstart, d.ctrl, self.state]
+        return [a for a in (d.qpos, d.qvel, d.act, d.time, d.qacc_warmstart, d.ctrl,
+                            self.state) if a.size]
 
     def reset(self) -> None:
         """Every world at its model's initial state and its muscle at the plugin's reset."""
@@ -214,7 +234,8 @@ class WarpBatch:
 
     def _mirror(self, name: str) -> np.ndarray:
         if name not in self._host:
-            self._host[name] = self._array(name).numpy()  # a view on the CPU device
+            host = self._array(name).numpy()  # a view on the CPU device
+            self._host[name] = host.copy() if self.host_copies else host
         return self._host[name]
 
     def host_view(self) -> dict[str, np.ndarray]:
@@ -245,12 +266,17 @@ class WarpBatch:
             self._stage(f"world.{name}")[i] = value
 
     def _stage(self, name: str) -> np.ndarray:
+        """The host array of `name` to change rows of; on CUDA fetched first, so that the
+        upload leaves the other worlds as the device has them."""
+        host = self._mirror(name)
+        if name not in self._staged and self.host_copies:
+            host[...] = self._array(name).numpy()
         self._staged.add(name)
-        return self._mirror(name)
+        return host
 
     def upload(self) -> None:
         """Send what `load_world` staged to the device (nothing to send on the CPU)."""
-        if self.device.startswith("cuda"):
+        if self.host_copies:
             for name in self._staged:
                 self._array(name).assign(self._host[name])
         self._staged.clear()
@@ -258,11 +284,10 @@ class WarpBatch:
     def step_synced(self, nstep: int | None = None) -> None:
         """`nsub` (or `nstep`) physics steps with the host's ctrl, then the host mirrors of
         the state the vector environment reads."""
-        cuda = self.device.startswith("cuda")
-        if cuda:
+        if self.host_copies:
             self.data.ctrl.assign(self._host["ctrl"])
         self.step(self.nsub if nstep is None else nstep, forward=True)
-        if cuda:
+        if self.host_copies:
             for name in ("ten_length", "ten_velocity", "time", "state"):
                 self._host[name][...] = self._array(name).numpy()
 
@@ -271,6 +296,7 @@ def run_warp(runs: list, *, device: str = "cpu") -> list:
     """Each run's `SimResult` or the SimulationDiverged it raises, as `simulate_each`, on
     MuJoCo Warp: runs of one model layout and length share a batch (any presets, loads and
     control modes). Records as the plugin does, in float32."""
+    warp_muscle.require_warp()
     out: dict[int, object] = {}
     groups: dict[tuple, list[int]] = {}
     for i, run in enumerate(runs):

@@ -29,6 +29,7 @@ the process or wait forever.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
@@ -37,7 +38,7 @@ import sys
 import threading
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import mujoco
 import numpy as np
@@ -217,11 +218,12 @@ class LiveRig:
                 (font, mujoco.mjtGridPos.mjGRID_BOTTOMLEFT, *keys)]
 
 
-def check_display() -> None:
-    """Raise ViewerUnavailable (one line) unless a GLFW window can be opened."""
+def check_display(who: str = "wpam view") -> None:
+    """Raise ViewerUnavailable (one line, naming `who` needs the window) unless a GLFW
+    window can be opened."""
     if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY")
                                                  or os.environ.get("WAYLAND_DISPLAY")):
-        raise ViewerUnavailable("wpam view needs a display: DISPLAY is not set (run it on a "
+        raise ViewerUnavailable(f"{who} needs a display: DISPLAY is not set (run it on a "
                                 "desktop, over ssh -X, or under Xvfb; `wpam render` makes "
                                 "videos headless)")
     import glfw  # noqa: PLC0415 (mujoco's own dependency; only the viewer needs it)
@@ -231,8 +233,24 @@ def check_display() -> None:
         ok = glfw.init()
     if not ok:
         why = "; ".join(str(w.message) for w in caught) or "glfw.init() failed"
-        raise ViewerUnavailable(f"wpam view cannot open a window on display "
+        raise ViewerUnavailable(f"{who} cannot open a window on display "
                                 f"{os.environ.get('DISPLAY', '')!r}: {why}")
+
+
+@contextlib.contextmanager
+def console_log_only() -> Iterator[None]:
+    """MuJoCo's log to the console alone while inside: its default handler also writes
+    MUJOCO_LOG.TXT into the working folder, which a viewer that fails to open (a fatal
+    error in its window thread) would leave behind in the user's folder."""
+    config = mujoco.MjLogConfig.get()
+    to_file = config.logto_file
+    config.logto_file = False
+    mujoco.MjLogConfig.set(config)
+    try:
+        yield
+    finally:
+        config.logto_file = to_file
+        mujoco.MjLogConfig.set(config)
 
 
 def view(params: Params, *, load: float = 100.0, control: str = "pi",
@@ -269,44 +287,45 @@ def view(params: Params, *, load: float = 100.0, control: str = "pi",
     frame = 1.0 / FPS
     texts_at = -math.inf
     running = set(threading.enumerate())
-    try:
-        handle = mujoco.viewer.launch_passive(rig.model, rig.data, key_callback=keys.put,
-                                              show_left_ui=False, show_right_ui=False)
-    except RuntimeError as err:  # e.g. macOS outside mjpython
-        raise ViewerUnavailable(f"wpam view cannot open MuJoCo's viewer: {err}") from None
-    # the viewer's window thread: joined after closing, since the process's exit would
-    # otherwise terminate GLFW under its clean-up (a segfault at exit)
-    window_threads = set(threading.enumerate()) - running
-    try:
-        _frame_the_rig(handle.cam)
-        handle.opt.flags[mujoco.mjtVisFlag.mjVIS_TENDON] = False  # the sleeve replaces it
-        start = time.perf_counter()
-        while handle.is_running() and (duration is None or rig.time < duration - 0.5 * dt):
-            handle.sync()  # draws this state; clears xfrc_applied, then adds the mouse's
-            rig.push = float(rig.data.xfrc_applied[rig.load_body, 2])
-            while not keys.empty():
-                rig.press(keys.get())
-            until = rig.time + frame
-            if realtime:  # follow the wall clock, at most MAX_LAG_S behind
-                until = max(until, min(time.perf_counter() - start, rig.time + MAX_LAG_S))
-            if duration is not None:
-                until = min(until, duration)
-            with handle.lock():
-                force = rig.advance(until, perturb)
-                _draw_muscle(handle.user_scn, decor, rig)
-            if time.perf_counter() - texts_at >= TEXT_PERIOD_S:
-                handle.set_texts(rig.texts())
-                texts_at = time.perf_counter()
-            pi, po = rig.pressures()
-            rows.append((rig.time, rig.x, rig.target(rig.time), pi, po, force))
-            if on_frame is not None:
-                on_frame(rig.time, handle)
-            if realtime:
-                time.sleep(max(0.0, rig.time - (time.perf_counter() - start)))
-    finally:
-        handle.close()
-        for thread in window_threads:
-            thread.join(timeout=10.0)
+    with console_log_only():  # for as long as the window thread lives
+        try:
+            handle = mujoco.viewer.launch_passive(rig.model, rig.data, key_callback=keys.put,
+                                                  show_left_ui=False, show_right_ui=False)
+        except RuntimeError as err:  # e.g. macOS outside mjpython
+            raise ViewerUnavailable(f"wpam view cannot open MuJoCo's viewer: {err}") from None
+        # the viewer's window thread: joined after closing, since the process's exit would
+        # otherwise terminate GLFW under its clean-up (a segfault at exit)
+        window_threads = set(threading.enumerate()) - running
+        try:
+            _frame_the_rig(handle.cam)
+            handle.opt.flags[mujoco.mjtVisFlag.mjVIS_TENDON] = False  # the sleeve replaces it
+            start = time.perf_counter()
+            while handle.is_running() and (duration is None or rig.time < duration - 0.5 * dt):
+                handle.sync()  # draws this state; clears xfrc_applied, then adds the mouse's
+                rig.push = float(rig.data.xfrc_applied[rig.load_body, 2])
+                while not keys.empty():
+                    rig.press(keys.get())
+                until = rig.time + frame
+                if realtime:  # follow the wall clock, at most MAX_LAG_S behind
+                    until = max(until, min(time.perf_counter() - start, rig.time + MAX_LAG_S))
+                if duration is not None:
+                    until = min(until, duration)
+                with handle.lock():
+                    force = rig.advance(until, perturb)
+                    _draw_muscle(handle.user_scn, decor, rig)
+                if time.perf_counter() - texts_at >= TEXT_PERIOD_S:
+                    handle.set_texts(rig.texts())
+                    texts_at = time.perf_counter()
+                pi, po = rig.pressures()
+                rows.append((rig.time, rig.x, rig.target(rig.time), pi, po, force))
+                if on_frame is not None:
+                    on_frame(rig.time, handle)
+                if realtime:
+                    time.sleep(max(0.0, rig.time - (time.perf_counter() - start)))
+        finally:
+            handle.close()
+            for thread in window_threads:
+                thread.join(timeout=10.0)
     return ViewTrace(*np.array(rows, dtype=float).reshape(-1, 6).T)
 
 

@@ -1,0 +1,169 @@
+"""The MuJoCo Warp backend (the gpu extra): refused in one line without it; with it, on
+Warp's CPU device, every preset and control mode follows the compiled plugin within the
+float32 tolerance docs/warp.md states, sticking and slipping at the same samples, and the
+vector environment follows the default backend.
+
+The parity tests need `warp-lang` and `mujoco-warp` (pip install ".[gpu]") and skip without
+them, as in CI; on Warp's CPU device a step of a few worlds takes about 20 ms and the
+first run compiles Warp's kernels for about a minute (cached under ~/.cache/warp).
+"""
+
+from __future__ import annotations
+
+import importlib
+
+import gymnasium
+import numpy as np
+import pytest
+
+import wpam_mj  # noqa: F401 (registers the ids)
+from wpam_mj.experiments.drives import drive_for_targets, step_targets
+from wpam_mj.physics.params import MM, ParameterError, preset
+from wpam_mj.simulation import plugin, warp_muscle
+from wpam_mj.simulation.simulate import Run, simulate_run
+
+# float32 tolerances of the Warp backend against the float64 plugin over PARITY_S (docs/warp.md)
+# (measured: x 1.5e-7 m, Pi 0.52 Pa, Po 0.28 Pa, tension 1.6 mN, friction level 0.4 mN)
+TOLERANCE = {"x": 5e-7, "pi": 2.0, "po": 2.0, "tension": 5e-3, "friction": 2e-3}
+STUCK_M_S = 1e-5  # |dx/dt| below this: the load sticks [m/s]
+PARITY_S = 3.0
+LEVELS_MM = (20, 8, 25)  # a rise, a fall the friction holds, a rise
+CASES = [("wpam", c) for c in ("open", "pi", "pid", "pi_ff")] + [
+    ("rlam", "open"), ("mckibben", "open")]
+
+needs_warp = pytest.mark.skipif(not warp_muscle.warp_available(),
+                                reason="needs the gpu extra (warp-lang, mujoco-warp)")
+
+
+def test_warp_backend_refused_in_one_line_without_the_extra(monkeypatch):
+    real = importlib.import_module
+
+    def missing(name, *args):
+        if name in ("warp", "mujoco_warp"):
+            raise ModuleNotFoundError(f"No module named '{name}'", name=name)
+        return real(name, *args)
+
+    monkeypatch.setattr(importlib, "import_module", missing)
+    warp_muscle.require_warp.cache_clear()
+    try:
+        with pytest.raises(ParameterError) as err:
+            gymnasium.make_vec("wpam_mj/WPAMTrack-v0", num_envs=2, backend="warp")
+        assert "\n" not in str(err.value)
+        assert "pip install 'wpam-mj[gpu]'" in str(err.value)
+        with pytest.raises(ParameterError, match=r"wpam-mj\[gpu\]"):
+            from wpam_mj.simulation.warp_backend import run_warp
+            run_warp([], device="cpu")
+    finally:
+        warp_muscle.require_warp.cache_clear()
+
+
+def test_unknown_backend_refused_in_one_line():
+    with pytest.raises(ValueError, match="backend = 'jax'; valid: mujoco, warp"):
+        gymnasium.make_vec("wpam_mj/WPAMTrack-v0", num_envs=2, backend="jax")
+
+
+def _runs() -> list[Run]:
+    dt = 1e-3
+    t = np.arange(round(PARITY_S / dt)) * dt
+    x_ref = step_targets(t, LEVELS_MM, hold=PARITY_S / len(LEVELS_MM))
+    return [Run.make(preset(name), 100.0, drive_for_targets(preset(name), 100.0, x_ref,
+                                                            control, dt),
+                     dt=dt, control=control, record_dt=0.01) for name, control in CASES]
+
+
+@pytest.fixture(scope="module")
+def parity():
+    from wpam_mj.simulation.warp_backend import run_warp  # noqa: PLC0415 (the extra)
+
+    runs = _runs()
+    return [simulate_run(run, "plugin") for run in runs], run_warp(runs, device="cpu")
+
+
+@needs_warp
+@pytest.mark.skipif(not plugin.available(), reason="compares with the compiled plugin")
+@pytest.mark.parametrize("case", range(len(CASES)), ids=[f"{p}-{c}" for p, c in CASES])
+def test_every_preset_and_control_follows_the_plugin_on_warp(parity, case):
+    reference, warp = parity[0][case], parity[1][case]
+    assert not isinstance(warp, Exception), warp
+    for field, tolerance in TOLERANCE.items():
+        gap = np.max(np.abs(getattr(warp, field) - getattr(reference, field)))
+        assert gap <= tolerance, f"{CASES[case]} {field}: {gap:g} > {tolerance:g}"
+    # long enough to stick and slip, and both stick at the same samples
+    stuck_ref = np.abs(reference.velocity) < STUCK_M_S
+    stuck_warp = np.abs(warp.velocity) < STUCK_M_S
+    moved = np.abs(reference.velocity) > 1e-3
+    assert stuck_ref[np.argmax(moved):].any() and moved.any()
+    assert np.mean(stuck_ref == stuck_warp) >= 0.99  # measured: 1.0
+
+
+@needs_warp
+@pytest.mark.skipif(not plugin.available(), reason="compares with the batched plugin")
+@pytest.mark.parametrize("env_id", ["wpam_mj/WPAMTrack-v0", "wpam_mj/WPAMTrackResidual-v0",
+                                    "wpam_mj/WPAMTrackBoth-v0", "wpam_mj/WPAMTrackSine-v0",
+                                    "wpam_mj/WPAMTrackRandomized-v0"])
+def test_vector_env_on_warp_follows_the_default_backend(env_id):
+    n, steps = 8, 100
+    default = gymnasium.make_vec(env_id, num_envs=n)
+    warp = gymnasium.make_vec(env_id, num_envs=n, backend="warp", device="cpu")
+    obs_d, _ = default.reset(seed=3)
+    obs_w, _ = warp.reset(seed=3)
+    assert np.array_equal(obs_d, obs_w)
+    rng = np.random.default_rng(0)
+    worst = 0.0
+    for _ in range(steps):
+        action = rng.uniform(-1, 1, default.action_space.shape).astype(np.float32)
+        obs_d, _, term_d, trunc_d, _ = default.step(action)
+        obs_w, _, term_w, trunc_w, _ = warp.step(action)
+        assert np.array_equal(term_d, term_w) and np.array_equal(trunc_d, trunc_w)
+        worst = max(worst, float(np.max(np.abs(obs_d - obs_w))))
+    assert worst <= 0.02, f"normalised observations {worst:g} apart"
+
+
+@needs_warp
+def test_every_world_holds_its_own_plant():
+    """Worlds of one batch with different loads and parameters each follow their own."""
+    from wpam_mj.simulation.warp_backend import run_warp  # noqa: PLC0415 (the extra)
+
+    dt, n = 1e-3, 300
+    light, heavy = preset("wpam"), preset("wpam").with_values({"muscle.friction_coeff": 0.05})
+    runs = [Run.make(p, load, drive_for_targets(p, load, np.full(n, 15 * MM), "pi", dt),
+                     dt=dt, control="pi") for p, load in ((light, 50.0), (heavy, 150.0))]
+    alone = [run_warp([run], device="cpu")[0] for run in runs]
+    together = run_warp(runs, device="cpu")
+    for a, b in zip(alone, together):
+        assert np.array_equal(a.x, b.x) and np.array_equal(a.po, b.po)
+    assert not np.allclose(together[0].x, together[1].x)
+
+
+def test_many_worlds_need_one_timestep():
+    if not warp_muscle.warp_available():
+        pytest.skip("needs the gpu extra")
+    from wpam_mj.simulation.model import rig_spec  # noqa: PLC0415
+    from wpam_mj.simulation.warp_backend import WarpBatch  # noqa: PLC0415
+
+    specs = [rig_spec(preset("wpam"), 100.0, dt, control="open") for dt in (1e-3, 5e-4)]
+    with pytest.raises(ParameterError, match="one timestep"):
+        WarpBatch(specs, "cpu")
+
+
+@needs_warp
+@pytest.mark.skipif(not plugin.available(), reason="compares with the batched plugin")
+@pytest.mark.parametrize("host_copies", [False, True], ids=["views", "cuda-path-copies"])
+def test_vector_env_on_warp_through_autoresets(monkeypatch, host_copies):
+    """Short episodes: autoresets put each world back to its environment's reset state, and
+    the host copies a CUDA device needs (forced here on the CPU device) keep the others."""
+    from wpam_mj.simulation.warp_backend import WarpBatch  # noqa: PLC0415 (the extra)
+
+    monkeypatch.setattr(WarpBatch, "force_host_copies", host_copies)
+    kwargs = {"num_envs": 3, "time_limit": 0.1, "max_episode_steps": 10}
+    default = gymnasium.make_vec("wpam_mj/WPAMTrack-v0", **kwargs)
+    warp = gymnasium.make_vec("wpam_mj/WPAMTrack-v0", backend="warp", device="cpu", **kwargs)
+    default.reset(seed=5)
+    warp.reset(seed=5)
+    action = np.zeros((3, 1), np.float32)
+    for k in range(25):
+        action[k % 3] = 0.5  # the episodes end together: each world a different action
+        obs_d, _, _, trunc_d, _ = default.step(action)
+        obs_w, _, _, trunc_w, _ = warp.step(action)
+        assert np.array_equal(trunc_d, trunc_w)
+        assert np.max(np.abs(obs_d - obs_w)) <= 0.02
