@@ -77,6 +77,11 @@ def add_parsers(add) -> None:
                         "replayed, not run again (a finished search replays in seconds); "
                         "the same --seed, --popsize, --free, --radius and --config as the "
                         "journal's (more --maxiter extends it)")
+    p.add_argument("--robust", type=int, default=0, metavar="K",
+                   help="score each point as the worst over itself and K plants sampled "
+                        "within +-5 %% of its unmeasured values (the controller keeping its "
+                        "nominal model), so the search optimises what survives the plant's "
+                        "uncertainty; K times the runs (default: 0)")
     p.add_argument("--map-only", action="store_true",
                    help="run nothing: the best point and the feasibility map of the points "
                         "journaled in --out so far (e.g. while the search still runs)")
@@ -188,7 +193,8 @@ def _cmd_search(args: argparse.Namespace) -> int:
         written = search_outputs.write_search(out, base=run.params, seed=args.seed, jobs=jobs,
                                               resume=args.resume, progress=run.progress,
                                               objective=args.objective, free=free,
-                                              radius=args.radius, **sizes)
+                                              radius=args.radius, robust=args.robust,
+                                              **sizes)
     for path in written:
         print(f"wrote {path}")
     return 0

@@ -154,3 +154,13 @@ def score(targets, params: Params, results: list | None) -> tuple[float, dict | 
         return FAILED_COST, None, None
     return cost, margins, figures
 
+
+def worst_of(scored: Sequence[tuple[float, dict | None, dict | None]]
+             ) -> tuple[float, dict | None, dict | None]:
+    """One (cost, margins, figures) from several plants' scores: the worst cost, each
+    finding's worst margin, the first (nominal) plant's figures; a failed plant fails
+    the point."""
+    if any(m is None for _, m, _ in scored):
+        return FAILED_COST, None, None
+    margins = {name: min(m[name] for _, m, _ in scored) for name in scored[0][1]}
+    return max(c for c, _, _ in scored), margins, scored[0][2]
