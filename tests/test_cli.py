@@ -255,5 +255,9 @@ def test_reproduce_writes_every_output(files, capsys):
     assert all(set(c) == {"name", "sentence", "finding", "counted", "passed", "worst_margin",
                           "detail"} for c in checks)
     assert all(c["sentence"] for c in checks)  # each prints the paper's words
+    # golden (docs/physics.md, "The shipped plant"): 7 of the paper's 13 sentences hold
+    counted = [c for c in checks if c["counted"]]
+    assert (sum(c["passed"] for c in counted), len(counted)) == (7, 13)
+    assert "7 of 13 of the paper's sentences hold" in (rep / "report.md").read_text()
     assert "Table 2" in (rep / "report.md").read_text() and "Table 2" in out
     assert len(_read_csv(rep / "data" / "step_wpam_100N_pi.csv")["x_mm"]) > 1000
