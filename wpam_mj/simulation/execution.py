@@ -46,7 +46,7 @@ from wpam_mj.infra.pool import LOST_AFTER_S, Workers, WorkersLost, open_workers
 from wpam_mj.physics.params import ParameterError
 from wpam_mj.simulation.loop_contract import SimulationDiverged
 from wpam_mj.simulation.results import SimResult
-from wpam_mj.simulation.simulate import Run, _run_batch, _select_engine, run_plugin, simulate_run
+from wpam_mj.simulation.simulate import Run, _run_batch, _select_engine, _run_plugin, simulate_run
 
 FAILURES = (SimulationDiverged, ParameterError, ArithmeticError)
 LOCAL_SLICE = 256  # our choice: tasks simulated at once here (bounds the records in memory)
@@ -306,7 +306,7 @@ def _simulate_runs(runs: list[Run], nthread: int) -> list[SimResult | Simulation
     defines) run one after another on the Python engine, as `simulate` runs them."""
     done: dict[int, tuple] = {}
     batched = [i for i, run in enumerate(runs)
-               if _select_engine("auto", run.control) is run_plugin]
+               if _select_engine("auto", run.control) is _run_plugin]
     models = {i: runs[i].spec.compile() for i in batched}
     groups: dict[tuple, list[int]] = {}
     for i in batched:

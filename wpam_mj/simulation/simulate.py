@@ -164,7 +164,7 @@ _noticed: set[str] = set()  # Python fallbacks already announced (once per proce
 def _select_engine(engine: str, control: str = "open"):
     """The runner for `engine` and the controller named `control` (see `simulate`)."""
     if engine == "python":
-        return run_python
+        return _run_python
     if control not in plugin.CONTROL_BY_NAME:  # a controller only Python defines
         if engine != "auto":
             raise ParameterError(f"controller {control!r} runs on the Python engine only")
@@ -172,23 +172,23 @@ def _select_engine(engine: str, control: str = "open"):
             _noticed.add(control)
             print(f"wpam_mj: controller {control!r} has no compiled form; running the Python"
                   " engine (about 6x slower)", file=sys.stderr)
-        return run_python
+        return _run_python
     if engine in ("plugin", "c"):
         if not plugin.available():
             raise RuntimeError(f"the compiled plugin is unavailable "
                                f"({plugin.unavailable_reason()}); use engine='python'")
-        return run_plugin
+        return _run_plugin
     if engine != "auto":
         raise ParameterError(f"unknown engine {engine!r}; valid: {', '.join(ENGINES)}")
     # without the plugin, loading it has said why, once per command (plugin_build.load)
-    return run_plugin if plugin.available() else run_python
+    return _run_plugin if plugin.available() else _run_python
 
 
 def _record_shape(n: int, record_every: int) -> tuple[int, int]:
     return REC_ROWS, (n - 1) // record_every + 1
 
 
-def run_plugin(spec: mujoco.MjSpec, inputs: np.ndarray, record_every: int):
+def _run_plugin(spec: mujoco.MjSpec, inputs: np.ndarray, record_every: int):
     """Run the rig `spec` on the compiled plugin with one row of `inputs` (the instance's
     channels) per step. Returns (record, None) or (record so far, (step, reason))."""
     return _run_batch([spec.compile()], [inputs], record_every, nthread=1)[0]
@@ -198,7 +198,7 @@ def _run_batch(models: list[mujoco.MjModel], inputs: list[np.ndarray], record_ev
               nthread: int = 1) -> list[tuple[np.ndarray, tuple[int, str] | None]]:
     """Runs of rig models of one layout (same sizes) and one length on `mujoco.batch`,
     `nthread` threads, in chunks of `CHUNK_STEPS` (results do not depend on nthread).
-    Returns (record, failure) per run, as `run_plugin`."""
+    Returns (record, failure) per run, as `_run_plugin`."""
     n = len(inputs[0])
     model = models[0]
     adr = plugin.state_address(model, INSTANCE)
@@ -231,8 +231,8 @@ def _run_batch(models: list[mujoco.MjModel], inputs: list[np.ndarray], record_ev
     return list(zip(recs, failures))
 
 
-def run_python(spec: mujoco.MjSpec, inputs: np.ndarray, record_every: int):
-    """`run_plugin` on the Python engine (`wpam_mj.simulation.engine`): the reference."""
+def _run_python(spec: mujoco.MjSpec, inputs: np.ndarray, record_every: int):
+    """`_run_plugin` on the Python engine (`wpam_mj.simulation.engine`): the reference."""
     model, muscles = pyengine.python_model(spec)
     (muscle,) = muscles
     data = mujoco.MjData(model)
