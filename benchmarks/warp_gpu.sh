@@ -1,8 +1,9 @@
 #!/bin/sh
 # bench_warp.py on a GPU machine that cannot reach a package index, from the repository root.
 #
-#   sh benchmarks/warp_gpu.sh stage   # keep the wheel pieces carried in .gpu_wheels/N
-#   sh benchmarks/warp_gpu.sh         # stage, join, install (no index), run the benchmark
+#   sh benchmarks/warp_gpu.sh stage     # keep the wheel pieces carried in .gpu_wheels/N
+#   sh benchmarks/warp_gpu.sh install   # stage, join, install (no index), name the GPU
+#   sh benchmarks/warp_gpu.sh           # ... then run the benchmark
 #
 # The pieces come from `python benchmarks/warp_gpu_bundle.py` (folders .gpu_wheels/1..3, one
 # per call to the machine, back to back so that it stays warm); they are kept in $STAGE,
@@ -26,6 +27,7 @@ if ! python3 -m zipfile -t "$STAGE/$WARP" > /dev/null 2>&1; then
 fi
 python3 -m pip install -q --no-deps --no-index "$STAGE"/*.whl
 nvidia-smi -L || true
+[ "${1:-}" = install ] && exit 0
 PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH} python3 benchmarks/bench_warp.py --devices cuda \
     --worlds 1,16,256,4096,65536 --env-max 256 --seconds 1 --repeats 2 \
     --json "$OUT/bench_warp.json" 2>&1 | grep -v "^Module " | tee "$OUT/bench_warp.txt"

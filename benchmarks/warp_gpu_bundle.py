@@ -5,10 +5,11 @@
 Downloads (pip download, for Linux x86_64 and the given Python) the wheels the machine's
 own Python lacks: warp-lang, mujoco-warp, mujoco, dm-control (its simulation modules only:
 the suites' and robots' meshes, 50 MB of it, are left out), dm-env, dm-tree, gymnasium,
-farama-notifications; then cuts them into folders `<out>/1`, `<out>/2`, ... of at most
---part-mib each (the warp-lang wheel alone is 149 MB), so that each folder can travel
-with one call to the machine. `benchmarks/warp_gpu.sh` there joins the pieces and installs
-them. Versions are the gpu extra's (pyproject.toml).
+farama-notifications, stable-baselines3 (PPO on the GPU: docs/warp.md); then cuts them into
+folders `<out>/1`, `<out>/2`, ... of at most --part-mib each (the warp-lang wheel alone is
+149 MB), so that each folder can travel with one call to the machine.
+`benchmarks/warp_gpu.sh` there joins the pieces and installs them. Versions are the gpu
+extra's (pyproject.toml).
 """
 
 from __future__ import annotations
@@ -22,7 +23,8 @@ import zipfile
 from pathlib import Path
 
 WHEELS = ("warp-lang==1.19.0", "mujoco-warp==3.17.0", "mujoco==3.17.0", "dm-control==1.0.50",
-          "dm-env==1.6", "dm-tree==0.1.10", "gymnasium==1.4.0", "farama-notifications==0.0.6")
+          "dm-env==1.6", "dm-tree==0.1.10", "gymnasium==1.4.0", "farama-notifications==0.0.6",
+          "stable-baselines3==2.9.2")  # the last for scripts/train_sb3.py --backend warp
 DM_CONTROL_LEFT_OUT = ("dm_control/suite/", "dm_control/locomotion/", "dm_control/manipulation/",
                        "dm_control/blender/", "dm_control/composer/", "dm_control/entities/")
 PLATFORMS = ("manylinux_2_28_x86_64", "manylinux_2_27_x86_64", "manylinux_2_24_x86_64",

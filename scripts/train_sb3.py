@@ -6,12 +6,14 @@ score it against the paper's PI (not run in CI; needs the `learn` extra: docs/le
 The agent trains on `--n-envs` environments of `--env` stepped together on `mujoco.batch`
 (`wpam_mj.environments.sb3.BatchedVecEnv`, `--nthread` threads) for exactly `--steps`
 environment steps (for PPO a whole number of rollouts of n-envs x n-steps; anything else
-is refused). Every `--eval-every` steps the deterministic policy is scored on the
-validation seeds 1000.. (`--curve-seeds` episodes) and the best so far is kept. At the end
-the best and the last policies are scored on the held-out test seeds 0..N-1
-(`--test-seeds`), which never chose anything, beside the reference policies of
-`wpam_mj.environments.policies` on the same task with Po as the action (holding Po at the
-regulator minimum, random, the paper's PI every 10 ms). Writes to `--out`:
+is refused). `--backend warp --device cuda` steps them on MuJoCo Warp instead (the gpu
+extra: docs/warp.md; `--device cpu` is Warp's CPU device), and scores them there too, and
+the trained policy also on the default backend. Every `--eval-every` steps the
+deterministic policy is scored on the validation seeds 1000.. (`--curve-seeds` episodes)
+and the best so far is kept. At the end the best and the last policies are scored on the
+held-out test seeds 0..N-1 (`--test-seeds`), which never chose anything, beside the
+reference policies of `wpam_mj.environments.policies` on the same task with Po as the
+action (holding Po at the regulator minimum, random, the paper's PI every 10 ms). Writes to `--out`:
 `learning_curve.png` and `learning_curve.csv` (steps, wall seconds, validation return),
 `scores.json` (every score, steps, wall time, training steps per second, the settings),
 `best.zip` and `last.zip`.
@@ -35,9 +37,10 @@ from stable_baselines3.common.vec_env import VecMonitor
 
 import wpam_mj  # noqa: F401 (registers the ids)
 from wpam_mj.environments.policies import POLICIES, mean_return
-from wpam_mj.environments.registry import EPISODE_STEPS
 from wpam_mj.environments.sb3 import BatchedVecEnv
 from wpam_mj.environments.vector_env import default_threads
+from wpam_mj.physics.params import ParameterError
+from wpam_mj.simulation.warp_backend import check_device
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
@@ -48,8 +51,9 @@ REFERENCE_ID = "wpam_mj/WPAMTrack-v0"  # the same task with Po as the action
 
 def episode_returns(env_id: str, predict, seeds: list[int], nthread: int,
                     **kwargs) -> np.ndarray:
-    """One episode per seed of `predict(obs) -> actions` on the batched vector env: the
-    return of each (the episodes start together and last the same number of steps)."""
+    """One episode per seed of `predict(obs) -> actions` on the batched vector env (kwargs:
+    the backend, its device, the episode's time_limit): the return of each (the episodes
+    start together and last the same number of steps)."""
     venv = gymnasium.make_vec(env_id, num_envs=len(seeds), nthread=nthread, **kwargs)
     obs, _ = venv.reset(seed=seeds)
     total = np.zeros(len(seeds))
@@ -133,8 +137,25 @@ def parse_args() -> argparse.Namespace:
                    help="score the policy on the validation seeds every this many steps")
     p.add_argument("--curve-seeds", type=int, default=8, help="validation seeds 1000..")
     p.add_argument("--test-seeds", type=int, default=20, help="held-out seeds 0..N-1")
+    p.add_argument("--backend", choices=("mujoco", "warp"), default="mujoco",
+                   help="physics of the vector env: mujoco.batch, or MuJoCo Warp (the gpu "
+                        "extra)")
+    p.add_argument("--device", default="cpu", help="--backend warp: cuda (or cuda:N), or "
+                   "cpu (Warp's CPU device)")
+    p.add_argument("--time-limit", type=float, default=10.0,
+                   help="episode length [s] for training and scoring (default: the "
+                        "registered ids' 10 s; shorter only to check the script quickly)")
     p.add_argument("--out", type=Path, default=Path("out/train"))
     args = p.parse_args()
+    if args.backend == "mujoco" and args.device != "cpu":
+        p.error(f"--device {args.device} needs --backend warp (mujoco.batch runs on the CPU)")
+    if args.backend == "warp":  # the extra and the device, before minutes of reference scores
+        try:
+            check_device(args.device)
+        except ParameterError as err:
+            p.error(f"--backend warp --device {args.device}: {err}")
+    if not 0.0 < args.time_limit <= 10.0:
+        p.error(f"--time-limit {args.time_limit:g} must be in (0, 10] s")
     per_update = args.n_envs * (args.n_steps if args.algo == "ppo" else 1)
     unit = "n-envs x n-steps, one PPO rollout" if args.algo == "ppo" else "n-envs"
     for name in ("steps", "eval_every"):
@@ -151,17 +172,21 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     test = list(range(args.test_seeds))
     validation = list(range(1000, 1000 + args.curve_seeds))
-    refs = {name: mean_return(REFERENCE_ID, name, test) for name in POLICIES}
-    zero = episode_returns(args.env, lambda o: np.zeros((len(o), 1), np.float32), test,
-                           args.nthread).mean()
-    refs["zero action"] = float(zero)
-    pi_validation = float(episode_returns(args.env, lambda o: np.zeros((len(o), 1),
-                                                                       np.float32),
-                                          validation, args.nthread).mean())
+    limit = {"time_limit": args.time_limit}
+    physics = {"backend": args.backend, "device": args.device, **limit}
+    refs = {name: mean_return(REFERENCE_ID, name, test, **limit) for name in POLICIES}
+
+    def zero(o):
+        return np.zeros((len(o), 1), np.float32)
+
+    refs["zero action"] = float(episode_returns(args.env, zero, test, args.nthread,
+                                                **physics).mean())
+    pi_validation = float(episode_returns(args.env, zero, validation, args.nthread,
+                                          **physics).mean())
     print("reference policies (test seeds):", {k: round(v, 1) for k, v in refs.items()},
           flush=True)
 
-    venv = VecMonitor(BatchedVecEnv(args.env, args.n_envs, nthread=args.nthread))
+    venv = VecMonitor(BatchedVecEnv(args.env, args.n_envs, nthread=args.nthread, **physics))
     venv.seed(args.seed)
     model = make_model(args, venv)
 
@@ -177,7 +202,7 @@ def main() -> None:
         done = model.num_timesteps
         t0 = time.perf_counter()
         value = float(episode_returns(args.env, predict(model), validation,
-                                      args.nthread).mean())
+                                      args.nthread, **physics).mean())
         if value > best:
             best = value
             model.save(args.out / "best.zip")
@@ -189,9 +214,13 @@ def main() -> None:
     best_model = ALGOS[args.algo].load(args.out / "best.zip", device="cpu")
     scores = {**refs,
               "trained best": float(episode_returns(args.env, predict(best_model), test,
-                                                    args.nthread).mean()),
+                                                    args.nthread, **physics).mean()),
               "trained last": float(episode_returns(args.env, predict(model), test,
-                                                    args.nthread).mean())}
+                                                    args.nthread, **physics).mean())}
+    if args.backend != "mujoco":  # the policy learned on Warp, on the plugin's physics
+        for name, policy in (("zero action", zero), ("trained best", predict(best_model))):
+            scores[f"{name}, mujoco backend"] = float(episode_returns(
+                args.env, policy, test, args.nthread, **limit).mean())
     print("scores (test seeds):", {k: round(v, 1) for k, v in scores.items()})
     print(f"{args.algo} trained {model.num_timesteps} steps in {wall:.0f} s "
           f"({model.num_timesteps / wall:.0f} steps/s without the evaluations), load "
@@ -201,11 +230,13 @@ def main() -> None:
         writer.writerow(["steps", "train_wall_s", "validation_return"])
         writer.writerows(curve)
     title = (f"{args.algo.upper()} on {args.env}, seed {args.seed}, {args.n_envs} batched "
-             f"envs\nmean return over the {len(validation)} validation seeds 1000..")
+             f"envs ({args.backend}, {args.device})\nmean return over the "
+             f"{len(validation)} validation seeds 1000..")
     plot(curve, pi_validation, args.out / "learning_curve.png", title)
     (args.out / "scores.json").write_text(json.dumps(
         {"settings": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
-         "episode_steps": EPISODE_STEPS, "test_seeds": test, "validation_seeds": validation,
+         "episode_steps": venv.get_attr("episode_steps")[0], "test_seeds": test,
+         "validation_seeds": validation,
          "scores": scores, "pi_validation": pi_validation, "steps": model.num_timesteps,
          "train_wall_s": wall,
          "train_steps_per_s": model.num_timesteps / wall,

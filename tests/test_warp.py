@@ -10,6 +10,7 @@ first run compiles Warp's kernels for about a minute (cached under ~/.cache/warp
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 
 import gymnasium
@@ -18,12 +19,15 @@ import pytest
 
 import wpam_mj  # noqa: F401 (registers the ids)
 from wpam_mj.experiments.drives import drive_for_targets, step_targets
+from wpam_mj.infra.pool import Workers
+from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import MM, ParameterError, preset
 from wpam_mj.simulation import plugin, warp_muscle
+from wpam_mj.simulation.execution import SimulationTask, execute
 from wpam_mj.simulation.simulate import Run, simulate_run
 
 # float32 tolerances of the Warp backend against the float64 plugin over PARITY_S (docs/warp.md)
-# (measured: x 1.5e-7 m, Pi 0.52 Pa, Po 0.28 Pa, tension 1.6 mN, friction level 0.4 mN)
+# (measured: x 1.5e-7 m, Pi 0.52 Pa, Po 0.27 Pa, tension 1.6 mN, friction level 0.4 mN)
 TOLERANCE = {"x": 5e-7, "pi": 2.0, "po": 2.0, "tension": 5e-3, "friction": 2e-3}
 STUCK_M_S = 1e-5  # |dx/dt| below this: the load sticks [m/s]
 PARITY_S = 3.0
@@ -35,7 +39,9 @@ needs_warp = pytest.mark.skipif(not warp_muscle.warp_available(),
                                 reason="needs the gpu extra (warp-lang, mujoco-warp)")
 
 
-def test_warp_backend_refused_in_one_line_without_the_extra(monkeypatch):
+@pytest.fixture
+def without_warp(monkeypatch):
+    """Warp and MuJoCo Warp fail to import, as without the gpu extra."""
     real = importlib.import_module
 
     def missing(name, *args):
@@ -45,16 +51,92 @@ def test_warp_backend_refused_in_one_line_without_the_extra(monkeypatch):
 
     monkeypatch.setattr(importlib, "import_module", missing)
     warp_muscle.require_warp.cache_clear()
-    try:
-        with pytest.raises(ParameterError) as err:
-            gymnasium.make_vec("wpam_mj/WPAMTrack-v0", num_envs=2, backend="warp")
-        assert "\n" not in str(err.value)
-        assert "pip install 'wpam-mj[gpu]'" in str(err.value)
-        with pytest.raises(ParameterError, match=r"wpam-mj\[gpu\]"):
-            from wpam_mj.simulation.warp_backend import run_warp
-            run_warp([], device="cpu")
-    finally:
-        warp_muscle.require_warp.cache_clear()
+    yield
+    warp_muscle.require_warp.cache_clear()
+
+
+def test_warp_backend_refused_in_one_line_without_the_extra(without_warp):
+    with pytest.raises(ParameterError) as err:
+        gymnasium.make_vec("wpam_mj/WPAMTrack-v0", num_envs=2, backend="warp")
+    assert "\n" not in str(err.value)
+    assert "pip install 'wpam-mj[gpu]'" in str(err.value)
+    with pytest.raises(ParameterError, match=r"wpam-mj\[gpu\]"):
+        from wpam_mj.simulation.warp_backend import run_warp
+        run_warp([], device="cpu")
+
+
+def _short_runs(seconds: float = 0.3) -> list[Run]:
+    """Two runs of one length and layout, different plants, loads and control modes."""
+    dt = 1e-3
+    x_ref = np.full(round(seconds / dt), 15 * MM)
+    p = preset("wpam")
+    return [Run.make(p, load, drive_for_targets(p, load, x_ref, control, dt), dt=dt,
+                     control=control) for load, control in ((60.0, "pi"), (140.0, "open"))]
+
+
+def test_execute_on_warp_refused_in_one_line_without_the_extra(without_warp):
+    with pytest.raises(ParameterError) as err:
+        execute(_short_runs(), backend="warp", device="cpu")
+    assert "\n" not in str(err.value) and "pip install 'wpam-mj[gpu]'" in str(err.value)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"backend": "jax"}, "backend = 'jax'; valid: mujoco, warp"),
+    ({"device": "cuda"}, "device = 'cuda' needs backend='warp'"),
+    ({"backend": "warp", "device": "cuda",
+      "workers": Workers(None, 2, "Dask at tcp://127.0.0.1:8786", remote=True)},
+     "backend = 'warp' simulates on this machine's device, not on Dask at tcp://"),
+], ids=["unknown-backend", "device-without-warp", "on-a-cluster"])
+def test_execute_refuses_a_backend_it_cannot_use_in_one_line(kwargs, message):
+    with pytest.raises(ParameterError) as err:
+        execute(_short_runs(), **kwargs)
+    assert "\n" not in str(err.value) and message in str(err.value)
+
+
+def test_run_warp_refuses_a_controller_only_python_defines():
+    """The Warp kernels are the plugin's: a run whose controller only the Python engine
+    defines would silently run another one."""
+    from wpam_mj.simulation.warp_backend import run_warp  # noqa: PLC0415 (imports without Warp)
+
+    run = dataclasses.replace(_short_runs()[0], control="mine")
+    with pytest.raises(ParameterError, match="controller 'mine' runs on the Python engine "
+                                             "only; backend = 'warp' runs open, pi"):
+        run_warp([run])
+
+
+@dataclasses.dataclass(frozen=True)
+class _Peaks(SimulationTask):
+    """A task of runs and a reduction: each run's largest contraction [m]."""
+
+    runs_: tuple
+
+    def runs(self):
+        return list(self.runs_)
+
+    def reduce(self, results):
+        return [float(np.max(r.x)) for r in results]
+
+
+@needs_warp
+@pytest.mark.skipif(not plugin.available(), reason="compares with the compiled plugin")
+def test_execute_on_warp_follows_the_default_backend():
+    """Runs and tasks through `execute(backend="warp")` are run_warp's records, which follow
+    the plugin's within the float32 tolerance."""
+    from wpam_mj.simulation.warp_backend import run_warp  # noqa: PLC0415 (the extra)
+
+    runs = _short_runs()
+    jobs = [runs[0], _Peaks(tuple(runs)), runs[1]]
+    warp = execute(jobs, backend="warp", device="cpu")
+    default = execute(jobs)
+    alone = run_warp(runs, device="cpu")
+    for got, same, reference in ((warp[0], alone[0], default[0]),
+                                 (warp[2], alone[1], default[2])):
+        assert np.array_equal(got.x, same.x) and np.array_equal(got.po, same.po)
+        for field, tolerance in TOLERANCE.items():
+            gap = np.max(np.abs(getattr(got, field) - getattr(reference, field)))
+            assert gap <= tolerance, f"{field}: {gap:g} > {tolerance:g}"
+    assert np.ptp(default[0].x) > 5 * MM  # the runs move
+    np.testing.assert_allclose(warp[1], default[1], rtol=0, atol=TOLERANCE["x"])
 
 
 def test_unknown_backend_refused_in_one_line():
@@ -94,6 +176,20 @@ def test_every_preset_and_control_follows_the_plugin_on_warp(parity, case):
     moved = np.abs(reference.velocity) > 1e-3
     assert stuck_ref[np.argmax(moved):].any() and moved.any()
     assert np.mean(stuck_ref == stuck_warp) >= 0.99  # measured: 1.0
+
+
+@needs_warp
+@pytest.mark.skipif(not plugin.available(), reason="the parity runs include the plugin's")
+@pytest.mark.parametrize("name", ["rlam", "mckibben"])
+def test_a_muscle_without_an_outer_bag_keeps_po_at_the_atmosphere_on_warp(parity, name):
+    """No outer bag, no outer chamber: Po is 0 gauge exactly while the muscle moves, and the
+    tension is the closed form at Po = 0 (float32 apart)."""
+    run = parity[1][CASES.index((name, "open"))]
+    assert np.ptp(run.x) > 5 * MM
+    assert np.all(run.po == 0.0), f"Po reached {np.max(np.abs(run.po)):g} Pa"
+    model = MuscleModel.from_params(preset(name))
+    closed = [model.tendon_force(x, pi, 0.0) for x, pi in zip(run.x, run.pi)]
+    np.testing.assert_allclose(run.tension, closed, rtol=0, atol=TOLERANCE["tension"])
 
 
 @needs_warp

@@ -160,16 +160,16 @@ class MusclePhysics(_MuscleReadings, engine.Physics):
         return self._d.time
 
     def reset(self, keyframe_id=None) -> None:
-        """Reset MuJoCo's state and the pneumatics (chambers vented, regulators at 0)."""
+        """Reset MuJoCo's state, the pneumatics' with it (chambers vented, regulators at 0:
+        the muscle's state lives in the MjData)."""
         super().reset(keyframe_id)
-        self.rig.reset()
         self.pi_cmd = self.po_cmd = 0.0
         self.diverged = None
 
     def copy(self, share_model: bool = False) -> MusclePhysics:
-        """A copy with its own MuJoCo data and pneumatic state."""
+        """A copy with its own MuJoCo data, the pneumatic state in it."""
         new = super().copy(share_model)
-        new._setup(self.params, self.rig.copy())
+        new._setup(self.params, self.rig)
         new.pi_cmd, new.po_cmd, new.diverged = self.pi_cmd, self.po_cmd, self.diverged
         return new
 
@@ -216,10 +216,9 @@ class RigPhysics(_MuscleReadings):
         return float(self.model.opt.timestep)
 
     def reset(self) -> None:
-        """MuJoCo's state and the pneumatics back to rest (chambers vented)."""
+        """MuJoCo's state, the pneumatics' with it, back to rest (chambers vented)."""
         mujoco.mj_resetData(self.model, self.data)
         self.after_reset()
-        self.rig.reset()
         self.pi_cmd = self.po_cmd = 0.0
         self.diverged = None
 

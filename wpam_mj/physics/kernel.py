@@ -222,6 +222,25 @@ def outer_dvdx(area: float, axial_area: float) -> float:
     return -(area + axial_area)
 
 
+def outer_chamber_step(outer_chamber: bool, chamber_abs: float, source_abs: float,
+                       bag_volume_inner: float, x: float, area: float, axial_area: float,
+                       outer_bag_volume: float, tube_volume: float, v: float,
+                       conductance: float, critical_ratio: float, dt: float,
+                       atmosphere: float) -> float:
+    """The outer chamber's new pressure [Pa abs]: `chamber_step` at V_o and dV_o/dx, or,
+    for a muscle type without an outer bag (MuscleType.outer_chamber false: rlam,
+    mckibben), the atmosphere exactly: the inner bag swells into the open air, so Po is
+    0 gauge always and leaves the tension (eqs. 1-3) and the friction level alone."""
+    if outer_chamber:
+        p = chamber_step(chamber_abs, source_abs,
+                         outer_volume(bag_volume_inner, x, axial_area, outer_bag_volume,
+                                      tube_volume),
+                         outer_dvdx(area, axial_area), v, conductance, critical_ratio, dt)
+    else:
+        p = atmosphere
+    return p
+
+
 def bag_section(diameter: float) -> float:
     """The outer bag's cross-section pi D_bag^2 / 4 [m^2]: the most area its pressure can
     push the end fittings apart on."""

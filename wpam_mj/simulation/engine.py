@@ -137,6 +137,7 @@ class PythonMuscle:
         self.dt = float(model.opt.timestep)
         self.integrator = int(model.opt.integrator)
         self.feedback = plugin.control_mode(config.control).feedback
+        self.outer_chamber = params.outer_chamber  # False: Po stays the atmosphere
         # each channel's ctrlrange where it is limited (read_commands clamps to it)
         self.ctrl_limits = [tuple(map(float, model.actuator_ctrlrange[a]))
                             if model.actuator_ctrllimited[a] else None for a in channels]
@@ -336,11 +337,11 @@ class PythonMuscle:
         p_i = h[_P_I] = kernel.chamber_step(h[_P_I], set_i + k.atmosphere,
                                             kernel.inner_volume(vol, k.tube_volume), area, v,
                                             k.conductance_i, k.critical_ratio, k.dt)
-        p_o = h[_P_O] = kernel.chamber_step(h[_P_O], set_o + k.atmosphere,
-                                            kernel.outer_volume(vol, x, axial, k.bag_volume,
-                                                                k.tube_volume),
-                                            kernel.outer_dvdx(area, axial), v,
-                                            k.conductance_o, k.critical_ratio, k.dt)
+        p_o = h[_P_O] = kernel.outer_chamber_step(self.outer_chamber, h[_P_O],
+                                                  set_o + k.atmosphere, vol, x, area, axial,
+                                                  k.bag_volume, k.tube_volume, v,
+                                                  k.conductance_o, k.critical_ratio, k.dt,
+                                                  k.atmosphere)
         if not (p_i > 0.0 and p_o > 0.0 and math.isfinite(p_i) and math.isfinite(p_o)):
             _set_status(h, plugin.STATUS_PRESSURE)
         block[:] = h

@@ -19,8 +19,13 @@ what it takes: a number of cores, a `Cluster`, an executor):
     longest first, to a worker, which runs it through the same path on one batch thread.
     A cluster whose scheduler or every worker is gone for `pool.LOST_AFTER_S` ends the
     job with `pool.WorkersLost`, one line; what the job journaled is kept.
+`backend="warp"` (the gpu extra, docs/warp.md) simulates the runs here on MuJoCo Warp
+instead, on `device` ("cuda" or Warp's "cpu"): the runs of every `SimulationTask` of a
+window share batches (`warp_backend.run_warp`), in float32, so their results follow the
+plugin's within docs/warp.md's tolerance rather than bit for bit.
 
-Results come back in job order and are bit-identical whatever the target: a run's record
+Results come back in job order and, on the default backend, are bit-identical whatever
+the target: a run's record
 does not depend on its batch or the thread count, and the reduction is the same code as
 the task's own serial `run()`. A task that fails with SimulationDiverged, ParameterError
 or ArithmeticError (`FAILURES`: the run diverged, its inputs were refused, its metrics
@@ -49,6 +54,7 @@ from wpam_mj.simulation.results import SimResult
 from wpam_mj.simulation.simulate import Run, _run_batch, _select_engine, _run_plugin, simulate_run
 
 FAILURES = (SimulationDiverged, ParameterError, ArithmeticError)
+BACKENDS = ("mujoco", "warp")
 LOCAL_SLICE = 256  # our choice: tasks simulated at once here (bounds the records in memory)
 TASKS_PER_THREAD = 8  # ... and at least this many per batch thread, where there are
 LOST_POLL_S = 1.0  # how often a waiting job asks whether its cluster is still there
@@ -107,14 +113,16 @@ class Failed:
 _RAISE = object()
 
 
-def execute(jobs: Sequence, workers: Any = None, *, failed: Any = _RAISE,
-            progress: bool = False, desc: str = "runs",
-            each: Callable[[int, Any], None] | None = None) -> list:
+def execute(jobs: Sequence, workers: Any = None, *, backend: str = "mujoco",
+            device: str = "cpu", failed: Any = _RAISE, progress: bool = False,
+            desc: str = "runs", each: Callable[[int, Any], None] | None = None) -> list:
     """Every job's result (a task's, a `Batch`'s response, a `Run`'s `SimResult`), in
     job order, wherever `workers` runs them (module docstring).
 
     workers: the `Workers` of `infra.pool.open_workers`, or what it takes (a number of
       local cores, a `Cluster`, a concurrent.futures.Executor; None: this process).
+    backend, device: "mujoco" (`mujoco.batch` on the CPU, device "cpu") or "warp"
+      (MuJoCo Warp on device "cuda", "cuda:N" or "cpu"; the gpu extra; not on a cluster).
     failed: what stands for a task that failed with one of `FAILURES`: a value, or a
       callable of the error (`Failed` keeps it); by default the first such failure (in
       job order) is raised.
@@ -125,8 +133,9 @@ def execute(jobs: Sequence, workers: Any = None, *, failed: Any = _RAISE,
     """
     if not isinstance(workers, Workers):
         with open_workers(workers) as opened:
-            return execute(jobs, opened, failed=failed, progress=progress, desc=desc,
-                           each=each)
+            return execute(jobs, opened, backend=backend, device=device, failed=failed,
+                           progress=progress, desc=desc, each=each)
+    warp_device = _warp_device(backend, device, workers)
     jobs = [_RunTask(j) if isinstance(j, Run) else j for j in jobs]
     units = [list(j.tasks) if isinstance(j, Batch) else [j] for j in jobs]
     order = list(range(len(jobs))) if each is not None else \
@@ -143,11 +152,32 @@ def execute(jobs: Sequence, workers: Any = None, *, failed: Any = _RAISE,
             results[k] = _result(jobs[k], outcomes, failed)
             each(k, results[k])
 
-        run = _run_remote if workers.remote else _run_local
-        run([(k, units[k]) for k in order], workers, finish, each is not None)
+        work = [(k, units[k]) for k in order]
+        if workers.remote:
+            _run_remote(work, workers, finish, each is not None)
+        else:
+            _run_local(work, workers, finish, each is not None, warp_device)
     if each is None:
         results = [_result(job, outcomes, failed) for job, outcomes in zip(jobs, results)]
     return results
+
+
+def _warp_device(backend: str, device: str, workers: Workers) -> str | None:
+    """The MuJoCo Warp device the runs go to, or None (`mujoco.batch`); a backend, a
+    device or workers that cannot go together refused in one line."""
+    if backend not in BACKENDS:
+        raise ParameterError(f"backend = {backend!r}; valid: {', '.join(BACKENDS)}")
+    if backend == "mujoco":
+        if device != "cpu":
+            raise ParameterError(f"device = {device!r} needs backend='warp' (mujoco.batch "
+                                 "runs on the CPU)")
+        return None
+    if workers.remote:
+        raise ParameterError(f"backend = 'warp' simulates on this machine's device, not on "
+                             f"{workers.where}: run it without a scheduler")
+    from wpam_mj.simulation.warp_backend import check_device  # noqa: PLC0415 (the gpu extra)
+
+    return check_device(device)
 
 
 def _result(job, outcomes: list, failed: Any) -> Any:
@@ -163,13 +193,17 @@ def _result(job, outcomes: list, failed: Any) -> Any:
 
 
 def _run_local(units: list[tuple[int, list]], workers: Workers,
-               finish: Callable[[int, list], None], in_order: bool) -> None:
-    """Units here: their simulations on `workers.slots` batch threads, consecutive units
-    together (up to LOCAL_SLICE tasks; in order, each unit is finished as soon as every
-    thread has had TASKS_PER_THREAD tasks), the other tasks on the local process pool."""
+               finish: Callable[[int, list], None], in_order: bool,
+               warp_device: str | None = None) -> None:
+    """Units here: their simulations on `workers.slots` batch threads (or on MuJoCo Warp's
+    `warp_device`), consecutive units together (up to LOCAL_SLICE tasks; in order on
+    threads, each unit is finished as soon as every thread has had TASKS_PER_THREAD
+    tasks), the other tasks on the local process pool."""
     pool = workers.executor
     pooled: dict[tuple[int, int], Future] = {}
-    window_size = TASKS_PER_THREAD * workers.slots if in_order else LOCAL_SLICE
+    # (a Warp device wants its worlds together: full windows even in order)
+    window_size = TASKS_PER_THREAD * workers.slots if in_order and warp_device is None \
+        else LOCAL_SLICE
     try:
         if pool is not None:  # tasks that are not simulations: longest first
             mine = [(k, i, t) for k, tasks in units for i, t in enumerate(tasks)
@@ -184,7 +218,7 @@ def _run_local(units: list[tuple[int, list]], workers: Workers,
             here += [t for i, t in enumerate(tasks) if (k, i) not in pooled]
             if n + 1 < len(units) and len(here) < window_size:
                 continue
-            outcomes = iter(_run_here(here, workers.slots))
+            outcomes = iter(_run_here(here, workers.slots, warp_device))
             for j, ts in window:
                 mine = [pooled.get((j, i)) for i in range(len(ts))]
                 if any(f is not None and not f.done() for f in mine):
@@ -273,9 +307,10 @@ def _attempt(call: Callable[[], Any]) -> Any:
         return Failed(err)
 
 
-def _run_here(tasks: Sequence, nthread: int = 1) -> list:
+def _run_here(tasks: Sequence, nthread: int = 1, warp_device: str | None = None) -> list:
     """Outcomes of `tasks` in this process (the result, or `Failed`), in task order: the
-    runs of every `SimulationTask` simulated together on `nthread` batch threads."""
+    runs of every `SimulationTask` simulated together on `nthread` batch threads, or on
+    MuJoCo Warp's `warp_device`."""
     out: list = [None] * len(tasks)
     planned: list[tuple[int, int, int]] = []  # (task, first run, number of runs)
     runs: list[Run] = []
@@ -289,7 +324,12 @@ def _run_here(tasks: Sequence, nthread: int = 1) -> list:
             continue
         planned.append((k, len(runs), len(mine)))
         runs += mine
-    results = _simulate_runs(runs, nthread)
+    if warp_device is None:
+        results = _simulate_runs(runs, nthread)
+    else:
+        from wpam_mj.simulation.warp_backend import run_warp  # noqa: PLC0415 (the gpu extra)
+
+        results = run_warp(runs, device=warp_device)
     for k, first, n in planned:
         got = results[first:first + n]
         failed = next((r for r in got if isinstance(r, SimulationDiverged)), None)

@@ -87,11 +87,3 @@ class LiveRig:
             else self.muscles[0].state(data)
         return (float(s[plugin.FIELD["p_i"]]) - self.atmosphere,
                 float(s[plugin.FIELD["p_o"]]) - self.atmosphere)
-
-    def reset(self) -> None:
-        """After mj_resetData: nothing to do, on either engine (the muscle's state is in
-        the MjData, which MuJoCo resets)."""
-
-    def copy(self) -> "LiveRig":
-        """A rig for a copy of the data: this one (the muscle's state is in the MjData)."""
-        return self

@@ -154,13 +154,6 @@ static double pi_feedforward(const Instance* k, double x_ref) {
   return kernel_clip(pi_gauge, p[P_PNEUMATICS_P_MIN], p[P_PNEUMATICS_P_MAX]);
 }
 
-/* A chamber's step [Pa abs] (kernel.chamber_step) through this Instance's time step. */
-static double chamber_step(const Instance* k, double chamber_abs, double conductance,
-                           double source_abs, double volume, double dvdx, double v) {
-  return kernel_chamber_step(chamber_abs, source_abs, volume, dvdx, v, conductance,
-                             k->p[P_PNEUMATICS_CRITICAL_RATIO], k->dt);
-}
-
 /* A regulator's step (Regulator.update): the command through the dead time (ring buffer
    `queue`, shared head), then kernel.regulator_set_point. Returns the set point [Pa gauge]. */
 static double regulator_update(const Instance* k, double* set_gauge, double* queue,
@@ -904,14 +897,16 @@ static void wpam_advance(const mjModel* m, mjData* d, int instance) {
   x = in_stroke(k, s[S_X]);
   area = area_at(k, x);
   vol = volume_at(k, x);
-  s[S_P_I] = chamber_step(k, s[S_P_I], k->p[P_PNEUMATICS_INNER_CONDUCTANCE],
-                          set_i + atmosphere,
-                          kernel_inner_volume(vol, k->p[P_PNEUMATICS_TUBE_VOLUME]), area, v);
-  s[S_P_O] = chamber_step(k, s[S_P_O], k->p[P_PNEUMATICS_OUTER_CONDUCTANCE],
-                          set_o + atmosphere,
-                          kernel_outer_volume(vol, x, k->p[P_MUSCLE_AXIAL_AREA], k->bag_volume,
-                                              k->p[P_PNEUMATICS_TUBE_VOLUME]),
-                          kernel_outer_dvdx(area, k->p[P_MUSCLE_AXIAL_AREA]), v);
+  s[S_P_I] = kernel_chamber_step(s[S_P_I], set_i + atmosphere,
+                                 kernel_inner_volume(vol, k->p[P_PNEUMATICS_TUBE_VOLUME]),
+                                 area, v, k->p[P_PNEUMATICS_INNER_CONDUCTANCE],
+                                 k->p[P_PNEUMATICS_CRITICAL_RATIO], k->dt);
+  /* no outer bag (rlam, mckibben): the atmosphere, exactly */
+  s[S_P_O] = kernel_outer_chamber_step(k->outer_chamber, s[S_P_O], set_o + atmosphere, vol, x,
+                                       area, k->p[P_MUSCLE_AXIAL_AREA], k->bag_volume,
+                                       k->p[P_PNEUMATICS_TUBE_VOLUME], v,
+                                       k->p[P_PNEUMATICS_OUTER_CONDUCTANCE],
+                                       k->p[P_PNEUMATICS_CRITICAL_RATIO], k->dt, atmosphere);
   if (!(s[S_P_I] > 0.0 && s[S_P_O] > 0.0 && isfinite(s[S_P_I]) && isfinite(s[S_P_O])))
     set_status(s, WPAM_STATUS_PRESSURE);
 }

@@ -12,8 +12,9 @@ differs between the worlds' compiled models (the load's mass, the stroke's joint
 the slide's damping, the inverse weights derived from them) per world. On a CUDA device
 `step` replays a captured CUDA graph.
 
-`run_warp(runs)` is `simulate_each` on this backend (`simulate_many(..., backend="warp")`):
-one batch per model layout and length, the record as the plugin's, in float32.
+`run_warp(runs)` simulates validated `Run`s on this backend (what `wpam_mj.execute(jobs,
+backend="warp", device=...)` runs them with): one batch per model layout and length, the
+record as the plugin's, in float32.
 """
 
 from __future__ import annotations
@@ -28,7 +29,8 @@ from wpam_mj.physics.params import ParameterError
 from wpam_mj.simulation import engine
 from wpam_mj.simulation import plugin
 from wpam_mj.simulation import warp_muscle
-from wpam_mj.simulation.loop_contract import REC_FIELDS, REC_ROWS, state_failure
+from wpam_mj.simulation.loop_contract import (REC_FIELDS, REC_ROWS, SimulationDiverged,
+                                              state_failure)
 
 DEVICES = ("cpu", "cuda")
 
@@ -293,9 +295,13 @@ class WarpBatch:
 
 
 def run_warp(runs: list, *, device: str = "cpu") -> list:
-    """Each run's `SimResult` or the SimulationDiverged it raises, as `simulate_each`, on
-    MuJoCo Warp: runs of one model layout and length share a batch (any presets, loads and
-    control modes). Records as the plugin does, in float32."""
+    """Each run's `SimResult` or the SimulationDiverged it raises (returned, not raised),
+    on MuJoCo Warp: runs of one model layout and length share a batch (any presets, loads
+    and the plugin's control modes). Records as the plugin does, in float32."""
+    for run in runs:  # the kernels are the plugin's: a Python-only controller would not run
+        if run.control not in plugin.CONTROL_BY_NAME:
+            raise ParameterError(f"controller {run.control!r} runs on the Python engine only; "
+                                 f"backend = 'warp' runs {', '.join(plugin.CONTROL_BY_NAME)}")
     warp_muscle.require_warp()
     out: dict[int, object] = {}
     groups: dict[tuple, list[int]] = {}
@@ -306,7 +312,7 @@ def run_warp(runs: list, *, device: str = "cpu") -> list:
         for i, (rec, failure) in zip(ids, _run_group([runs[i] for i in ids], device)):
             try:
                 out[i] = runs[i].result(rec, failure)
-            except Exception as err:  # SimulationDiverged: returned, as simulate_each does
+            except SimulationDiverged as err:  # returned, as execute's runs return it
                 out[i] = err
     return [out[i] for i in range(len(runs))]
 
