@@ -251,7 +251,13 @@ def test_reproduce_writes_every_output(files, capsys):
     assert len(data) == 13
     assert not list(rep.rglob(".*")), "temporary files left behind"
     checks = json.loads((rep / "checks.json").read_text())
-    assert len(checks) == len(findings.TABLE2_FINDINGS) + len(findings.SWEEP_FINDINGS)
-    assert all(set(c) == {"finding", "passed", "detail"} for c in checks)
+    assert [c["name"] for c in checks] == list(findings.FINDINGS)  # every finding, once
+    assert all(set(c) == {"name", "sentence", "finding", "counted", "passed", "worst_margin",
+                          "detail"} for c in checks)
+    assert all(c["sentence"] for c in checks)  # each prints the paper's words
+    # golden (docs/physics.md, "The shipped plant"): 7 of the paper's 13 sentences hold
+    counted = [c for c in checks if c["counted"]]
+    assert (sum(c["passed"] for c in counted), len(counted)) == (7, 13)
+    assert "7 of 13 of the paper's sentences hold" in (rep / "report.md").read_text()
     assert "Table 2" in (rep / "report.md").read_text() and "Table 2" in out
     assert len(_read_csv(rep / "data" / "step_wpam_100N_pi.csv")["x_mm"]) > 1000

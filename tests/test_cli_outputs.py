@@ -217,7 +217,7 @@ def test_checks_print_one_decimal_and_no_bare_dash():
     t2 = types.SimpleNamespace(loads=(50.0,), open_po={50.0: 0.7042 * 0.845},
                                feedback={50.0: 0.001},
                                paper=lambda: {"open_po": {50.0: 0.7042}})
-    (row, _) = findings.table2_checks(t2)
+    row = findings.check(findings.FINDINGS["table2_po_row"], t2, np.nan)
     assert "-15.5%" in row.detail
     spread = next(c for c in findings.sweep_checks(_sweep([np.nan] * 4), 0.08 * MPA)
                   if "within" in c.finding)

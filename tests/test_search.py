@@ -59,8 +59,8 @@ def _fit(params, protocol):
 
 
 def _search(tmp_path, **kw):
-    kw = {"popsize": 1, "maxiter": 2, **kw}
-    return search.search(tmp_path, jobs=1, progress=False, targets=_Targets, fit=_fit, **kw)
+    kw = {"popsize": 1, "maxiter": 2, "targets": _Targets, **kw}
+    return search.search(tmp_path, jobs=1, progress=False, fit=_fit, **kw)
 
 
 def _simulated(records):
@@ -129,8 +129,8 @@ def test_the_checks_objective_counts_each_shortfall_once_and_caps_it():
     assert scoring.shortfall(far) == scoring.SHORTFALL_CAP
     failed = scoring.Record((0.5,), scoring.FAILED_COST, None, None)
     assert scoring.shortfall(failed) == scoring.FAILED_COST
-    falls = scoring.Record((0.5,), 7.0, {**margins, "po_rises_with_load": -0.5}, {})
-    assert scoring.shortfall(falls) == 0.0  # "checks" may trade Po's rise away ...
+    falls = scoring.Record((0.5,), 7.0, {**margins, "po_cap_light_slow": -0.5}, {})
+    assert scoring.shortfall(falls) == 0.0  # "checks" may trade an extra away ...
     assert scoring.findings_shortfall(falls) == pytest.approx(  # ... "findings" may not
         0.5 + paper.CALIBRATION_HEADROOM)
 
@@ -279,3 +279,31 @@ def test_search_command_refuses_to_resume_or_map_another_search(tmp_path, capsys
         assert code == 2 and len(err.strip().splitlines()) == 1 and says in err, err
     assert (tmp_path / "journal.jsonl").read_bytes() == journal
     assert sorted(p.name for p in tmp_path.iterdir()) == ["journal.jsonl"]
+
+
+class _PlantTargets(_Targets):
+    """The stand-in, run on the simulated plant (its `plant_deviation` applied)."""
+
+    def tasks(self, params):
+        return super().tasks(params.plant)
+
+
+def test_a_robust_search_keeps_each_findings_worst_margin_over_sampled_plants(tmp_path):
+    """--robust K scores a point on itself and K plants within +-5 % of its unmeasured
+    values: every margin is the worst of them, so never above the nominal point's, and
+    below it where the finding depends on a deviated value (Kf here)."""
+    nominal = _search(tmp_path / "n", targets=_PlantTargets)
+    robust = _search(tmp_path / "r", targets=_PlantTargets, robust=3)
+    first_n, first_r = nominal.records[0], robust.records[0]
+    assert first_n.u == first_r.u  # the same seeded first population
+    assert all(first_r.margins[f] <= first_n.margins[f] for f in first_n.margins)
+    assert first_r.margins["table2_po_row"] < first_n.margins["table2_po_row"]
+    with pytest.raises(ParameterError, match="robust"):  # a journal of another search
+        _search(tmp_path / "r", targets=_PlantTargets, robust=5, resume=True)
+
+
+def test_worst_of_fails_a_point_when_one_plant_fails():
+    good = (1.0, {"a": 0.2, "b": -0.1}, {"fig": 1})
+    worse = (2.0, {"a": -0.3, "b": 0.4}, {"fig": 2})
+    assert scoring.worst_of([good, worse]) == (2.0, {"a": -0.3, "b": -0.1}, {"fig": 1})
+    assert scoring.worst_of([good, (scoring.FAILED_COST, None, None)])[1] is None

@@ -43,9 +43,6 @@ TABLE2_SOURCE = f"{SOURCE}, Table 2"
 
 # Table 2 prints four digits and no uncertainty; 15 % per cell is our fidelity target
 TABLE2_PO_RTOL = 0.15
-# "for F = 150 N, the hysteresis loop remains slightly ... almost eliminated because of
-# its small order of magnitude" (§4.1): below 0.02, the order of the paper's largest cell
-FEEDBACK_MAX = 0.02
 # "Comparing the responses for each load, no change in amplitude gain is observed"
 # (§4.2, read off Fig. 17): within 5 % of each other, our reading of "no change"
 GAIN_LOAD_RTOL = 0.05
@@ -56,8 +53,25 @@ PO_CAP_RTOL = 0.02
 # velocity at 150 N, 0.5 Hz): at 0.1 Hz the lighter loads keep the regulator Po below
 # 0.07 MPa of the 0.08 MPa cap (our reading)
 PO_SLOW_LIGHT_MAX_FRAC = 0.875
-# Table 2's feedback row grows 9x from 100 to 150 N in the paper; we ask for 3x
-FEEDBACK_150_OVER_100_MIN = 3.0
+# Table 2's feedback row as a fidelity target: each cell within a factor of 2 of the
+# paper's (cells of order 1e-3 are residuals of a loop almost eliminated, §4.1; a factor,
+# not a percentage, is what a residual of this size can be held to)
+FEEDBACK_FACTOR = 2.0
+# "the amount of contraction quickly converges to the target value" (§4.1, Fig. 14): a
+# settled plateau's x peak-to-peak at most 0.2 mm (our reading of "converges")
+STEP_PP_MM = 0.2
+# "The phase lag is almost the same in the frequency band above 0.5 Hz" (§4.2, PI, across
+# loads): lags within 5 deg of each other at each frequency from 0.5 Hz (our reading of
+# "almost the same" on Fig. 17's lag axis)
+LAG_SAME_DEG = 5.0
+# "the phase delay is smaller when the PID controller is used" (§4.2, 150 N): a lead a
+# reader sees in Fig. 17, at least the 1 deg a figure resolves (LAG_FALL_TOL_DEG)
+PID_LEAD_MIN_DEG = 1.0
+# "in the case of open loop ... after 60 s, the W-PAM is hardly extended" (§4.1, Fig. 12):
+# while the targets step down from 50 mm to 0 (60-110 s, 100 N, Po = 0), x gives back at
+# most a fifth of the contraction it had at 60 s (our reading of "hardly")
+OPEN_LOOP_GIVE_BACK_MAX = 0.2
+OPEN_LOOP_TURN_S = 60.0  # §4.1: "the W-PAM contracts from 0 to 60 s, and after that it extends"
 # "the output gain decreased, and the phase lag increased as the target frequency
 # increased" (abstract, Fig. 17): wiggles smaller than these between neighbouring
 # frequencies are below what a figure of gain 0-1 and lag 0-180 deg resolves

@@ -26,6 +26,22 @@ def add_parsers(add) -> None:
     ramp_time_option(p)
     protocol_options(p)
     out_dir_option(p, "reproduce")
+    p.add_argument("--robustness", type=int, default=0, metavar="N",
+                   help="also check every finding on N plants sampled within the "
+                        "uncertainty of every unmeasured value (Latin hypercube; "
+                        "robustness.csv/json/png and a report.md section; default: 0)")
+    robustness_options(p)
+
+    p = add("robustness", "the paper's findings over plants sampled within the uncertainty "
+            "of every unmeasured plant value, the controller keeping its nominal model: the "
+            "fraction of plants holding each finding and the spread of Table 2's cells",
+            _cmd_robustness)
+    p.add_argument("--samples", type=int, default=32, metavar="N",
+                   help="plants to sample (default: 32)")
+    robustness_options(p)
+    ramp_time_option(p)
+    protocol_options(p)
+    out_dir_option(p, "robustness")
 
     p = add("search", "global search of the credible parameter box and the Pi ramp top on "
             "every finding of the paper (a quasi-static screen, then differential evolution "
@@ -61,6 +77,11 @@ def add_parsers(add) -> None:
                         "replayed, not run again (a finished search replays in seconds); "
                         "the same --seed, --popsize, --free, --radius and --config as the "
                         "journal's (more --maxiter extends it)")
+    p.add_argument("--robust", type=int, default=0, metavar="K",
+                   help="score each point as the worst over itself and K plants sampled "
+                        "within +-5 %% of its unmeasured values (the controller keeping its "
+                        "nominal model), so the search optimises what survives the plant's "
+                        "uncertainty; K times the runs (default: 0)")
     p.add_argument("--map-only", action="store_true",
                    help="run nothing: the best point and the feasibility map of the points "
                         "journaled in --out so far (e.g. while the search still runs)")
@@ -87,6 +108,31 @@ def add_parsers(add) -> None:
     scheduler_option(p)
 
 
+def robustness_options(p) -> None:
+    from wpam_mj.reproduction.robustness import DEFAULT_REL  # noqa: PLC0415
+    p.add_argument("--robustness-seed", type=int, default=0, metavar="S",
+                   help="seed of the plant sample (default: 0)")
+    p.add_argument("--robustness-rel", type=float, default=DEFAULT_REL, metavar="R",
+                   help="each unmeasured value within +-R of its nominal value "
+                        f"(default: {DEFAULT_REL:g})")
+
+
+def _cmd_robustness(args: argparse.Namespace) -> int:
+    from wpam_mj.reproduction.robustness import (robustness,  # noqa: PLC0415 (slow imports)
+                                                 write_robustness)
+    run = run_options(args)
+    params, protocol = protocol_of(args, run.params)
+    out = out_dir_of(args)
+    start = time.perf_counter()
+    result = robustness(params, args.samples, seed=args.robustness_seed,
+                        rel=args.robustness_rel, dt=run.dt, jobs=run.jobs,
+                        progress=run.progress, protocol=protocol)
+    written = write_robustness(out, result)
+    print(result.markdown())
+    print(f"wrote {', '.join(str(p) for p in written)} ({time.perf_counter() - start:.1f} s)")
+    return 0
+
+
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     tables, _ = output_modules()
     from wpam_mj.reproduction.reproduce import reproduce  # noqa: PLC0415 (matplotlib: slow import)
@@ -99,7 +145,9 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     rid = run_id_of(args, params, settings)
     start = time.perf_counter()
     rep = reproduce(out, params, dt=run.dt, jobs=run.jobs, progress=run.progress,
-                    compare=compare, run_id=rid, protocol=protocol)
+                    compare=compare, run_id=rid, protocol=protocol,
+                    robustness_samples=args.robustness, robustness_seed=args.robustness_seed,
+                    robustness_rel=args.robustness_rel)
     manifest = write_run_manifest(args, out, rid, params, settings, rep.files)
     print(tables.table2_text(rep.table2))
     print(findings.checks_text(rep.checks))
@@ -145,7 +193,8 @@ def _cmd_search(args: argparse.Namespace) -> int:
         written = search_outputs.write_search(out, base=run.params, seed=args.seed, jobs=jobs,
                                               resume=args.resume, progress=run.progress,
                                               objective=args.objective, free=free,
-                                              radius=args.radius, **sizes)
+                                              radius=args.radius, robust=args.robust,
+                                              **sizes)
     for path in written:
         print(f"wrote {path}")
     return 0

@@ -222,6 +222,12 @@ class Params:
     pneumatics: Pneumatics = field(default_factory=Pneumatics)
     controller: Controller = field(default_factory=Controller)
     preset: str = "wpam"
+    # The simulated plant's relative deviations from these nominal values, by
+    # "section.field" name: ((name, delta), ...), the plant's value being value (1 + delta).
+    # The controller's feedforward (the paper's equilibrium model, eqs. 5-6) keeps the
+    # nominal values, as an experimenter's model does; `plant` applies them (robustness
+    # samples, `wpam_mj.reproduction.robustness`).
+    plant_deviation: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self) -> None:
         for name, cls in _SECTIONS.items():
@@ -231,6 +237,11 @@ class Params:
         if self.preset not in MUSCLE_TYPES:
             raise ParameterError(f"unknown preset {self.preset!r}; valid presets: "
                                  f"{', '.join(MUSCLE_TYPES)}")
+        for name, delta in self.plant_deviation:
+            if name not in _PARAMETER_NAMES or name.startswith("controller."):
+                raise ParameterError(f"plant_deviation names {name!r}; it takes plant "
+                                     "parameters by section.field name (models/README.md)")
+            check_range(f"plant_deviation of {name}", delta, -0.5, 0.5)
         # the rules between fields of different sections (each section checks its own)
         rules.check(tuple(r for r in rules.rules_within(_PARAMETER_NAMES)
                           if len({n.partition(".")[0] for n in r.needs}) > 1), self.value)
@@ -243,6 +254,15 @@ class Params:
     def outer_chamber(self) -> bool:
         """Whether an outer bag surrounds the inner one for Po to fill (its muscle type)."""
         return self.muscle_type.outer_chamber
+
+    @property
+    def plant(self) -> "Params":
+        """The simulated plant: these values with `plant_deviation` applied."""
+        if not self.plant_deviation:
+            return self
+        nominal = dataclasses.replace(self, plant_deviation=())
+        return nominal.with_values({name: self.value(name) * (1.0 + delta)
+                                    for name, delta in self.plant_deviation})
 
     def replace(self, **sections: Mapping[str, float]) -> "Params":
         """Copy with some fields changed: ``p.replace(muscle={"friction_coeff": 0})``."""

@@ -17,13 +17,14 @@ from typing import Sequence
 import numpy as np
 
 from wpam_mj.reproduction.search_scoring import (FINDING_TEXT, FINDINGS, PAPER_CHECKS, TRACK_MM,
+                                                 margin_of,
                                                  Record, shortfall)
 
 
 def margin_matrix(records: Sequence[Record]) -> np.ndarray:
     """Margins of the points that track, shape (n_points, n_findings); a margin that
     could not be computed (NaN: e.g. no gain where the muscle did not move) fails."""
-    rows = [[r.margins[f] for f in FINDINGS] for r in records if r.tracks]
+    rows = [[margin_of(r, f) for f in FINDINGS] for r in records if r.tracks]
     m = np.array(rows, dtype=float).reshape(-1, len(FINDINGS))
     return np.where(np.isnan(m), -np.inf, m)
 
@@ -102,11 +103,11 @@ def held_with(records: Sequence[Record], kept: str) -> tuple[int, int, list[str]
     """Among the tracking points at which finding `kept` holds: how many there are, the
     most of `wpam reproduce`'s checks one of them meets, and the checks that point (the
     least shortfall among those meeting most) misses. (0, 0, []) when none holds it."""
-    ok = [r for r in records if r.tracks and r.margins[kept] >= 0.0]
+    ok = [r for r in records if r.tracks and margin_of(r, kept) >= 0.0]
     if not ok:
         return 0, 0, []
     best = min(ok, key=lambda r: (-r.held, shortfall(r)))
-    return len(ok), best.held, [f for f in PAPER_CHECKS if best.margins[f] < 0.0]
+    return len(ok), best.held, [f for f in PAPER_CHECKS if margin_of(best, f) < 0.0]
 
 
 def best_compromise(records: Sequence[Record], objective=lambda r: r.cost) -> Record:

@@ -12,7 +12,7 @@ from wpam_mj.physics.params import CALIBRATION_FILE, MM, MPA, Params
 from wpam_mj.experiments.protocol import SHIPPED, Protocol
 from wpam_mj.experiments.responses import StaticLoop, StepRun, SweepResult, Table2Result
 from wpam_mj.experiments.tables import fmt_value, mpa_label, params_markdown
-from wpam_mj.reproduction.findings import Check, checks_markdown
+from wpam_mj.reproduction.margins import Check, checks_markdown, score
 
 
 def report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResult,
@@ -21,7 +21,8 @@ def report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResult
     ref = t2.paper()
     calib = (f"`{CALIBRATION_FILE.name}` present" if CALIBRATION_FILE.exists() else
              "no calibration file: built-in defaults")
-    n_pass = sum(c.passed is True for c in checks)
+    held, counted = score(checks)
+    extras = [c for c in checks if not c.counted]
     md = [
         "# W-PAM simulation vs Saito, Satoh & Saga (Actuators 2024, 13, 282)",
         "",
@@ -30,7 +31,9 @@ def report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResult
         "",
         "## Checks of the paper's findings",
         "",
-        f"{n_pass} of {len(checks)} pass.",
+        f"{held} of {counted} of the paper's sentences hold"
+        + (f" (extras, readings of ours that no sentence states, are not counted: "
+           f"{', '.join(c.name + ' ' + c.verdict for c in extras)})." if extras else "."),
         "",
         checks_markdown(checks),
         "",
@@ -121,16 +124,31 @@ def report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResult
 
 
 # Why the shipped parameters give up a finding, by the finding's name: what was measured
-# on the shipped plant and by the searches of docs/physics.md ("Where the physics cannot
-# reach the paper": ten journals, `python scripts/search_evidence.py`).
+# on the shipped plant (`wpam reproduce`; `python scripts/limit_velocity.py`), written in
+# docs/physics.md ("What the shipped plant gives up, and why").
 GIVEN_UP = {
+    "table2_feedback_row": (
+        "the 150 N cell is 0.0079 against the paper's 0.0170 (x0.47): the PI loop settles "
+        "the heavy load's plateaus closer than the paper's rig did."),
+    "steps_settle": (
+        "the 50 and 100 N plateaus settle 0.32 and 0.31 mm off target, beyond the 0.11 and "
+        "0.13 mm that the paper's own feedback cells imply (p-p at most 0.13 mm: they "
+        "converge, but to a friction-held offset)."),
     "gain_spread": (
-        "on the shipped plant the loads' gains part near the limit velocity: "
-        "0.620/0.658/0.645 at 0.5 Hz (PI) and 0.244/0.225/0.235 at 1 Hz (PID), 8.4 % "
-        "apart. Of the 1,867 points searched, the shipped plant is the one that holds "
-        "every other finding; points that meet equal gains never hold Table 2's feedback "
-        "row (best -0.15), settled PI steps (-0.27) or Po rising with load (-0.11) with it "
-        "(docs/physics.md)."),
+        "the PI gains of the loads part by 7.8/6.2/7.9 % at 0.25/0.5/1 Hz: the limit "
+        "velocity depends on load (fastest contraction 32/36/37 mm/s, extension "
+        "119/91/68 mm/s at 50/100/150 N under a saturated Po command, set by the lines, "
+        "not by the regulators' lag: scripts/limit_velocity.py)."),
+    "lag_same_high_freq": (
+        "the PI lags spread 13.2 deg at 0.5 Hz and 12.1 deg at 1 Hz across the loads, for "
+        "the same reason: a load-dependent limit velocity."),
+    "pid_gain_equals_pi": (
+        "at 150 N, 1 Hz, PID's gain is 0.235 against PI's 0.219 (7.7 %): where the loop "
+        "runs at the limit velocity, PID's lead moves the command's switching points."),
+    "pid_leads_pi": (
+        "PID leads PI by 0.11/0.35/0.95 deg at 0.1/0.2/0.25 Hz, below the 1 deg a figure "
+        "resolves: the D term's phase advance atan(Kd w / Kp) is 1.4 deg at 0.1 Hz in a "
+        "linear loop, and friction-held plateaus take part of it."),
 }
 
 

@@ -14,7 +14,7 @@ from typing import Sequence
 
 from wpam_mj import paper
 from wpam_mj.experiments import figures
-from wpam_mj.reproduction import findings
+from wpam_mj.reproduction import findings, robustness
 from wpam_mj.reproduction.findings import Check
 from wpam_mj.physics.muscle_types import COMPARED_TYPES
 from wpam_mj.physics.params import Params, preset
@@ -70,7 +70,9 @@ class Reproduction:
 
 def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: int = 1,
               progress: bool = False, compare: Sequence[Params] | None = None,
-              run_id: str | None = None, protocol: Protocol = SHIPPED) -> Reproduction:
+              run_id: str | None = None, protocol: Protocol = SHIPPED,
+              robustness_samples: int = 0, robustness_seed: int = 0,
+              robustness_rel: float = robustness.DEFAULT_REL) -> Reproduction:
     """Run every experiment and write CSV/PNG/JSON and `report.md` into `out_dir`.
 
     Args:
@@ -80,6 +82,9 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
       dt: physics step [s]; jobs: process-pool size.
       run_id: the run's id (`wpam_mj.infra.manifest.run_id`), recorded in every figure.
       protocol: the static ramps' readings (`wpam_mj.experiments.protocol`) for Figs. 8-9, Table 2.
+      robustness_samples: N > 0 adds the findings over N plants sampled within
+        +-`robustness_rel` of every unmeasured value (`wpam_mj.reproduction.robustness`,
+        seeded by `robustness_seed`) to report.md and its files.
     """
     out = Path(out_dir)
     data = out / "data"
@@ -145,10 +150,17 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
                 "fig18_19_sine.png": ("sine_figure", (sw.series[fig_key], fig_key[1],
                                                       params.controller.po_cap), {})}))
         files.update(dict.fromkeys(write_sweep(out, sw), {}))
-        checks = (*findings.table2_checks(t2), *findings.sweep_checks(sw, params.controller.po_cap))
+        checks = findings.all_checks(t2, open_step, sw, params.controller.po_cap)
         files[write_checks(out, checks)] = {}
         execute(outputs, workers, progress=progress, desc="files")
     text = report_markdown(params, dt, t2, sw, open_step, preset_loops, checks, protocol)
+    if robustness_samples:
+        rob = robustness.robustness(params, robustness_samples, seed=robustness_seed,
+                                    rel=robustness_rel, dt=dt, jobs=jobs, progress=progress,
+                                    protocol=protocol)
+        files.update(dict.fromkeys(robustness.write_robustness(out, rob), {}))
+        text += ("\n## Robustness: the findings across the plant's uncertainty\n\n"
+                 + rob.markdown() + "\n\n![Robustness](robustness.png)\n")
     report = write_text_atomic(out / "report.md", text)
     files[report] = {}
     return Reproduction(report=report, table2=t2, sweep=sw, checks=tuple(checks), files=files)
@@ -157,5 +169,7 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
 def write_checks(out: Path, checks: Sequence[Check]) -> Path:
     """checks.json in `out`: finding, passed (true/false/null) and detail of each check."""
     return write_text_atomic(out / "checks.json", json.dumps(
-        [{"finding": c.finding, "passed": c.passed, "detail": c.detail} for c in checks],
+        [{"name": c.name, "sentence": c.sentence, "finding": c.finding, "counted": c.counted,
+          "passed": c.passed, "worst_margin": c.worst_margin, "detail": c.detail}
+         for c in checks],
         indent=2) + "\n")

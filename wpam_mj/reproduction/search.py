@@ -45,7 +45,8 @@ from wpam_mj.paper import TABLE2_PO_RTOL
 from wpam_mj.fitting import estimation
 from wpam_mj.infra.pool import Workers, open_workers
 from wpam_mj.reproduction.calibrate import FREE
-from wpam_mj.reproduction.search_scoring import OBJECTIVES, Record, Targets, score
+from wpam_mj.reproduction import robustness
+from wpam_mj.reproduction.search_scoring import OBJECTIVES, Record, Targets, score, worst_of
 from wpam_mj.physics.params import (Params, ParameterError, check_range,
                                     parameter_fields, preset)
 from wpam_mj.experiments.protocol import SHIPPED, Protocol
@@ -59,6 +60,9 @@ POPSIZE, MAXITER = 3, 8  # `wpam search`'s defaults: 21 points a generation, 9 g
 # The searched coordinates: every fitted parameter but those the static fit places, each
 # on its plausible range (conductances in log scale), as `wpam calibrate` frees them.
 SPACE = tuple(estimation.FreeParameter.of(n) for n in FREE if n not in STATIC_FIT)
+
+
+ROBUST_SEED = 0  # the plants a robust search scores each point on (`Evaluator`)
 
 
 def keep_static(params: Params, protocol: Protocol) -> tuple[Params, Protocol, float]:
@@ -194,8 +198,15 @@ class Evaluator:
 
     def __init__(self, base: Params, journal: PointJournal, executor: Workers,
                  targets=None, progress: bool = False, planned: int = 0,
-                 region: Region = GLOBAL, objective: str = "cost") -> None:
+                 region: Region = GLOBAL, objective: str = "cost",
+                 robust: int = 0) -> None:
         self.base, self.journal, self.executor = base, journal, executor
+        # robust = K: each point is scored on itself and K plants about it, every
+        # unmeasured value within +-5 % (the same Latin hypercube for every point, so
+        # points differ only by themselves), and keeps each finding's worst margin and the
+        # worst cost: what survives the plant's uncertainty, not the nominal point
+        self.deviations = (robustness.sample_deviations(robust, ROBUST_SEED) if robust
+                           else np.zeros((0, len(robustness.UNMEASURED))))
         self.region = region
         self.objective = OBJECTIVES[objective]  # Record -> the value DE minimises
         # targets(protocol) -> `Targets`-like (a cheap stand-in in the smoke test)
@@ -229,10 +240,16 @@ class Evaluator:
         `cost`, replaced here by the batched, journaled evaluation)."""
         return [self.objective(r) for r in self.records([list(u) for u in us])]
 
+    def _plants(self, params: Params) -> list[Params]:
+        """The point itself, then its sampled plants (`robust`)."""
+        return [params, *robustness.sampled_plants(params, self.deviations)]
+
     def _run(self, us: list) -> list[Record]:
         points = self._points(us)
-        groups = [self.targets(p.protocol).tasks(p.params)
-                  if p is not None and p.static_error <= TABLE2_PO_RTOL else [] for p in points]
+        members = [self._plants(p.params) if p is not None else [] for p in points]
+        groups = [[t for m in plants for t in self.targets(p.protocol).tasks(m)]
+                  if p is not None and p.static_error <= TABLE2_PO_RTOL else []
+                  for p, plants in zip(points, members)]
         flat = sorted(((g, i, t) for g, ts in enumerate(groups) for i, t in enumerate(ts)),
                       key=lambda x: -x[2].cost)
         from wpam_mj.simulation.execution import execute  # noqa: PLC0415 (the one layer)
@@ -247,9 +264,13 @@ class Evaluator:
                                   {"static_error": p.static_error}))
                 continue
             ok = p is not None and all(r is not None for r in res)
-            cost, margins, figs = (score(self.targets(p.protocol), p.params, res) if ok
-                                   else score(None, None, None))
-            out.append(Record(tuple(float(x) for x in u), cost, margins, figs))
+            if not ok:
+                out.append(Record(tuple(float(x) for x in u), *score(None, None, None)))
+                continue
+            per = len(res) // len(members[g])
+            scored = [score(self.targets(p.protocol), m, res[j * per:(j + 1) * per])
+                      for j, m in enumerate(members[g])]
+            out.append(Record(tuple(float(x) for x in u), *worst_of(scored)))
         return out
 
     def _points(self, us: list) -> list[Point | None]:
@@ -323,28 +344,30 @@ RADIUS = 0.25  # a local search's default half-width, of each range
 
 def search_settings(base: Params, free: Sequence[str] | None = None,
                     radius: float | None = None, seed: int | None = None,
-                    popsize: int | None = None) -> dict:
+                    popsize: int | None = None, robust: int = 0) -> dict:
     """What makes a search the one its journal holds (a resumed search must repeat them;
     the generations and the objective may change: they extend or re-rank the same
-    points): seed, popsize, the local search's names and radius, and the base point."""
+    points): seed, popsize, the local search's names and radius, the plants a robust
+    search scores each point on, and the base point."""
     return {"seed": seed, "popsize": popsize, "free": None if free is None else list(free),
-            "radius": radius, "base": {k: base.value(k) for k, _ in parameter_fields()}}
+            "radius": radius, "robust": robust,
+            "base": {k: base.value(k) for k, _ in parameter_fields()}}
 
 
 _SETTING_FLAGS = {"seed": "--seed", "popsize": "--popsize", "free": "--free",
-                  "radius": "--radius"}
+                  "radius": "--radius", "robust": "--robust"}
 
 
 def check_same_search(journal: PointJournal, ours: dict, what: str,
-                      keys: Sequence[str] = ("seed", "popsize", "free", "radius", "base")
-                      ) -> None:
+                      keys: Sequence[str] = ("seed", "popsize", "free", "radius", "robust",
+                                             "base")) -> None:
     """ParameterError naming the first setting of `keys` in which the search asked for
     differs from the one `journal` holds (a journal without settings is not checked)."""
     theirs = journal.settings
     if theirs is None:
         return
     for key in keys:
-        a, b = theirs.get(key), ours[key]
+        a, b = theirs.get(key, 0 if key == "robust" else None), ours[key]
         if a == b:
             continue
         if key == "base":
@@ -383,7 +406,7 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
            popsize: int = POPSIZE, maxiter: int = MAXITER, jobs: int = 2,
            resume: bool = False, progress: bool = True, targets=None,
            fit=None, objective: str = "cost", free: Sequence[str] | None = None,
-           radius: float | None = None) -> SearchResult:
+           radius: float | None = None, robust: int = 0) -> SearchResult:
     """Run DE over SPACE, every coordinate drawn from its whole range (a Latin hypercube,
     not started from any known point): `base` (default: the wpam preset) gives only the
     parameters that are not searched. Journals to `out`/journal.jsonl (None: in memory).
@@ -394,7 +417,9 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
     free: a local search instead (`local_region`): only these dynamic readings, in a box
     of +-`radius` (of each range, default RADIUS) around `base`, whose point DE's first
     population holds. resume: replay the journal in `out` and go on, refused when it is
-    of another search (`check_same_search`).
+    of another search (`check_same_search`). robust: score each point as the worst over
+    itself and this many plants sampled within +-5 % of its unmeasured values
+    (`Evaluator`), so that the search optimises what survives the plant's uncertainty.
     """
     if objective not in OBJECTIVES:
         raise ParameterError(f"objective = {objective!r} must be one of "
@@ -409,8 +434,9 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
     if free is not None:
         x0 = coordinates_of(base, region)
         bounds = [(max(0.0, z - radius), min(1.0, z + radius)) for z in x0]
+    check_range("robust", robust, 0, 64)
     settings = search_settings(base, None if free is None else region.names, radius, seed,
-                               popsize)
+                               popsize, int(robust))
     path = None if out is None else Path(out) / "journal.jsonl"
     if resume and path is None:
         raise ParameterError("--resume: an in-memory search has no journal to resume")
@@ -420,7 +446,8 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
     started = time.perf_counter()
     with open_workers(jobs) as ex:
         ev = Evaluator(base, journal, ex, targets, progress,
-                       planned_evaluations(popsize, maxiter, len(bounds)), region, objective)
+                       planned_evaluations(popsize, maxiter, len(bounds)), region, objective,
+                       int(robust))
         res = differential_evolution(
             cost, bounds, args=(ev,), seed=seed, popsize=popsize, x0=x0,
             maxiter=maxiter, tol=0.0, polish=False, init="latinhypercube",

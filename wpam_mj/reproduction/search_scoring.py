@@ -20,18 +20,16 @@ from wpam_mj.physics.params import Params, ParameterError
 from wpam_mj.reproduction import findings
 from wpam_mj.reproduction.calibrate import PaperTargets
 
-PO_RISE_SCALE_MPA = 0.01
-STEP_PP_MM = 0.2  # a converged plateau (Fig. 14: "quickly converges"); our reading
+SHORTFALL_CAP = 3.0  # scale units: one far miss counts as three near ones, no more
 TRACK_MM = 5.0  # half a 10 mm step: a PI staircase worse than this does not follow it
 FAILED_COST = 1e6  # DE needs a finite cost where a simulation fails
 
-# The findings of `wpam reproduce` (`findings.FINDINGS`), then two the paper shows without a
-# number: settled steps (Figs. 12-15) and Po rising with load (Fig. 15, §4.2).
-FINDING_TEXT = {**{name: f.short for name, f in findings.FINDINGS.items()},
-                "steps_settle": "PI steps settle: error <= Table 2's split, p-p <= 0.2 mm",
-                "po_rises_with_load": "plateau-mean Po rises with load"}
+# The findings a point's runs check (`findings.FINDINGS` but Fig. 12's open loop, which the
+# search does not run), by name; the paper's sentences among them (the extras aside).
+FINDING_TEXT = {f.name: f.short for f in (*findings.TABLE2_FINDINGS,
+                                           *findings.SWEEP_FINDINGS)}
 FINDINGS = tuple(FINDING_TEXT)
-PAPER_CHECKS = tuple(findings.FINDINGS)  # the eight that `wpam reproduce` checks
+PAPER_CHECKS = tuple(name for name in FINDINGS if findings.FINDINGS[name].counted)
 
 
 def _worst(margins) -> float:
@@ -41,14 +39,13 @@ def _worst(margins) -> float:
 def finding_margins(scores, table2) -> dict[str, float]:
     """Each finding's worst margin in units of its scale (>= 0: holds)."""
     checks = [*findings.table2_checks(table2), *scores.sweep_checks]
-    out = {c.name: _worst(c.margins) for c in checks}
-    steps = [min((lim - e) / lim, (STEP_PP_MM - p) / STEP_PP_MM)
-             for e, p, lim in zip(scores.step_error_mm["pi"], scores.step_pp_mm["pi"],
-                                  scores.step_limit_mm)]
-    po = scores.po_plateau_mpa
-    out["steps_settle"] = min(steps)
-    out["po_rises_with_load"] = min((b - a) / PO_RISE_SCALE_MPA for a, b in zip(po, po[1:]))
-    return out
+    return {c.name: _worst(c.margins) if c.margins else -SHORTFALL_CAP for c in checks}
+
+
+def margin_of(rec: "Record", name: str) -> float:
+    """A record's margin of one finding; a journal written before the finding existed
+    counts it as a far miss."""
+    return rec.margins.get(name, -SHORTFALL_CAP)
 
 
 @dataclass(frozen=True)
@@ -73,7 +70,7 @@ class Record:
     @property
     def held(self) -> int:
         """How many of the paper's checks (`wpam reproduce`'s, PAPER_CHECKS) hold."""
-        return 0 if self.margins is None else sum(self.margins[f] >= 0.0
+        return 0 if self.margins is None else sum(margin_of(self, f) >= 0.0
                                                   for f in PAPER_CHECKS)
 
     def as_json(self) -> dict:
@@ -87,25 +84,24 @@ class Record:
 
 # ---- objectives: what DE minimises (journals keep margins, so either replays any journal)
 
-SHORTFALL_CAP = 3.0  # scale units: one far miss counts as three near ones, no more
 
 
-def shortfall(rec: Record, wanted: Sequence[str] = (*PAPER_CHECKS, "steps_settle")) -> float:
-    """The "checks" objective: how far the point falls short of every check of `wpam
-    reproduce` and of settled PI steps (or of the findings `wanted`), each shortfall in
+def shortfall(rec: Record, wanted: Sequence[str] = PAPER_CHECKS) -> float:
+    """The "checks" objective: how far the point falls short of every sentence check of
+    `wpam reproduce` that its runs see (or of the findings `wanted`), each shortfall in
     units of its margin's scale measured from CALIBRATION_HEADROOM past its limit and
     capped at SHORTFALL_CAP (0: all met with headroom). Unlike calibrate's cost it asks
     no more of a finding than its check does, so a point's value falls only by meeting
     checks."""
     if rec.margins is None:
         return rec.cost  # failed or screened out: the same large cost as "cost"
-    return sum(min(max(0.0, CALIBRATION_HEADROOM - rec.margins[f]), SHORTFALL_CAP)
+    return sum(min(max(0.0, CALIBRATION_HEADROOM - margin_of(rec, f)), SHORTFALL_CAP)
                for f in wanted)
 
 
 def findings_shortfall(rec: Record) -> float:
     """The "findings" objective: the checks' shortfall with every finding of FINDINGS
-    asked, Po rising with load among them (what "checks" may trade away)."""
+    asked, the extras among them (what "checks" may trade away)."""
     return shortfall(rec, FINDINGS)
 
 
@@ -158,3 +154,13 @@ def score(targets, params: Params, results: list | None) -> tuple[float, dict | 
         return FAILED_COST, None, None
     return cost, margins, figures
 
+
+def worst_of(scored: Sequence[tuple[float, dict | None, dict | None]]
+             ) -> tuple[float, dict | None, dict | None]:
+    """One (cost, margins, figures) from several plants' scores: the worst cost, each
+    finding's worst margin, the first (nominal) plant's figures; a failed plant fails
+    the point."""
+    if any(m is None for _, m, _ in scored):
+        return FAILED_COST, None, None
+    margins = {name: min(m[name] for _, m, _ in scored) for name in scored[0][1]}
+    return max(c for c, _, _ in scored), margins, scored[0][2]

@@ -92,6 +92,7 @@ def rig_spec(params: Params, load: float, dt: float = 1e-3, *, control: str = "o
         Pi command channel is given; the rig always gives one).
       xml: MJCF file (the scene file for rendering).
     """
+    params = params.plant  # the simulated plant (`Params.plant_deviation`)
     load = check_load(load)
     dt = check_dt(dt)
     stand_in.register_stand_in()

@@ -89,6 +89,8 @@ class Run:
              control: str = "open", record_dt: float = 0.01) -> "Run":
         """Validate a run (see `simulate` for the arguments) and build its model spec."""
         load, dt = check_load(load), check_dt(dt)
+        # the drive's feedforward came from the nominal values; the rig is the plant
+        params = params.plant
         check_chamber_step(params, dt)
         k = RunConstants.make(params, dt, record_dt, start_at_rest=drive.start_at_rest)
         controller = make_controller(control, params, dt)

@@ -1,0 +1,108 @@
+"""Robustness over the plant's uncertainty: the Latin-hypercube sample, the nominal model
+the controller keeps while the plant deviates, the summary of held findings, and the
+limit-velocity experiment."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from wpam_mj.experiments.drives import step_plan
+from wpam_mj.experiments.limit_velocity import limit_velocity, variant
+from wpam_mj.physics.params import ParameterError, preset
+from wpam_mj.reproduction import findings, robustness
+from wpam_mj.reproduction.margins import Check
+
+
+def test_the_sample_is_a_seeded_latin_hypercube_within_its_box():
+    dev = robustness.sample_deviations(16, seed=3, rel=0.05)
+    assert dev.shape == (16, len(robustness.UNMEASURED))
+    assert np.all(np.abs(dev) <= 0.05)
+    strata = np.floor((dev / 0.05 + 1.0) / 2.0 * 16).astype(int)  # each stratum once
+    assert all(sorted(col) == list(range(16)) for col in strata.T)
+    assert np.array_equal(dev, robustness.sample_deviations(16, seed=3, rel=0.05))
+    assert not np.array_equal(dev, robustness.sample_deviations(16, seed=4, rel=0.05))
+
+
+@pytest.mark.parametrize("n, rel, what", [(0, 0.05, "samples"), (4, 0.0, "rel"),
+                                          (4, 0.9, "rel")])
+def test_a_bad_sample_is_refused_in_one_line(n, rel, what):
+    with pytest.raises(ParameterError, match=what) as err:
+        robustness.sample_deviations(n, seed=0, rel=rel)
+    assert "\n" not in str(err.value)
+
+
+def test_the_plant_deviates_while_the_feedforward_keeps_the_nominal_model():
+    nominal = preset("wpam")
+    (plant,) = robustness.sampled_plants(
+        nominal, np.array([[0.05 if n == "muscle.friction_coeff" else 0.0
+                            for n in robustness.UNMEASURED]]))
+    assert plant.plant.muscle.friction_coeff == pytest.approx(
+        1.05 * nominal.muscle.friction_coeff)
+    assert plant.plant.plant_deviation == ()
+    nominal_run = step_plan(nominal, 100.0, "pi")
+    deviated_run = step_plan(plant, 100.0, "pi")
+    # the feedforward's Pi commands are the nominal model's, bit for bit ...
+    assert np.array_equal(nominal_run.inputs, deviated_run.inputs)
+    # ... while the rig simulates the deviated plant
+    assert nominal_run.spec.to_xml() != deviated_run.spec.to_xml()
+
+
+@pytest.mark.parametrize("name", ["controller.kp", "muscle.no_such"])
+def test_a_deviation_of_anything_but_a_plant_parameter_is_refused(name):
+    nominal = preset("wpam")
+    with pytest.raises(ParameterError, match="plant_deviation") as err:
+        type(nominal)(plant_deviation=((name, 0.01),))
+    assert "\n" not in str(err.value)
+
+
+def _outcome(passed: dict, error: str = ""):
+    checks = tuple(Check(n, n, passed.get(n), "") for n in findings.FINDINGS)
+    cells = {cell: 0.1 for cell in robustness.CELLS}
+    return robustness.PlantOutcome((), () if error else checks, {} if error else cells,
+                                   error)
+
+
+def test_the_summary_counts_plants_and_a_failed_plant_holds_nothing():
+    name = "po_reaches_cap"
+    result = robustness.Robustness((_outcome({name: True}), _outcome({name: True}),
+                                    _outcome({name: False}), _outcome({}, "diverged")),
+                                   0.05, 0)
+    assert result.held_fraction()[name] == pytest.approx(0.5)
+    assert result.held_fraction()["gain_spread"] == 0.0  # the failed plant holds none
+    md = result.markdown()
+    assert "50% (2 of 4)" in md and "**fragile**" in md and "could not be run" in md
+
+
+def test_the_limit_velocity_grows_with_the_lines_that_set_it():
+    """The fastest contraction and extension under a saturated Po command; wider lines move
+    the air the motion needs faster (docs/physics.md, "What sets the limit velocity")."""
+    params = preset("wpam")
+    base = limit_velocity(params, 100.0, hold=1.5)
+    wide = limit_velocity(variant(params, {"pneumatics.inner_conductance": 3.0,
+                                           "pneumatics.outer_conductance": 3.0}), 100.0,
+                          hold=1.5)
+    assert base.contraction > 0.0 and base.extension > 0.0
+    assert wide.contraction > 1.5 * base.contraction
+    assert wide.extension > 1.5 * base.extension
+
+
+def test_robustness_command_refuses_a_bad_sample_in_one_line(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "wpam_mj", "robustness", "--samples", "0",
+                           "--out", str(tmp_path / "r")], capture_output=True, text=True)
+    assert proc.returncode != 0
+    assert proc.stderr.strip().count("\n") == 0 and "samples" in proc.stderr
+
+
+def test_one_sampled_plant_runs_every_study_and_writes_its_files(tmp_path):
+    """End to end on one plant: every finding of `wpam reproduce` is checked on it, and
+    the CSV, JSON, Markdown and figure are written whole."""
+    result = robustness.robustness(preset("wpam"), 1, seed=2, jobs=2)
+    (outcome,) = result.outcomes
+    assert outcome.error == "" and {c.name for c in outcome.checks} == set(findings.FINDINGS)
+    assert set(outcome.cells) == set(robustness.CELLS)
+    written = robustness.write_robustness(tmp_path, result)
+    assert sorted(p.name for p in written) == ["robustness.csv", "robustness.json",
+                                               "robustness.md", "robustness.png"]
+    assert not list(tmp_path.glob(".*"))

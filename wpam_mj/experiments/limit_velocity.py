@@ -1,0 +1,86 @@
+"""The muscle's limit velocity (§4.2): the fastest contraction and extension under a
+saturated Po command, per load, and which element of the plant sets it.
+
+§4.2 explains the high-frequency response by "the system using the PI controller operates
+at almost the limit velocity": above about 0.5 Hz the Po command spends most of each cycle
+at its cap or its floor (a bang-bang loop), so the speed the load can reach in either
+direction is what bounds the gain. This experiment measures those two speeds directly:
+Pi held at the feedforward of mid-stroke (25 mm, the sine's centre), Po commanded from
+the cap to the regulator's floor (the muscle contracts) and back (it extends), each held
+`hold` seconds from rest.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from wpam_mj.control.controllers import pi_feedforward
+from wpam_mj.experiments.drives import SINE_MEAN_MM
+from wpam_mj.physics.muscle import MuscleModel
+from wpam_mj.physics.params import MM, Params
+from wpam_mj.simulation.results import SimResult
+from wpam_mj.simulation.simulate import Drive, simulate
+
+HOLD_S = 3.0  # each Po level held long enough for the load to stop (our choice)
+
+
+@dataclass(frozen=True)
+class LimitVelocity:
+    """Fastest contraction and extension speeds [m/s] at one load [N]; x_span [m]: how
+    far the load travelled in each direction (contraction, extension)."""
+
+    load: float
+    contraction: float
+    extension: float
+    x_span: tuple[float, float]
+    result: SimResult
+
+
+def bang_bang_drive(params: Params, load: float, *, dt: float, hold: float = HOLD_S) -> Drive:
+    """Pi at the mid-stroke feedforward (Po = po_feedforward assumed, as the PI loop's);
+    Po: cap for `hold`, the regulator floor p_min for `hold`, the cap again for `hold`."""
+    n_hold = int(round(hold / dt))
+    c, pn = params.controller, params.pneumatics
+    pi = float(pi_feedforward(MuscleModel.from_params(params), params,
+                              np.array([SINE_MEAN_MM * MM]), load, c.po_feedforward)[0])
+    po = np.concatenate([np.full(n_hold, c.po_cap), np.full(n_hold, pn.p_min),
+                         np.full(n_hold + 1, c.po_cap)])
+    return Drive(pi_cmd=np.full(po.size, pi), po_cmd=po, x_ref=np.full(po.size, np.nan),
+                 start_at_rest=True)
+
+
+def limit_velocity(params: Params, load: float, *, dt: float = 1e-3,
+                   hold: float = HOLD_S) -> LimitVelocity:
+    """Measure the fastest contraction and extension [m/s] under Po switched between
+    its cap and its floor (`bang_bang_drive`), recorded every step."""
+    r = simulate(params, load, bang_bang_drive(params, load, dt=dt, hold=hold), dt=dt,
+                 record_dt=dt)
+    down = (r.time >= hold) & (r.time < 2 * hold)  # Po at its floor: contracting
+    up = r.time >= 2 * hold  # Po at its cap: extending
+    return LimitVelocity(load, float(np.max(r.velocity[down])),
+                         float(-np.min(r.velocity[up])),
+                         (float(np.ptp(r.x[down])), float(np.ptp(r.x[up]))), r)
+
+
+# The plant's elements that could set the speed, each removed in turn (`element_study`):
+# a variant's name and its parameter overrides relative to the plant.
+VARIANTS = {
+    "plant": {},
+    "regulator instant (no lag, no dead time)": {"pneumatics.time_constant": 0.0,
+                                                 "pneumatics.dead_time": 0.0},
+    "lines x10": {"pneumatics.inner_conductance": 10.0, "pneumatics.outer_conductance": 10.0},
+    "Po line x10": {"pneumatics.outer_conductance": 10.0},
+    "Pi line x10": {"pneumatics.inner_conductance": 10.0},
+    "no tube volume": {"pneumatics.tube_volume": 0.0},
+}
+_SCALED = ("pneumatics.inner_conductance", "pneumatics.outer_conductance")
+
+
+def variant(params: Params, overrides: dict[str, float]) -> Params:
+    """`params` with a VARIANTS entry applied (conductances scaled, the rest set)."""
+    values = {name: params.value(name) * v if name in _SCALED else v
+              for name, v in overrides.items()}
+    return params.with_values(values) if values else params
+
