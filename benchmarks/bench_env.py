@@ -36,7 +36,7 @@ from wpam_mj.environments.dm_env_task import make_env
 from wpam_mj.environments.gym_env import ENV_ID, WPAMEnv
 from wpam_mj.simulation.live import LiveRig
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import MM, MPA
+from wpam_mj.units import MM, MPA
 from wpam_mj.simulation.simulate import Drive, simulate
 
 LOAD = 100.0  # N, the paper's nominal load (§4.1)

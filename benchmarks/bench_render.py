@@ -23,7 +23,7 @@ import wpam_mj
 from common import Figure, describe, print_table
 from wpam_mj.control.controllers import pi_feedforward
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import MM
+from wpam_mj.units import MM
 from wpam_mj.visualisation.gl import offscreen_context_class
 from wpam_mj.visualisation.render import render_video
 

@@ -32,7 +32,8 @@ import numpy as np
 
 import wpam_mj  # noqa: F401 (registers the ids)
 from wpam_mj.environments.vector_env import default_threads
-from wpam_mj.physics.params import ParameterError, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.errors import ParameterError
 from wpam_mj.simulation import warp_muscle
 from wpam_mj.simulation.model import rig_spec
 

@@ -17,7 +17,7 @@ import numpy as np
 from wpam_mj import paper, preset
 from wpam_mj.control.controllers import PIControl
 from wpam_mj.environments.dm_env_task import make_env
-from wpam_mj.physics.params import MM
+from wpam_mj.units import MM
 
 CASES = ((20 * MM, 100.0), (40 * MM, 50.0), (30 * MM, 150.0), (10 * MM, 150.0),
          (45 * MM, 100.0))

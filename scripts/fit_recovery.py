@@ -23,7 +23,7 @@ from wpam_mj import preset
 from wpam_mj.fitting import estimation
 from wpam_mj.fitting.measured_fit import fit_data
 from wpam_mj.fitting.measurements import experiment_files, read_experiment
-from wpam_mj.physics.params import MM
+from wpam_mj.units import MM
 from wpam_mj.fitting.synthetic import HOLDOUT_DIR, synth
 
 # Relative offsets of the true values from the shipped ones, in default_free() order;

@@ -28,7 +28,8 @@ import numpy as np
 from scipy.optimize import minimize
 
 from wpam_mj import paper, preset
-from wpam_mj.physics.params import MM, MPA, Params, plausible_range
+from wpam_mj.physics.params import Params, plausible_range
+from wpam_mj.units import MM, MPA
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.infra.pool import Workers, open_workers
 from wpam_mj.experiments.paper_studies import SineTask, StaticTask, StepTask

@@ -17,7 +17,9 @@ from pathlib import Path
 from wpam_mj import paper
 from wpam_mj.experiments.limit_velocity import VARIANTS, limit_velocity, variant
 from wpam_mj.infra.files import write_text_atomic
-from wpam_mj.physics.params import MM, apply_overrides, load_toml, preset
+from wpam_mj.physics.params import apply_overrides, preset
+from wpam_mj.errors import load_toml
+from wpam_mj.units import MM
 
 
 def main() -> None:

@@ -23,7 +23,8 @@ from wpam_mj.physics import pneumatics as pn
 from wpam_mj.experiments.drives import SineSpec, sine_run
 from wpam_mj.design.linear_study import AGREEMENT_FREQS_HZ, GAIN_TOL_DB, LAG_TOL_DEG
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import MM, MPA, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.units import MM, MPA
 from wpam_mj.infra.files import write_text_atomic
 
 SCAN_AMPLITUDES_MM = (0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 25.0)

@@ -24,7 +24,9 @@ from pathlib import Path
 import numpy as np
 
 from wpam_mj import paper
-from wpam_mj.physics.params import MM, MPA, apply_overrides, load_toml, preset
+from wpam_mj.physics.params import apply_overrides, preset
+from wpam_mj.errors import load_toml
+from wpam_mj.units import MM, MPA
 from wpam_mj.experiments.protocol import LOOP_METHODS, SHIPPED, table2_batch
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.experiments.paper_studies import PLATEAU_SETTLE_S, sweep_batch

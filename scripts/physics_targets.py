@@ -25,7 +25,8 @@ from wpam_mj import paper, preset
 from wpam_mj.reproduction import findings
 from wpam_mj.infra import pool
 from wpam_mj.experiments.drives import SineSpec, sine_run
-from wpam_mj.physics.params import MM, MPA, Params
+from wpam_mj.physics.params import Params
+from wpam_mj.units import MM, MPA
 from wpam_mj.experiments.protocol import SHIPPED, remeasure, table2_batch
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.simulation.execution import execute

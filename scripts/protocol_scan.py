@@ -18,7 +18,9 @@ from pathlib import Path
 
 from wpam_mj import paper
 from wpam_mj.experiments.analysis import loop_area
-from wpam_mj.physics.params import MPA, apply_overrides, load_toml, preset
+from wpam_mj.physics.params import apply_overrides, preset
+from wpam_mj.errors import load_toml
+from wpam_mj.units import MPA
 from wpam_mj.experiments.protocol import LOOP_METHODS, Protocol, ProtocolStaticTask
 from wpam_mj.simulation.execution import execute
 

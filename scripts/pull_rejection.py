@@ -16,7 +16,7 @@ import numpy as np
 
 import wpam_mj
 from wpam_mj import paper
-from wpam_mj.physics.params import MM
+from wpam_mj.units import MM
 from wpam_mj.visualisation.viewer import LiveRig
 
 PULL_S = (2.0, 3.0)  # the pull's start and end [s]

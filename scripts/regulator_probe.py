@@ -30,7 +30,8 @@ from wpam_mj import paper
 from wpam_mj.experiments.limit_velocity import limit_velocity
 from wpam_mj.experiments.paper_studies import sweep
 from wpam_mj.physics import kernel
-from wpam_mj.physics.params import MM, MPA, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.units import MM, MPA
 
 ATMOSPHERE = 101325.0  # Pa
 

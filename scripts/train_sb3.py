@@ -39,7 +39,7 @@ import wpam_mj  # noqa: F401 (registers the ids)
 from wpam_mj.environments.policies import POLICIES, mean_return
 from wpam_mj.environments.sb3 import BatchedVecEnv
 from wpam_mj.environments.vector_env import default_threads
-from wpam_mj.physics.params import ParameterError
+from wpam_mj.errors import ParameterError
 from wpam_mj.simulation.warp_backend import check_device
 
 matplotlib.use("Agg")

@@ -10,7 +10,7 @@ import pytest
 
 from wpam_mj.experiments.analysis import (FrequencyPoint, fit_sinusoid, frequency_response,
                                           loop_area, steady_state_means)
-from wpam_mj.physics.params import ParameterError
+from wpam_mj.errors import ParameterError
 
 
 def polyline(vertices, points_per_edge):

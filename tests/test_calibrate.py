@@ -14,8 +14,9 @@ from wpam_mj.reproduction import findings
 from wpam_mj.fitting import estimation
 from wpam_mj.reproduction.calibrate import (FREE, KEPT, READINGS, WEIGHTS, CalibrationResult,
                                             PaperTargets, calibrate, random_starts)
-from wpam_mj.physics.params import (MPA, ParameterError, apply_overrides, load_toml,
-                                    plausible_range, preset)
+from wpam_mj.physics.params import apply_overrides, plausible_range, preset
+from wpam_mj.errors import ParameterError, load_toml
+from wpam_mj.units import MPA
 from wpam_mj.reproduction.report import GIVEN_UP
 
 # what `wpam reproduce` passes on the shipped point (docs/physics.md, "The shipped plant")

@@ -22,7 +22,8 @@ from wpam_mj.infra import manifest
 from wpam_mj.infra import pool
 from wpam_mj.experiments import paper_studies
 from wpam_mj.cli import JOBS_PER_CPU, main
-from wpam_mj.physics.params import MPA, ParameterError
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MPA
 from wpam_mj.simulation.simulate import Drive, SimulationDiverged
 from wpam_mj.experiments.responses import StepRun, SweepPoint, SweepResult
 

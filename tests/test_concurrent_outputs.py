@@ -16,7 +16,8 @@ from wpam_mj.infra import manifest
 from wpam_mj.infra import outputs
 from wpam_mj.visualisation import render
 from wpam_mj.cli import main
-from wpam_mj.physics.params import ParameterError, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.errors import ParameterError
 from wpam_mj.simulation.results import SimResult
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -12,7 +12,7 @@ from wpam_mj import preset
 from wpam_mj.experiments.analysis import frequency_response
 from wpam_mj.control.controllers import CONTROLLERS, PIFlowFeedforward, _regulator_inverse
 from wpam_mj.experiments.drives import SineSpec, drive_for_targets, sine_run
-from wpam_mj.physics.params import MM, MPA
+from wpam_mj.units import MM, MPA
 
 WPAM = preset("wpam")
 DT = 1e-3

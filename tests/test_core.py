@@ -24,8 +24,9 @@ from wpam_mj.control.controllers import (CONTROLS, PIControl, PIDControl, make_c
 from wpam_mj.experiments.drives import SineSpec, sine_run, static_top_pressure
 from wpam_mj.simulation.model import build_model, check_dt, check_load
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import (MM, MPA, Controller, Params, ParameterError, check_range,
-                            preset)
+from wpam_mj.physics.params import Controller, Params, preset
+from wpam_mj.errors import ParameterError, check_range
+from wpam_mj.units import MM, MPA
 from wpam_mj.paths import MODEL_XML, SCENE_XML
 from wpam_mj.simulation import results
 from wpam_mj.simulation.results import SimResult

@@ -17,7 +17,8 @@ from wpam_mj import paper
 from wpam_mj.control.controllers import PIControl
 from wpam_mj.environments.dm_env_task import OBSERVATIONS, dm_control_runs, make_env
 from wpam_mj.experiments.feasibility import max_liftable_load
-from wpam_mj.physics.params import MM, MPA, STANDARD_GRAVITY, ParameterError
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MM, MPA, STANDARD_GRAVITY
 from wpam_mj.simulation.simulate import Drive
 
 # Code defaults, not the calibration file: these tests pin the environment, not the fit.

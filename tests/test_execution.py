@@ -13,7 +13,8 @@ from wpam_mj.cli import main
 from wpam_mj.experiments.paper_studies import SineTask, StepTask
 from wpam_mj.fitting import estimation
 from wpam_mj.infra.pool import Cluster, Workers, open_workers
-from wpam_mj.physics.params import ParameterError, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.errors import ParameterError
 from wpam_mj.simulation import execution
 from wpam_mj.simulation.execution import result_bytes
 from wpam_mj.simulation.simulate import SimulationDiverged, simulate_run

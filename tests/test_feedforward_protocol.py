@@ -13,7 +13,9 @@ import numpy as np
 import pytest
 
 from wpam_mj.experiments.drives import drive_for_targets, step_targets
-from wpam_mj.physics.params import MM, MPA, ParameterError, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MM, MPA
 from wpam_mj.simulation.simulate import simulate
 from wpam_mj.experiments.paper_studies import step_study
 

@@ -7,7 +7,8 @@ import pytest
 from wpam_mj.simulation import plugin
 from wpam_mj.cli import main
 from wpam_mj.environments.dm_env_task import make_env
-from wpam_mj.physics.params import apply_overrides, load_toml, preset
+from wpam_mj.physics.params import apply_overrides, preset
+from wpam_mj.errors import load_toml
 from wpam_mj.fitting.randomize import ParameterRanges
 
 

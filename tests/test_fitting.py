@@ -10,7 +10,9 @@ import pytest
 from wpam_mj import preset
 from wpam_mj.fitting import estimation
 from wpam_mj.fitting.measured_fit import fit_data, replay
-from wpam_mj.physics.params import MM, ParameterError, describe_with_ranges
+from wpam_mj.physics.params import describe_with_ranges
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MM
 from wpam_mj.fitting.synthetic import SynthTask, measured
 
 

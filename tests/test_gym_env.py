@@ -20,7 +20,8 @@ from wpam_mj.control.controllers import PIControl  # noqa: E402
 from wpam_mj.environments.dm_env_task import (OBSERVATIONS, dm_control_runs,  # noqa: E402
                                               make_env)
 from wpam_mj.environments.gym_env import ENV_ID, WPAMEnv  # noqa: E402
-from wpam_mj.physics.params import MM, MPA, ParameterError  # noqa: E402
+from wpam_mj.errors import ParameterError  # noqa: E402
+from wpam_mj.units import MM, MPA  # noqa: E402
 from wpam_mj.environments.policies import mean_return  # noqa: E402
 from wpam_mj.environments.registry import VARIANTS  # noqa: E402
 from wpam_mj.simulation.live import LiveRig  # noqa: E402

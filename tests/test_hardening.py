@@ -27,8 +27,9 @@ from wpam_mj.environments.dm_env_task import SEED_RANGE, make_env
 from wpam_mj.experiments.drives import SineSpec, step_run
 from wpam_mj.physics.geometry import BraidGeometry
 from wpam_mj.simulation.model import check_dt
-from wpam_mj.physics.params import (MAX_TOML_BYTES, MM, MPA, Braid, ParameterError, apply_overrides,
-                            load_toml, preset)
+from wpam_mj.physics.params import Braid, apply_overrides, preset
+from wpam_mj.errors import MAX_TOML_BYTES, ParameterError, load_toml
+from wpam_mj.units import MM, MPA
 from wpam_mj.physics.pneumatics import chamber_volumes, outer_bag_volume
 from wpam_mj.simulation.results import SimResult
 from wpam_mj.infra.files import write_atomic

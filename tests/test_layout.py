@@ -14,10 +14,10 @@ import wpam_mj
 PACKAGE = Path(wpam_mj.__file__).parent
 
 # Lowest first; a module may import from its own layer and the ones below it. The modules
-# directly in wpam_mj/ are the base: the paper's numbers, units, paths, number formatting,
+# directly in wpam_mj/ are the base: the paper's numbers, units, errors, paths, number formatting,
 # the version (the package's __init__, its flat public face, sits on top).
 LAYERS = (
-    ("units", "paper", "paths", "display", "version"),
+    ("units", "errors", "paper", "paths", "display", "version"),
     ("physics",),
     ("control",),
     ("infra",),

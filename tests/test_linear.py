@@ -16,7 +16,8 @@ from wpam_mj.physics import pneumatics as pn
 from wpam_mj.cli import main
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.experiments.drives import SineSpec, drive_for_targets, sine_run
-from wpam_mj.physics.params import MM, MPA, STANDARD_GRAVITY, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.units import MM, MPA, STANDARD_GRAVITY
 from wpam_mj.simulation.simulate import simulate
 
 X_OP = 25 * MM

@@ -9,7 +9,8 @@ import pytest
 from wpam_mj.cli import main
 from wpam_mj.design import linear, linear_study
 from wpam_mj.experiments.responses import SweepPoint, SweepResult
-from wpam_mj.physics.params import MM, MPA, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.units import MM, MPA
 
 LOAD = 150.0
 FREQS = (0.1, 0.25)

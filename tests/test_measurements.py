@@ -6,7 +6,8 @@ import pytest
 from wpam_mj import preset
 from wpam_mj.physics.geometry import BraidGeometry
 from wpam_mj.fitting.measurements import Experiment, experiment_files, read_experiment
-from wpam_mj.physics.params import MM, MPA, ParameterError
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MM, MPA
 
 HEADER = "time_s,load_n,pi_mpa,po_mpa,x_mm"
 

@@ -14,7 +14,7 @@ import pytest
 
 from wpam_mj import preset
 from wpam_mj.fitting.measurements import read_experiment
-from wpam_mj.physics.params import ParameterError
+from wpam_mj.errors import ParameterError
 
 ROOT = Path(__file__).resolve().parents[1]
 ROWS = 200_000  # 200 s at 1 kHz, 11 MB: the cell-by-cell reader needed ~15 times that

@@ -11,7 +11,8 @@ import wpam_mj  # noqa: F401 (registers the plugin)
 from wpam_mj.experiments import arm
 from wpam_mj.simulation import plugin
 from wpam_mj.physics.geometry import BraidGeometry
-from wpam_mj.physics.params import MPA, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.units import MPA
 from wpam_mj.paths import MODELS_DIR
 
 # Where a C compiler exists the plugin must build: these tests then fail, never skip.

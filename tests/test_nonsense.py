@@ -22,7 +22,9 @@ from wpam_mj.cli import main
 from wpam_mj.fitting.measured_fit import check_replay
 from wpam_mj.experiments.drives import SineSpec, sine_run, step_run
 from wpam_mj.fitting.measurements import Experiment, experiment_files, read_experiment
-from wpam_mj.physics.params import MPA, ParameterError, check_range, load_toml, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.errors import ParameterError, check_range, load_toml
+from wpam_mj.units import MPA
 from wpam_mj.simulation.execution import Failed, execute
 
 ROOT = Path(__file__).resolve().parents[1]

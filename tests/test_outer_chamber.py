@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import MPA, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.units import MPA
 from wpam_mj.simulation import plugin
 from wpam_mj.simulation.simulate import Drive, simulate
 

@@ -6,7 +6,8 @@ import pytest
 
 from wpam_mj import paper
 from wpam_mj.reproduction import findings
-from wpam_mj.physics.params import MPA, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.units import MPA
 from wpam_mj.experiments.responses import SweepPoint, SweepResult
 from wpam_mj.reproduction.findings import checks_text
 

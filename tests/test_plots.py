@@ -10,7 +10,7 @@ import pytest
 
 import wpam_mj
 from wpam_mj.experiments import figures as plots
-from wpam_mj.physics.params import MM, MPA
+from wpam_mj.units import MM, MPA
 from wpam_mj.simulation.results import SimResult
 from wpam_mj.experiments.responses import StaticLoop, StepRun
 

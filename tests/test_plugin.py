@@ -21,7 +21,9 @@ from wpam_mj.experiments.analysis import frequency_response
 from wpam_mj.experiments.drives import SineSpec, drive_for_targets, sine_run, step_targets
 from wpam_mj.simulation.loop_contract import REC_FIELDS
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import MPA, STANDARD_GRAVITY, ParameterError, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MPA, STANDARD_GRAVITY
 from wpam_mj.simulation.simulate import Drive, simulate
 
 # Where a C compiler exists the plugin must build: these tests then fail, never skip.

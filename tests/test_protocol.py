@@ -7,7 +7,9 @@ import pytest
 
 from wpam_mj import cli
 from wpam_mj.cli.runs import protocol_of
-from wpam_mj.physics.params import MPA, ParameterError, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MPA
 from wpam_mj.experiments.protocol import SHIPPED, Protocol, ProtocolStaticTask, static_drive
 from wpam_mj.experiments.paper_studies import StaticTask
 

@@ -19,7 +19,8 @@ import wpam_mj
 import wpam_mj.visualisation.gl
 from wpam_mj.visualisation import render
 from wpam_mj.simulation.model import build_model
-from wpam_mj.physics.params import MM, MPA, ParameterError
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MM, MPA
 from wpam_mj.paths import SCENE_XML
 from wpam_mj.simulation.results import SimResult
 

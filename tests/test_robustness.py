@@ -10,7 +10,8 @@ import pytest
 
 from wpam_mj.experiments.drives import step_plan
 from wpam_mj.experiments.limit_velocity import limit_velocity, variant
-from wpam_mj.physics.params import ParameterError, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.errors import ParameterError
 from wpam_mj.reproduction import findings, robustness
 from wpam_mj.reproduction.margins import Check
 

@@ -13,7 +13,8 @@ import pytest
 
 import wpam_mj  # noqa: F401 (registers the plugin)
 from wpam_mj.physics import rules
-from wpam_mj.physics.params import ParameterError, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.errors import ParameterError
 from wpam_mj.simulation import engine, plugin
 
 pytestmark = pytest.mark.skipif(plugin.compiler() is None or plugin.disabled(),

@@ -12,7 +12,7 @@ from stable_baselines3.common.vec_env import VecMonitor  # noqa: E402
 
 import wpam_mj  # noqa: E402
 from wpam_mj.environments.sb3 import BatchedVecEnv  # noqa: E402
-from wpam_mj.physics.params import ParameterError  # noqa: E402
+from wpam_mj.errors import ParameterError  # noqa: E402
 
 PARAMS = wpam_mj.preset("wpam", calibration=None)
 SHORT = {"params": PARAMS, "time_limit": 0.05, "max_episode_steps": 5}

@@ -17,7 +17,8 @@ from wpam_mj.cli import main
 from wpam_mj.reproduction import findings_map
 from wpam_mj.reproduction import search, search_outputs
 from wpam_mj.reproduction import search_scoring as scoring
-from wpam_mj.physics.params import ParameterError, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.errors import ParameterError
 from wpam_mj.experiments.protocol import (SHIPPED, ProtocolStaticTask, quasi_static_po_row)
 
 

@@ -10,7 +10,9 @@ from wpam_mj import paper
 from wpam_mj.experiments import figures
 from wpam_mj.experiments import paper_studies
 from wpam_mj.experiments.analysis import loop_area
-from wpam_mj.physics.params import MPA, ParameterError, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MPA
 from wpam_mj.simulation.execution import execute
 
 

@@ -13,7 +13,8 @@ from wpam_mj.infra import pool
 from wpam_mj.design import sampling, study, study_spec, study_table
 from wpam_mj.cli import main
 from wpam_mj.infra.pool import Workers, open_workers
-from wpam_mj.physics.params import ParameterError, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.errors import ParameterError
 from wpam_mj.simulation.execution import execute
 from wpam_mj.experiments.paper_studies import StepTask
 

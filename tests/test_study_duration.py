@@ -12,7 +12,9 @@ from wpam_mj.cli.runs import UNSETTLED_PP_MM
 from wpam_mj.design import metrics, study_spec
 from wpam_mj.experiments.drives import step_run
 from wpam_mj.paper import STEP_LEVELS_MM
-from wpam_mj.physics.params import MM, ParameterError, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MM
 
 
 def _worst_late_swing(hold: float) -> float:

@@ -16,7 +16,8 @@ import wpam_mj  # noqa: E402
 from wpam_mj.environments.gym_env import WPAMEnv  # noqa: E402
 from wpam_mj.environments.policies import make_policy  # noqa: E402
 from wpam_mj.environments.vector_env import make_vec  # noqa: E402
-from wpam_mj.physics.params import MM, ParameterError  # noqa: E402
+from wpam_mj.errors import ParameterError  # noqa: E402
+from wpam_mj.units import MM  # noqa: E402
 from wpam_mj.simulation import plugin  # noqa: E402
 
 PARAMS = wpam_mj.preset("wpam", calibration=None)

@@ -18,7 +18,8 @@ from PIL import Image
 import wpam_mj
 from wpam_mj import paper
 from wpam_mj.visualisation import viewer
-from wpam_mj.physics.params import MM, ParameterError
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MM
 
 # The shipped plant under the PI policy of tests/test_env.py (the paper's Kp, ten times its
 # Ki): 0.22 mm off 1.5 s after the pull below (the paper's Ki: 0.33 mm).

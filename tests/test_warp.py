@@ -21,7 +21,9 @@ import wpam_mj  # noqa: F401 (registers the ids)
 from wpam_mj.experiments.drives import drive_for_targets, step_targets
 from wpam_mj.infra.pool import Workers
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import MM, ParameterError, preset
+from wpam_mj.physics.params import preset
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MM
 from wpam_mj.simulation import plugin, warp_muscle
 from wpam_mj.simulation.execution import SimulationTask, execute
 from wpam_mj.simulation.simulate import Run, simulate_run

@@ -50,7 +50,8 @@ with _termination.importing("wpam_mj"):
 
     from wpam_mj.control.controllers import CONTROLS
     from wpam_mj.physics.muscle_types import MUSCLE_TYPES
-    from wpam_mj.physics.params import Params, ParameterError, preset
+    from wpam_mj.physics.params import Params, preset
+    from wpam_mj.errors import ParameterError
     from wpam_mj.simulation import stand_in as _stand_in
     from wpam_mj.simulation import plugin as _plugin
     from wpam_mj.simulation.loop_contract import SimulationDiverged

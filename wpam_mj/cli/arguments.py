@@ -10,7 +10,8 @@ from wpam_mj.experiments.drives import STATIC_RAMP_S
 from wpam_mj.experiments.protocol import LOOP_METHODS, SHIPPED
 from wpam_mj.infra import pool
 from wpam_mj.physics.muscle_types import MUSCLE_TYPES
-from wpam_mj.physics.params import MPA, PRESETS
+from wpam_mj.physics.params import PRESETS
+from wpam_mj.units import MPA
 
 # --gain-reading: controller.command_scale [MPa/u] (docs/physics.md, the unitless gains)
 GAIN_READINGS = {"mpa-per-mm": 1.0, "volts-5": 0.1, "volts-10": 0.05}

@@ -14,7 +14,8 @@ from wpam_mj.cli.runs import (amplitude_m, note_still_loads, jobs_option, out_di
 from wpam_mj.experiments.drives import SINE_MEAN_MM
 from wpam_mj.infra import pool
 from wpam_mj.infra.files import write_text_atomic
-from wpam_mj.physics.params import MM, ParameterError
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MM
 from wpam_mj.simulation.model import check_load
 
 

@@ -16,7 +16,9 @@ from wpam_mj.experiments import paper_studies
 from wpam_mj.experiments.drives import SINE_AMPLITUDE_MM, SINE_MEAN_MM, SineSpec, check_po
 from wpam_mj.experiments.feasibility import load_moved
 from wpam_mj.experiments.protocol import SHIPPED, table2_batch
-from wpam_mj.physics.params import MM, MPA, PRESETS, ParameterError
+from wpam_mj.physics.params import PRESETS
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MM, MPA
 from wpam_mj.reproduction import findings
 from wpam_mj.simulation.execution import execute
 

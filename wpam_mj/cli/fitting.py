@@ -12,7 +12,9 @@ from wpam_mj import paper
 from wpam_mj.cli.arguments import float_list, name_list, out_path
 from wpam_mj.cli.runs import liftable_loads, out_file, print_json, run_options, writable_dir, wrote
 from wpam_mj.infra.files import write_text_atomic
-from wpam_mj.physics.params import MM, ParameterError, check_range, describe, preset
+from wpam_mj.physics.params import describe, preset
+from wpam_mj.errors import ParameterError, check_range
+from wpam_mj.units import MM
 
 
 def add_parsers(add) -> None:

@@ -39,7 +39,7 @@ from wpam_mj.cli.runs import RunFailed
 from wpam_mj.infra import outputs
 from wpam_mj.infra.streams import reopen_closed
 from wpam_mj.infra.termination import Interrupted, exit_now, handle_signals, stopped_by_signal
-from wpam_mj.physics.params import ParameterError
+from wpam_mj.errors import ParameterError
 from wpam_mj.simulation.simulate import SimulationDiverged
 from wpam_mj.version import __version__
 

@@ -12,7 +12,7 @@ from wpam_mj.cli.runs import (RunFailed, liftable_loads, out_file, output_module
 from wpam_mj.control.controllers import CONTROLS, check_control
 from wpam_mj.experiments.drives import EXPERIMENTS, SineSpec, simulate_for_render
 from wpam_mj.infra.budget import check_video
-from wpam_mj.physics.params import ParameterError, check_range
+from wpam_mj.errors import ParameterError, check_range
 
 
 def add_parsers(add) -> None:

@@ -15,7 +15,7 @@ from wpam_mj.cli.runs import (liftable_loads, out_dir_of, out_file, output_modul
 from wpam_mj.experiments.protocol import SHIPPED
 from wpam_mj.infra.pool import Cluster
 from wpam_mj.physics.muscle_types import COMPARED_TYPES
-from wpam_mj.physics.params import ParameterError
+from wpam_mj.errors import ParameterError
 from wpam_mj.reproduction import findings
 
 

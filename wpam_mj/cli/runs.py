@@ -16,8 +16,9 @@ from wpam_mj.experiments.drives import SINE_MEAN_MM
 from wpam_mj.experiments.feasibility import check_liftable
 from wpam_mj.experiments.protocol import SHIPPED, Protocol
 from wpam_mj.infra import outputs, pool
-from wpam_mj.physics.params import (MM, MPA, ParameterError, Params, apply_overrides, check_range,
-                                    load_toml, preset)
+from wpam_mj.physics.params import Params, apply_overrides, preset
+from wpam_mj.errors import ParameterError, check_range, load_toml
+from wpam_mj.units import MM, MPA
 from wpam_mj.simulation.model import check_dt, check_load
 
 RECORD_DT_S = 0.01  # the period every run records at (`wpam_mj.simulation.simulate.simulate`)

@@ -38,7 +38,9 @@ import numpy as np
 from wpam_mj.physics import kernel, pneumatics
 from wpam_mj.physics.kernel_codegen import array_kernel
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import MPA, Params, ParameterError
+from wpam_mj.physics.params import Params
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MPA
 
 def pi_feedforward(muscle: MuscleModel, params: Params, x_ref: np.ndarray, load: float,
                    po: float) -> np.ndarray:

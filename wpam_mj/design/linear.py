@@ -46,7 +46,9 @@ from wpam_mj.control.controllers import pi_feedforward
 from wpam_mj.physics.geometry import BraidGeometry
 from wpam_mj.simulation.model import MuscleIndex, build_model, check_load
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import MM, MPA, Params, ParameterError, check_range
+from wpam_mj.physics.params import Params
+from wpam_mj.errors import ParameterError, check_range
+from wpam_mj.units import MM, MPA
 
 CONTROLLERS = ("pi", "pid")
 MODELS = ("paper", "extended")

@@ -15,7 +15,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from wpam_mj.design.linear_study import LinearComparison
-from wpam_mj.physics.params import MM
+from wpam_mj.units import MM
 
 FREQ_RANGE_HZ = (0.03, 30.0)  # our choice: the paper's 0.1-1 Hz and the loop's crossover
 _MODEL_STYLE = {"paper": "-", "extended": "--"}

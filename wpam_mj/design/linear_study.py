@@ -25,7 +25,9 @@ from wpam_mj.design import linear
 from wpam_mj.experiments import paper_studies
 from wpam_mj.experiments.drives import SINE_AMPLITUDE_MM, SINE_MEAN_MM
 from wpam_mj.experiments.feasibility import MOVE_MIN_MM
-from wpam_mj.physics.params import MM, Params, ParameterError
+from wpam_mj.physics.params import Params
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MM
 from wpam_mj.experiments.responses import SweepResult
 from wpam_mj.simulation.execution import execute
 

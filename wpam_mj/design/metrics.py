@@ -14,7 +14,9 @@ from wpam_mj.experiments.responses import LOOP_METHOD
 from wpam_mj.experiments.paper_studies import PLATEAU_SETTLE_S, StaticTask, plateau_segments
 from wpam_mj.experiments.protocol import SHIPPED, table2_batch
 from wpam_mj.paper import STEP_HOLD_S, STEP_LEVELS_MM
-from wpam_mj.physics.params import MM, MPA, ParameterError, Params
+from wpam_mj.physics.params import Params
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MM, MPA
 from wpam_mj.simulation.execution import SimulationTask
 from wpam_mj.simulation.results import SimResult
 from wpam_mj.simulation.simulate import Run

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from wpam_mj.design.study_spec import MAX_RUNS, StudySpec
-from wpam_mj.physics.params import ParameterError
+from wpam_mj.errors import ParameterError
 
 
 def sample(spec: StudySpec) -> list[dict[str, Any]]:

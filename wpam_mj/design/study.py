@@ -28,7 +28,8 @@ from wpam_mj.design.study_table import (column_kinds, csv_text, finished_rows, s
 from wpam_mj.experiments.drives import SineSpec
 from wpam_mj.infra.pool import Workers
 from wpam_mj.infra.files import write_text_atomic
-from wpam_mj.physics.params import ParameterError, Params, preset
+from wpam_mj.physics.params import Params, preset
+from wpam_mj.errors import ParameterError
 from wpam_mj.simulation.execution import Batch, Failed, execute
 from wpam_mj.simulation.simulate import SimulationDiverged
 

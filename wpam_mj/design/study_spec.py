@@ -46,8 +46,9 @@ from wpam_mj.control.controllers import CONTROLS, check_control
 from wpam_mj.experiments.drives import STATIC_RAMP_S, SineSpec, check_po
 from wpam_mj.infra.budget import MAX_RUN_S
 from wpam_mj.paper import PO_DOWN_STATIC_MPA, STEP_HOLD_S, STEP_LEVELS_MM
-from wpam_mj.physics.params import (MM, MPA, PRESETS, ParameterError, Params, check_range,
-                                    load_toml, preset)
+from wpam_mj.physics.params import PRESETS, Params, preset
+from wpam_mj.errors import ParameterError, check_range, load_toml
+from wpam_mj.units import MM, MPA
 from wpam_mj.simulation.model import check_dt, check_load
 
 EXPERIMENTS = ("static", "step", "sine", "table2")

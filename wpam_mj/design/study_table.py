@@ -11,7 +11,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 from wpam_mj.design.study_spec import FLAGS, StudySpec, input_column
 from wpam_mj.infra.files import write_atomic, write_text_atomic
-from wpam_mj.physics.params import ParameterError
+from wpam_mj.errors import ParameterError
 
 PARTS = "parts"  # folder of finished batches in the output folder
 TABLE = "study"  # study.csv, study.parquet

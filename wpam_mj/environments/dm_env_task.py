@@ -79,8 +79,9 @@ from wpam_mj.experiments.feasibility import check_liftable
 from wpam_mj.fitting.randomize import ParameterRanges, ranges_of
 from wpam_mj.physics.geometry import BraidGeometry
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import (MM, ParameterError, Params, check_range, check_whole_steps,
-                                    preset)
+from wpam_mj.physics.params import Params, preset
+from wpam_mj.errors import ParameterError, check_range, check_whole_steps
+from wpam_mj.units import MM
 from wpam_mj.simulation.model import check_dt, check_load
 from wpam_mj.visualisation import gl
 

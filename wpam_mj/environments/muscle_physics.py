@@ -18,7 +18,8 @@ import mujoco
 from absl import logging
 
 from wpam_mj.paths import MODEL_XML, SCENE_XML
-from wpam_mj.physics.params import STANDARD_GRAVITY, Params
+from wpam_mj.physics.params import Params
+from wpam_mj.units import STANDARD_GRAVITY
 from wpam_mj.simulation import plugin
 from wpam_mj.simulation.live import LiveRig
 from wpam_mj.simulation.loop_contract import SimulationDiverged

@@ -17,7 +17,7 @@ import gymnasium
 import numpy as np
 
 from wpam_mj.control.controllers import PIControl
-from wpam_mj.physics.params import ParameterError
+from wpam_mj.errors import ParameterError
 
 Policy = Callable[[np.ndarray, dict], np.ndarray]
 POLICIES = ("constant", "random", "pi")

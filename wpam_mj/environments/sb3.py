@@ -22,7 +22,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from wpam_mj.environments.vector_env import make_vec
-from wpam_mj.physics.params import ParameterError
+from wpam_mj.errors import ParameterError
 
 try:
     from stable_baselines3.common.vec_env import VecEnv

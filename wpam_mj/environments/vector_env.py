@@ -43,7 +43,7 @@ from mujoco import batch as mjbatch
 from wpam_mj.environments.dm_env_task import REWARD_BOUND, check_actions, check_seed
 from wpam_mj.environments.gym_env import WPAMEnv, check_episode_steps
 from wpam_mj.physics.kernel_codegen import array_kernel
-from wpam_mj.physics.params import ParameterError
+from wpam_mj.errors import ParameterError
 from wpam_mj.simulation import plugin
 from wpam_mj.simulation.loop_contract import RunConstants, state_failure
 

@@ -21,7 +21,7 @@ import mujoco
 import numpy as np
 
 from wpam_mj.environments.vector_env import DEAD_TIME, _BatchedEpisodes
-from wpam_mj.physics.params import ParameterError
+from wpam_mj.errors import ParameterError
 from wpam_mj.simulation import warp_muscle
 from wpam_mj.simulation.loop_contract import state_failure
 from wpam_mj.simulation.model import rig_spec

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
-from wpam_mj.physics.params import ParameterError, shown
+from wpam_mj.errors import ParameterError, shown
 
 LOOP_AREA_METHODS = ("branches", "shoelace")
 

@@ -21,7 +21,7 @@ from mujoco import batch as mjbatch
 
 from wpam_mj.simulation import plugin
 from wpam_mj.experiments.analysis import FrequencyPoint, frequency_response
-from wpam_mj.physics.params import ParameterError, check_range
+from wpam_mj.errors import ParameterError, check_range
 from wpam_mj.paths import MODELS_DIR
 
 ARM_XML = MODELS_DIR / "arm" / "arm.xml"

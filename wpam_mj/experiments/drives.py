@@ -27,7 +27,9 @@ from wpam_mj.physics.geometry import BraidGeometry
 from wpam_mj.simulation.model import check_dt, check_load
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.paper import SINE_AMPLITUDE_MM, STEP_HOLD_S, STEP_LEVELS_MM
-from wpam_mj.physics.params import MM, MPA, ParameterError, Params, check_range, shown
+from wpam_mj.physics.params import Params
+from wpam_mj.errors import ParameterError, check_range, shown
+from wpam_mj.units import MM, MPA
 from wpam_mj.simulation.results import SimResult
 from wpam_mj.simulation.simulate import Drive, Run, simulate_run
 

@@ -19,7 +19,9 @@ import numpy as np
 from wpam_mj.simulation.model import LOAD_RANGE_N
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.paper import STEP_LEVELS_MM
-from wpam_mj.physics.params import MM, MPA, ParameterError, Params
+from wpam_mj.physics.params import Params
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MM, MPA
 from wpam_mj.simulation.results import SimResult
 
 TOP_CONTRACTION_MM = float(max(STEP_LEVELS_MM))  # highest target of step runs, ramps and sines

@@ -18,7 +18,8 @@ from wpam_mj.experiments.drives import step_targets
 from wpam_mj.infra.manifest import png_metadata
 from wpam_mj.physics.muscle_types import MUSCLE_TYPES
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import MM, MPA, Params
+from wpam_mj.physics.params import Params
+from wpam_mj.units import MM, MPA
 from wpam_mj.simulation.results import SimResult
 from wpam_mj.infra.files import write_atomic
 from wpam_mj.paper import TABLE2

@@ -19,7 +19,8 @@ import numpy as np
 from wpam_mj.control.controllers import pi_feedforward
 from wpam_mj.experiments.drives import SINE_MEAN_MM
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import MM, Params
+from wpam_mj.physics.params import Params
+from wpam_mj.units import MM
 from wpam_mj.simulation.results import SimResult
 from wpam_mj.simulation.simulate import Drive, simulate
 

@@ -28,7 +28,9 @@ from wpam_mj.simulation.model import check_dt, check_load
 from wpam_mj.paper import (FIG18_FREQ_HZ, FIG18_LOAD_N, LOADS_N, PO_DOWN_STATIC_MPA,
                            SINE_AMPLITUDE_MM, STEP_HOLD_S, STEP_LEVELS_MM, SWEEP_CONTROLLERS,
                            SWEEP_FREQS_HZ)
-from wpam_mj.physics.params import MM, MPA, Params, ParameterError, check_range
+from wpam_mj.physics.params import Params
+from wpam_mj.errors import ParameterError, check_range
+from wpam_mj.units import MM, MPA
 from wpam_mj.simulation.execution import Batch, SimulationTask, execute
 from wpam_mj.simulation.results import SimResult
 from wpam_mj.experiments.responses import (LOOP_METHOD, StaticLoop, StepRun, SweepKey, SweepPoint,

@@ -34,7 +34,9 @@ from wpam_mj.experiments.drives import STATIC_RAMP_S, check_po, static_top_press
 from wpam_mj.simulation.model import check_dt, check_load
 from wpam_mj.paper import LOADS_N, PO_DOWN_STATIC_MPA
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import MPA, ParameterError, Params, check_range
+from wpam_mj.physics.params import Params
+from wpam_mj.errors import ParameterError, check_range
+from wpam_mj.units import MPA
 from wpam_mj.physics.quasistatic import ramp_contraction
 from wpam_mj.simulation.execution import Batch, SimulationTask
 from wpam_mj.simulation.results import SimResult

@@ -17,7 +17,7 @@ from wpam_mj.experiments.analysis import loop_area
 from wpam_mj.experiments.feasibility import load_moved
 from wpam_mj.paper import (PO_DOWN_STATIC_MPA, SINE_AMPLITUDE_MM, STEP_HOLD_S, TABLE2,
                            TABLE2_SOURCE)
-from wpam_mj.physics.params import MM, MPA
+from wpam_mj.units import MM, MPA
 from wpam_mj.simulation.results import SimResult
 
 LOOP_METHOD = "branches"  # one loop-area method for every Table 2 cell

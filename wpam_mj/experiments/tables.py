@@ -5,7 +5,8 @@ from __future__ import annotations
 import math
 
 from wpam_mj.display import fmt
-from wpam_mj.physics.params import MM, MPA, Params, describe
+from wpam_mj.physics.params import Params, describe
+from wpam_mj.units import MM, MPA
 from wpam_mj.experiments.responses import StepRun, SweepResult, Table2Result
 
 

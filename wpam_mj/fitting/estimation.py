@@ -46,8 +46,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from wpam_mj.simulation.execution import execute
-from wpam_mj.physics.params import (Params, ParameterError, describe_with_ranges, fitted_parameters,
-                                    plausible_range)
+from wpam_mj.physics.params import Params, describe_with_ranges, fitted_parameters, plausible_range
+from wpam_mj.errors import ParameterError
 from wpam_mj.infra.pool import Workers, open_workers
 from wpam_mj.infra.files import write_text_atomic
 

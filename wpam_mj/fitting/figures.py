@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from wpam_mj.physics.params import MM, MPA
+from wpam_mj.units import MM, MPA
 
 
 def file_fit_figure(ff) -> Figure:

@@ -40,7 +40,9 @@ from wpam_mj.fitting import estimation
 from wpam_mj.infra.budget import check_run
 from wpam_mj.fitting.measurements import Experiment
 from wpam_mj.simulation.model import DT_RANGE_S, check_dt
-from wpam_mj.physics.params import MM, Params, ParameterError
+from wpam_mj.physics.params import Params
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MM
 from wpam_mj.infra.pool import open_workers
 from wpam_mj.simulation.execution import SimulationTask, execute
 from wpam_mj.simulation.results import SimResult

@@ -37,7 +37,9 @@ import numpy as np
 from wpam_mj.physics.geometry import BraidGeometry
 from wpam_mj.simulation.model import check_load
 from wpam_mj.infra.budget import check_duration
-from wpam_mj.physics.params import MM, MPA, Params, ParameterError, check_regular_file, file_kind
+from wpam_mj.physics.params import Params
+from wpam_mj.errors import ParameterError, check_regular_file, file_kind
+from wpam_mj.units import MM, MPA
 from wpam_mj.infra.files import write_text_atomic
 
 REQUIRED = ("time_s", "load_n", "pi_mpa", "po_mpa", "x_mm")

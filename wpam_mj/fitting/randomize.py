@@ -20,8 +20,8 @@ from typing import TYPE_CHECKING, Mapping
 
 import numpy as np
 
-from wpam_mj.physics.params import (Params, ParameterError, fitted_parameters, load_toml,
-                                    plausible_range)
+from wpam_mj.physics.params import Params, fitted_parameters, plausible_range
+from wpam_mj.errors import ParameterError, load_toml
 
 # The plant parameters a fit frees (field metadata: a plausible range, not measured on a
 # rig, not the controller's): what a real muscle is least sure to share with ours.

@@ -22,7 +22,9 @@ from wpam_mj import paper
 from wpam_mj.experiments.drives import STATIC_RAMP_S, SineSpec, sine_run, static_loop, step_run
 from wpam_mj.fitting.measurements import Experiment
 from wpam_mj.simulation.model import check_dt, check_load
-from wpam_mj.physics.params import MM, MPA, Params, ParameterError, check_int, check_range
+from wpam_mj.physics.params import Params
+from wpam_mj.errors import ParameterError, check_int, check_range
+from wpam_mj.units import MM, MPA
 from wpam_mj.simulation.results import SimResult
 from wpam_mj.simulation.execution import execute
 

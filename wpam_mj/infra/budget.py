@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 
-from wpam_mj.physics.params import ParameterError
+from wpam_mj.errors import ParameterError
 
 MAX_RUN_S = 10_000.0  # our choice: the longest protocol (two 3600 s static ramps) with room
 MAX_RUN_BYTES = 2 * 1024 ** 3  # our choice: one run per worker fits a small machine's memory

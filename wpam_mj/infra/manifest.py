@@ -34,7 +34,8 @@ import mujoco
 import numpy as np
 
 from wpam_mj.version import __version__
-from wpam_mj.physics.params import Params, ParameterError
+from wpam_mj.physics.params import Params
+from wpam_mj.errors import ParameterError
 from wpam_mj.infra.files import write_text_atomic
 
 RUN_ID_KEY = "wpam_mj run_id"  # PNG text keyword; "<key> <id>" in video comments

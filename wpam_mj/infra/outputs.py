@@ -20,7 +20,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from wpam_mj.physics.params import ParameterError
+from wpam_mj.errors import ParameterError
 from wpam_mj.infra.termination import remove_dead_temporaries
 
 _held: dict[Path, int | None] = {}  # resolved folder -> the descriptor holding its lock

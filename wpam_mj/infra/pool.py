@@ -29,7 +29,7 @@ from typing import Iterator
 import numpy as np
 
 from wpam_mj.infra import termination
-from wpam_mj.physics.params import ParameterError, shown
+from wpam_mj.errors import ParameterError, shown
 
 _PR_SET_PDEATHSIG = 1  # prctl option (linux/prctl.h): signal this process when its parent dies
 _STOP_GRACE_S = 0.5  # our choice: a worker still alive this long after SIGTERM is killed

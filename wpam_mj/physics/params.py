@@ -12,27 +12,18 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import numbers
-import os
-import stat
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-import numpy as np
 
 from wpam_mj import paper
 from wpam_mj.physics import rules
 from wpam_mj.physics.muscle_types import MUSCLE_TYPES, MuscleType
 from wpam_mj.paths import MODELS_DIR
-from wpam_mj.units import MM, MPA  # noqa: F401 (MM re-exported: modules take units from here)
-
-STANDARD_GRAVITY = 9.80665  # m/s^2, ISO 80000-3
-
-
-class ParameterError(ValueError):
-    """A parameter or input lies outside its allowed range."""
+from wpam_mj.errors import (ParameterError, is_number, check_range,
+                            load_toml)
+from wpam_mj.units import MPA
 
 
 def _p(default: float, unit: str, lo: float, hi: float, source: str, *,
@@ -47,39 +38,6 @@ def _p(default: float, unit: str, lo: float, hi: float, source: str, *,
                                                 measured=measured))
 
 
-def shown(value: Any) -> str:
-    """A value as a message shows it: numpy scalars as the Python number they hold
-    (-100.0, not np.float64(-100.0)), anything else as its repr."""
-    if isinstance(value, np.generic):
-        value = value.item()
-    return repr(value)
-
-
-def check_range(name: str, value: float, lo: float, hi: float, unit: str = "", *,
-                lo_open: bool = False) -> float:
-    """Return ``float(value)`` or raise ParameterError naming the value and the range
-    (or saying that no value is allowed when a computed range is empty)."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise ParameterError(f"{name} = {shown(value)} is not a number") from None
-    if not lo <= hi:
-        raise ParameterError(f"{name} = {shown(value)} {unit}: no value is allowed (the "
-                             f"lower bound {lo:g} is above the upper {hi:g})")
-    below = v <= lo if lo_open else v < lo
-    if not math.isfinite(v) or below or v > hi:
-        bracket = "(" if lo_open else "["
-        raise ParameterError(f"{name} = {shown(value)} {unit} is outside the allowed range "
-                             f"{bracket}{lo:g}, {hi:g}] {unit}".replace("  ", " "))
-    return v
-
-
-def _is_number(value: Any) -> bool:
-    """A real number that is not a bool: TOML strings ("0.1") and booleans are refused,
-    although float() would accept them."""
-    return isinstance(value, numbers.Real) and not isinstance(value, bool)
-
-
 class _Validated:
     """Mixin: type- and range-check every float field from its metadata after construction,
     then the rules of `wpam_mj.physics.rules` among this section's fields."""
@@ -90,7 +48,7 @@ class _Validated:
             md = f.metadata
             if "lo" in md:
                 name, value = f"{section}.{f.name}", getattr(self, f.name)
-                if not _is_number(value):
+                if not is_number(value):
                     bracket = "(" if md["lo_open"] else "["
                     raise ParameterError(
                         f"{name} = {value!r} is a {type(value).__name__}; expected a number "
@@ -326,86 +284,6 @@ def apply_overrides(params: Params, overrides: Mapping[str, Any]) -> Params:
                                      f"valid names: {', '.join(sorted(names))}")
         new[section] = dataclasses.replace(getattr(params, section), **values)
     return dataclasses.replace(params, **new)
-
-
-MAX_TOML_BYTES = 1_000_000  # a parameter file is a few hundred bytes
-
-
-def file_kind(path: str | Path) -> str:
-    """"file", "folder", "missing", or what else `path` is (a named pipe, a device, a
-    socket): read only a "file" (opening a named pipe waits for a writer; a device may
-    never end)."""
-    try:
-        mode = os.stat(path).st_mode
-    except FileNotFoundError:
-        return "missing"
-    except OSError as err:
-        return f"unreadable ({err.strerror or err})"
-    if stat.S_ISREG(mode):
-        return "file"
-    if stat.S_ISDIR(mode):
-        return "folder"
-    if stat.S_ISFIFO(mode):
-        return "named pipe"
-    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
-        return "device"
-    return "socket" if stat.S_ISSOCK(mode) else "special file"
-
-
-def check_regular_file(path: str | Path, what: str) -> Path:
-    """`path` if it is a regular file, else ParameterError saying what it is."""
-    kind = file_kind(path)
-    if kind == "missing":
-        raise ParameterError(f"{what} {path}: no such file")
-    if kind != "file":
-        raise ParameterError(f"{what} {path} is a {kind}, not a regular file")
-    return Path(path)
-
-
-def whole_steps(period: float, step: float) -> int:
-    """How many `step`s make `period` (both [s]); 0 when that is not a whole number of
-    them (to 1e-9 of the period): the one test of "a whole multiple of dt"."""
-    n = round(period / step)
-    return n if n >= 1 and abs(n * step - period) <= 1e-9 * period else 0
-
-
-def check_whole_steps(name: str, period: float, dt: float) -> int:
-    """The steps of `dt` [s] in the period `name` [s]; ParameterError unless whole."""
-    n = whole_steps(period, dt)
-    if not n:
-        raise ParameterError(f"{name} = {period} s must be a whole multiple of dt = {dt} s")
-    return n
-
-
-def check_int(name: str, value: Any, lo: int, hi: int) -> int:
-    """An integer (not a bool) in [lo, hi], else ParameterError naming it and the range."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or \
-            not lo <= value <= hi:
-        raise ParameterError(f"{name} = {shown(value)} must be an integer in [{lo}, {hi}]")
-    return int(value)
-
-
-def load_toml(path: str | Path, what: str = "parameter file") -> dict[str, Any]:
-    """Read a TOML file (UTF-8, <= 1 MB): a parameter file (sections as in `Params`, SI
-    values) unless `what` names another kind (for messages, e.g. "study file")."""
-    check_regular_file(path, what)
-    try:
-        with open(path, "rb") as fh:
-            data = fh.read(MAX_TOML_BYTES + 1)  # bounded: a huge file stops here
-    except OSError as err:
-        raise ParameterError(f"cannot read {what} {path}: "
-                             f"{err.strerror or err}") from None
-    if len(data) > MAX_TOML_BYTES:
-        raise ParameterError(f"{what} {path} is larger than the allowed "
-                             f"{MAX_TOML_BYTES / 1e6:g} MB")
-    try:
-        return tomllib.loads(data.decode("utf-8"))
-    except UnicodeDecodeError as err:
-        line = data[:err.start].count(b"\n") + 1
-        raise ParameterError(f"{what} {path} is not UTF-8 text: byte "
-                             f"0x{data[err.start]:02x} on line {line}") from None
-    except tomllib.TOMLDecodeError as err:
-        raise ParameterError(f"malformed TOML in {path}: {err}") from None
 
 
 CALIBRATION_FILE = MODELS_DIR / "wpam" / "calibrated.toml"

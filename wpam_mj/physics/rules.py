@@ -250,7 +250,7 @@ def violation(rule: Rule, get: Getter) -> tuple[float, float, float] | None:
 
 def check(rules: tuple[Rule, ...], get: Getter, prefix: str = "") -> None:
     """Raise ParameterError with the line of the first rule of `rules` that fails."""
-    from wpam_mj.physics.params import ParameterError  # noqa: PLC0415
+    from wpam_mj.errors import ParameterError  # noqa: PLC0415
 
     for rule in rules:
         bad = violation(rule, get)

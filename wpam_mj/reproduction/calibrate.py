@@ -47,7 +47,9 @@ from wpam_mj.reproduction import findings
 from wpam_mj.fitting import estimation
 from wpam_mj.experiments.drives import STATIC_TOP_MM
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import MM, MPA, Params, ParameterError, check_int, check_range, preset
+from wpam_mj.physics.params import Params, preset
+from wpam_mj.errors import ParameterError, check_int, check_range
+from wpam_mj.units import MM, MPA
 from wpam_mj.infra.pool import Workers, open_workers
 from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
 from wpam_mj.infra.files import write_text_atomic

@@ -8,7 +8,8 @@ from typing import Sequence
 import numpy as np
 
 from wpam_mj import paper
-from wpam_mj.physics.params import CALIBRATION_FILE, MM, MPA, Params
+from wpam_mj.physics.params import CALIBRATION_FILE, Params
+from wpam_mj.units import MM, MPA
 from wpam_mj.experiments.protocol import SHIPPED, Protocol
 from wpam_mj.experiments.responses import StaticLoop, StepRun, SweepResult, Table2Result
 from wpam_mj.experiments.tables import fmt_value, mpa_label, params_markdown

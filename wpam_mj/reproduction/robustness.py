@@ -28,7 +28,8 @@ from wpam_mj import paper
 from wpam_mj.experiments.paper_studies import StepTask, sweep_batch
 from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
 from wpam_mj.infra.files import write_text_atomic
-from wpam_mj.physics.params import Params, check_int, check_range, fitted_parameters
+from wpam_mj.physics.params import Params, fitted_parameters
+from wpam_mj.errors import check_int, check_range
 from wpam_mj.reproduction import findings
 from wpam_mj.reproduction.margins import Check
 from wpam_mj.simulation.execution import Batch, Failed, execute

@@ -47,8 +47,8 @@ from wpam_mj.infra.pool import Workers, open_workers
 from wpam_mj.reproduction.calibrate import FREE
 from wpam_mj.reproduction import robustness
 from wpam_mj.reproduction.search_scoring import OBJECTIVES, Record, Targets, score, worst_of
-from wpam_mj.physics.params import (Params, ParameterError, check_range,
-                                    parameter_fields, preset)
+from wpam_mj.physics.params import Params, parameter_fields, preset
+from wpam_mj.errors import ParameterError, check_range
 from wpam_mj.experiments.protocol import SHIPPED, Protocol
 from wpam_mj.reproduction.static_fit import STATIC_FIT, static_fit
 

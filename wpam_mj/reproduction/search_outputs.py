@@ -13,7 +13,8 @@ from typing import Sequence
 
 from wpam_mj.fitting import estimation
 from wpam_mj.infra.files import write_text_atomic
-from wpam_mj.physics.params import Params, ParameterError, preset
+from wpam_mj.physics.params import Params, preset
+from wpam_mj.errors import ParameterError
 from wpam_mj.reproduction import findings_map
 from wpam_mj.reproduction.search import (GLOBAL, PointJournal, Point, Region, check_same_search,
                                          convergence, point_of, region_of, search,

@@ -16,7 +16,8 @@ from typing import Sequence
 
 from wpam_mj.experiments.protocol import Protocol
 from wpam_mj.paper import CALIBRATION_HEADROOM
-from wpam_mj.physics.params import Params, ParameterError
+from wpam_mj.physics.params import Params
+from wpam_mj.errors import ParameterError
 from wpam_mj.reproduction import findings
 from wpam_mj.reproduction.calibrate import PaperTargets
 

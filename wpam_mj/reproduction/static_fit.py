@@ -24,7 +24,8 @@ from scipy.optimize import least_squares
 from wpam_mj import paper
 from wpam_mj.experiments.protocol import Protocol, quasi_static_po_row
 from wpam_mj.fitting import estimation
-from wpam_mj.physics.params import MPA, Params
+from wpam_mj.physics.params import Params
+from wpam_mj.units import MPA
 
 STATIC_FIT = ("muscle.friction_coeff", "muscle.axial_area")
 # The Pi ramps' common top [MPa]: below 0.08 MPa 150 N barely contracts, above 0.45 MPa

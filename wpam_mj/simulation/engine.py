@@ -40,7 +40,8 @@ from wpam_mj.simulation.loop_contract import RunConstants
 from wpam_mj.simulation.plugin import FIELD
 from wpam_mj.physics import kernel, rules
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import ParameterError, Params, parameter_fields, preset
+from wpam_mj.physics.params import Params, parameter_fields, preset
+from wpam_mj.errors import ParameterError
 
 _RK4 = int(mujoco.mjtIntegrator.mjINT_RK4)
 

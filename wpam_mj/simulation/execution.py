@@ -48,7 +48,7 @@ from tqdm import tqdm
 
 from wpam_mj.infra import termination
 from wpam_mj.infra.pool import LOST_AFTER_S, Workers, WorkersLost, open_workers
-from wpam_mj.physics.params import ParameterError
+from wpam_mj.errors import ParameterError
 from wpam_mj.simulation.loop_contract import SimulationDiverged
 from wpam_mj.simulation.results import SimResult
 from wpam_mj.simulation.simulate import Run, _run_batch, _select_engine, _run_plugin, simulate_run

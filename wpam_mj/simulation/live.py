@@ -19,7 +19,8 @@ from wpam_mj.simulation import engine
 from wpam_mj.simulation import plugin
 from wpam_mj.simulation.loop_contract import SimulationDiverged, state_failure
 from wpam_mj.simulation.model import INSTANCE, check_chamber_step, rig_spec
-from wpam_mj.physics.params import ParameterError, Params
+from wpam_mj.physics.params import Params
+from wpam_mj.errors import ParameterError
 from wpam_mj.paths import MODEL_XML
 
 @dataclass

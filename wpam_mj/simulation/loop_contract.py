@@ -8,7 +8,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from wpam_mj.physics import kernel
-from wpam_mj.physics.params import Params, check_whole_steps
+from wpam_mj.physics.params import Params
+from wpam_mj.errors import check_whole_steps
 from wpam_mj.simulation.plugin import FIELD, STATE_FIELDS, status_message
 
 # Rows of the recording array, in this order: the time, then the plugin state's recorded

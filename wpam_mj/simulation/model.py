@@ -17,8 +17,9 @@ from wpam_mj.simulation import engine, stand_in
 from wpam_mj.simulation import plugin
 from wpam_mj.physics import pneumatics
 from wpam_mj.physics.geometry import BraidGeometry
-from wpam_mj.physics.params import (STANDARD_GRAVITY, ParameterError, Params, check_range,
-                                    whole_steps)
+from wpam_mj.physics.params import Params
+from wpam_mj.errors import ParameterError, check_range, whole_steps
+from wpam_mj.units import STANDARD_GRAVITY
 from wpam_mj.paths import MODEL_XML
 
 LOAD_RANGE_N = (1.0, 2000.0)  # N: what a hanging mass on this rig can sensibly be

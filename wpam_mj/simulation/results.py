@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from wpam_mj.infra.files import write_text_atomic
-from wpam_mj.physics.params import MM, MPA, ParameterError
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MM, MPA
 
 _CSV_BLOCK_ROWS = 4096
 

@@ -31,7 +31,9 @@ from wpam_mj.control.controllers import make_controller
 from wpam_mj.simulation.loop_contract import (REC_FIELDS, REC_ROWS, RunConstants,
                                               SimulationDiverged, state_failure)
 from wpam_mj.simulation.model import INSTANCE, check_chamber_step, check_dt, check_load, rig_spec
-from wpam_mj.physics.params import MPA, Params, ParameterError
+from wpam_mj.physics.params import Params
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MPA
 from wpam_mj.simulation.results import SimResult
 
 CHUNK_STEPS = 2000  # plugin steps per batch call: ~3 ms of wall time between signal checks

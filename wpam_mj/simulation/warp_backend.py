@@ -25,7 +25,7 @@ import sys
 import mujoco
 import numpy as np
 
-from wpam_mj.physics.params import ParameterError
+from wpam_mj.errors import ParameterError
 from wpam_mj.simulation import engine
 from wpam_mj.simulation import plugin
 from wpam_mj.simulation import warp_muscle

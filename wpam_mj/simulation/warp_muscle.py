@@ -26,7 +26,7 @@ import types
 import numpy as np
 
 from wpam_mj.physics import kernel as physics_kernel
-from wpam_mj.physics.params import ParameterError
+from wpam_mj.errors import ParameterError
 from wpam_mj.simulation import plugin
 
 GPU_EXTRA = "pip install 'wpam-mj[gpu]'"

@@ -11,7 +11,8 @@ import numpy as np
 
 from wpam_mj import paper
 from wpam_mj.physics.geometry import BraidGeometry
-from wpam_mj.physics.params import MPA, Params
+from wpam_mj.physics.params import Params
+from wpam_mj.units import MPA
 
 PI_COLOUR_RANGE = (0.0, 0.5 * MPA)  # Pa: ITV2031 range (paper §2.3)
 PO_COLOUR_RANGE = (0.0, paper.PO_CAP_MPA * MPA)  # Pa: Po cap (paper §4.2)

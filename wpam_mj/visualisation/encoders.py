@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from wpam_mj.physics.params import ParameterError, check_range
+from wpam_mj.errors import ParameterError, check_range
 
 FORMATS = (".mp4", ".gif")
 FPS_RANGE = {".mp4": (1.0, 120.0), ".gif": (1.0, 50.0)}  # GIF: 10 ms delay resolution

@@ -17,7 +17,7 @@ import sys
 
 import mujoco.viewer
 
-from wpam_mj.physics.params import ParameterError, check_regular_file
+from wpam_mj.errors import ParameterError, check_regular_file
 from wpam_mj.visualisation.viewer import ViewerUnavailable, check_display, console_log_only
 
 WHO = "python -m wpam_mj.visualisation.native_viewer"

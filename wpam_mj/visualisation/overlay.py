@@ -9,7 +9,7 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from wpam_mj.display import fmt
-from wpam_mj.physics.params import MM, MPA
+from wpam_mj.units import MM, MPA
 from wpam_mj.visualisation.decor import (BAG_HIGH, BAG_LOW, PI_COLOUR_RANGE, PO_COLOUR_RANGE,
                                          SLEEVE_HIGH, SLEEVE_LOW, pressure_colour)
 

@@ -43,7 +43,8 @@ from PIL import Image, PngImagePlugin
 from wpam_mj.infra import budget
 from wpam_mj.infra.files import write_atomic
 from wpam_mj.infra.manifest import png_metadata, video_comment
-from wpam_mj.physics.params import ParameterError, Params, check_range
+from wpam_mj.physics.params import Params
+from wpam_mj.errors import ParameterError, check_range
 from wpam_mj.simulation.results import SimResult
 from wpam_mj.visualisation.encoders import (FPS_RANGE, check_fps, check_suffix, write_gif,
                                             write_mp4)

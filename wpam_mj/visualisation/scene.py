@@ -13,7 +13,9 @@ import mujoco
 import numpy as np
 
 from wpam_mj.paths import SCENE_XML
-from wpam_mj.physics.params import MM, ParameterError, Params
+from wpam_mj.physics.params import Params
+from wpam_mj.errors import ParameterError
+from wpam_mj.units import MM
 from wpam_mj.simulation.model import build_model
 from wpam_mj.simulation.results import SimResult
 from wpam_mj.visualisation import gl

@@ -50,7 +50,9 @@ from wpam_mj.physics.geometry import BraidGeometry
 from wpam_mj.simulation.live import LiveRig as _Stepper
 from wpam_mj.simulation.model import check_dt, check_load
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import MM, MPA, Params, ParameterError, check_range
+from wpam_mj.physics.params import Params
+from wpam_mj.errors import ParameterError, check_range
+from wpam_mj.units import MM, MPA
 from wpam_mj.paths import SCENE_XML
 
 TARGET_MODES = ("step", "sine", "fixed")
