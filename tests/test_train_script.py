@@ -76,20 +76,9 @@ def test_refuses_options_it_cannot_use_in_one_line(script, monkeypatch, capsys, 
     assert message in _refusal(script, monkeypatch, capsys, args)
 
 
-def test_refuses_the_warp_backend_without_the_gpu_extra(script, monkeypatch, capsys) -> None:
-    real = importlib.import_module
-
-    def missing(name, *args):
-        if name in ("warp", "mujoco_warp"):
-            raise ModuleNotFoundError(f"No module named '{name}'", name=name)
-        return real(name, *args)
-
-    monkeypatch.setattr(importlib, "import_module", missing)
-    warp_muscle.require_warp.cache_clear()
-    try:
-        line = _refusal(script, monkeypatch, capsys, ["--backend", "warp", "--device", "cpu"])
-    finally:
-        warp_muscle.require_warp.cache_clear()
+def test_refuses_the_warp_backend_without_the_gpu_extra(script, monkeypatch, capsys,
+                                                       without_warp) -> None:
+    line = _refusal(script, monkeypatch, capsys, ["--backend", "warp", "--device", "cpu"])
     assert "--backend warp --device cpu: backend = 'warp' needs NVIDIA Warp" in line
     assert "pip install 'wpam-mj[gpu]'" in line
 

@@ -11,7 +11,6 @@ first run compiles Warp's kernels for about a minute (cached under ~/.cache/warp
 from __future__ import annotations
 
 import dataclasses
-import importlib
 
 import gymnasium
 import numpy as np
@@ -39,22 +38,6 @@ CASES = [("wpam", c) for c in ("open", "pi", "pid", "pi_ff")] + [
 
 needs_warp = pytest.mark.skipif(not warp_muscle.warp_available(),
                                 reason="needs the gpu extra (warp-lang, mujoco-warp)")
-
-
-@pytest.fixture
-def without_warp(monkeypatch):
-    """Warp and MuJoCo Warp fail to import, as without the gpu extra."""
-    real = importlib.import_module
-
-    def missing(name, *args):
-        if name in ("warp", "mujoco_warp"):
-            raise ModuleNotFoundError(f"No module named '{name}'", name=name)
-        return real(name, *args)
-
-    monkeypatch.setattr(importlib, "import_module", missing)
-    warp_muscle.require_warp.cache_clear()
-    yield
-    warp_muscle.require_warp.cache_clear()
 
 
 def test_warp_backend_refused_in_one_line_without_the_extra(without_warp):
