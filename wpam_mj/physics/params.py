@@ -21,8 +21,7 @@ from wpam_mj import paper
 from wpam_mj.physics import rules
 from wpam_mj.physics.muscle_types import MUSCLE_TYPES, MuscleType
 from wpam_mj.paths import MODELS_DIR
-from wpam_mj.errors import (ParameterError, is_number, check_range,
-                            load_toml)
+from wpam_mj.errors import ParameterError, check_range, is_number, load_toml
 from wpam_mj.units import MPA
 
 

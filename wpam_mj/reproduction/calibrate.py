@@ -176,8 +176,7 @@ class PaperTargets:
             po_plateau_mpa=tuple(float(np.mean(r.po_mean)) / MPA for r in steps["pi"]),
             po_max_mpa={(p.load, p.freq): p.po_max / MPA for p in sweep.points
                         if p.controller == "pi"},
-            sweep_checks=tuple(findings.check_all(findings.SWEEP_FINDINGS, sweep,
-                                               params.controller.po_cap)))
+            sweep_checks=tuple(findings.sweep_checks(sweep, params.controller.po_cap)))
 
     def residual_groups(self, params: Params, results: list) -> dict[str, np.ndarray]:
         """The residuals by target (each §4.2 finding as "sweep.<name>"), in the order

@@ -10,8 +10,6 @@ residuals and the search as its map's coordinates. Findings are looked up by nam
 from __future__ import annotations
 
 import math
-from typing import Sequence
-
 from wpam_mj.reproduction.margins import (Check, Finding, Margin, check, check_all,  # noqa: F401
                                           checks_markdown, checks_text, residuals, score)
 from wpam_mj.reproduction.sweep_findings import SWEEP_FINDINGS
@@ -21,7 +19,6 @@ from wpam_mj.reproduction.table2_findings import (OPEN_STEP_FINDINGS, TABLE2_FIN
 # Every finding by name: code and files refer to findings this way, never by position.
 FINDINGS: dict[str, Finding] = {f.name: f for f in (*TABLE2_FINDINGS, *OPEN_STEP_FINDINGS,
                                                     *SWEEP_FINDINGS)}
-COUNTED = tuple(name for name, f in FINDINGS.items() if f.counted)
 
 
 def sweep_checks(sw, po_cap: float) -> list[Check]:
@@ -43,6 +40,3 @@ def all_checks(t2, open_step, sw, po_cap: float) -> list[Check]:
     """Every finding of `wpam reproduce`, in the paper's order."""
     return [*table2_checks(t2), *open_step_checks(open_step), *sweep_checks(sw, po_cap)]
 
-
-def by_name(checks: Sequence[Check]) -> dict[str, Check]:
-    return {c.name: c for c in checks}

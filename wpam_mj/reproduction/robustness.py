@@ -14,6 +14,7 @@ model of the plant, not the plant.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 import json
 import math
@@ -55,10 +56,7 @@ def sample_deviations(n: int, seed: int, rel: float = DEFAULT_REL,
 def sampled_plants(nominal: Params, deviations: np.ndarray,
                    names: Sequence[str] = UNMEASURED) -> list[Params]:
     """The nominal parameters with each row of `deviations` as its plant's deviation."""
-    return [Params(**{**{s: getattr(nominal, s) for s in
-                         ("braid", "muscle", "pneumatics", "controller")},
-                      "preset": nominal.preset,
-                      "plant_deviation": tuple(zip(names, map(float, row)))})
+    return [dataclasses.replace(nominal, plant_deviation=tuple(zip(names, map(float, row))))
             for row in deviations]
 
 

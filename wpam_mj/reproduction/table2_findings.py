@@ -94,8 +94,7 @@ def _steps_settle(t2, po_cap):
 
 
 def _steps_settle_detail(t2, po_cap, margins):
-    err = [m for m in margins if m.scale != STEP_PP_MM * MM]
-    pp = [m for m in margins if m.scale == STEP_PP_MM * MM]
+    err, pp = margins[0::2], margins[1::2]  # per run: its error, then its peak-to-peak
     return ("worst settled error " + "/".join(f"{m.value / MM:.2f}" for m in err)
             + " mm against " + "/".join(f"{m.limit / MM:.2f}" for m in err)
             + " mm (Table 2's cells); p-p " + "/".join(f"{m.value / MM:.2f}" for m in pp)
