@@ -10,6 +10,8 @@ import math
 
 import pytest
 
+from wpam_mj import paper
+from wpam_mj.experiments.limit_velocity import VARIANTS, limit_velocity, variant
 from wpam_mj.physics import kernel
 from wpam_mj.physics.params import ParameterError, Pneumatics, preset
 from wpam_mj.units import MPA
@@ -113,3 +115,15 @@ def test_on_the_shipped_rig_the_lines_set_the_flow():
 def test_a_supply_below_the_regulators_range_is_refused_in_one_line():
     with pytest.raises(ParameterError, match=r"pneumatics.supply_pressure.*p_max"):
         Pneumatics(supply_pressure=0.4 * MPA)
+
+
+def test_only_a_valve_limited_regulator_makes_the_contraction_limit_load_independent():
+    """The limit velocity (§4.2): behind the lines, the speed follows the load (the line's
+    flow is driven by p_set - p); with a tenth of the ITV2031's valve the choked fill from
+    the supply sets it, the same at every load."""
+    plant = preset("wpam")
+    small = variant(plant, VARIANTS["regulator valves /10 (ITV1000 class)"])
+    lines = [limit_velocity(plant, load).contraction for load in paper.LOADS_N]
+    valve = [limit_velocity(small, load).contraction for load in paper.LOADS_N]
+    assert lines == sorted(lines) and max(lines) / min(lines) > 1.1
+    assert max(valve) / min(valve) < 1.05 and max(valve) < min(lines)
