@@ -287,7 +287,8 @@ def test_fps_range_stated_is_the_range_applied(suffix) -> None:
     lambda out: render.render_video(_sim_result(), PARAMS, out / "a.mp4", camera=None),
     lambda out: render.render_video(_sim_result(), PARAMS, out / "a.mp4", shadows="yes"),
     lambda out: render.render_video(_sim_result(), PARAMS, out / "a.mp4", threads=0),
-    lambda out: render.render_video(_sim_result(load=0.0), PARAMS, out / "a.mp4"),
+    lambda out: render.render_video(_sim_result(context=RunContext(PARAMS, 1e-3, 0.0)), PARAMS,
+                                    out / "a.mp4"),  # no result carries a refused load
     lambda out: render.render_frames(_sim_result(pi=np.full(50, np.inf)), PARAMS),
     lambda out: render.still_frame(_sim_result(), PARAMS, 0.1, None),
     lambda out: render.still_frame(_sim_result(), PARAMS, math.nan, out / "a.png"),

@@ -75,8 +75,3 @@ class RunContext(StudyContext):
     def __post_init__(self) -> None:
         object.__setattr__(self, "load", check_load(self.load))
         super().__post_init__()
-
-    @property
-    def study(self) -> StudyContext:
-        """What this run shares with the other runs of a study."""
-        return StudyContext(self.params, self.dt)
