@@ -85,7 +85,8 @@ def test_run_warp_refuses_a_controller_only_python_defines():
     defines would silently run another one."""
     from wpam_mj.simulation.warp_backend import run_warp  # noqa: PLC0415 (imports without Warp)
 
-    run = dataclasses.replace(_short_runs()[0], control="mine")
+    run = _short_runs()[0]
+    run = dataclasses.replace(run, context=dataclasses.replace(run.context, control="mine"))
     with pytest.raises(ParameterError, match="controller 'mine' runs on the Python engine "
                                              "only; backend = 'warp' runs open, pi"):
         run_warp([run])
