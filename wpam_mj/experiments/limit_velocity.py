@@ -75,8 +75,17 @@ VARIANTS = {
     "Po line x10": {"pneumatics.outer_conductance": 10.0},
     "Pi line x10": {"pneumatics.inner_conductance": 10.0},
     "no tube volume": {"pneumatics.tube_volume": 0.0},
+    "regulator valves x25 (an ideal source)": {"pneumatics.supply_valve_conductance": 25.0,
+                                               "pneumatics.exhaust_valve_conductance": 25.0},
+    "regulator valves /10 (ITV1000 class)": {"pneumatics.supply_valve_conductance": 0.1,
+                                             "pneumatics.exhaust_valve_conductance": 0.1},
+    "lines x10, valves x25": {"pneumatics.inner_conductance": 10.0,
+                              "pneumatics.outer_conductance": 10.0,
+                              "pneumatics.supply_valve_conductance": 25.0,
+                              "pneumatics.exhaust_valve_conductance": 25.0},
 }
-_SCALED = ("pneumatics.inner_conductance", "pneumatics.outer_conductance")
+_SCALED = ("pneumatics.inner_conductance", "pneumatics.outer_conductance",
+           "pneumatics.supply_valve_conductance", "pneumatics.exhaust_valve_conductance")
 
 
 def variant(params: Params, overrides: dict[str, float]) -> Params:

@@ -198,12 +198,43 @@ def mass_flow(source_abs: float, chamber_abs: float, conductance: float,
     return m
 
 
-def chamber_step(chamber_abs: float, source_abs: float, volume: float, dvdx: float,
-                 v: float, conductance: float, critical_ratio: float, dt: float) -> float:
+def series_conductance(valve: float, line: float) -> float:
+    """Sonic conductance [m^3/(s Pa)] of two restrictions in series, the regulator's valve
+    and the line after it: 1/C^2 = 1/C_valve^2 + 1/C_line^2 (ISO 6358-3:2014, components
+    in series, for restrictions of similar critical ratio)."""
+    return 1.0 / math.sqrt(1.0 / (valve * valve) + 1.0 / (line * line))
+
+
+def regulator_flow(set_abs: float, chamber_abs: float, supply_abs: float,
+                   exhaust_abs: float, line: float, supply_valve: float,
+                   exhaust_valve: float, critical_ratio: float) -> float:
+    """Mass flow [kg/s] into a chamber from an ITV-class regulator, a device: its internal
+    loop throttles a supply valve (from the supply) or an exhaust valve (to the
+    atmosphere) to hold its own outlet, where its pressure sensor is, at the set point;
+    the line (tube and fittings, conductance `line`) joins that outlet to the chamber.
+
+    Quasi-static in the outlet's small volume: while the valve can hold the outlet at the
+    set point, the line's flow from the set point is what flows; once the valve is wide
+    open it cannot, and the flow is that of valve and line in series from the supply (or
+    to the exhaust). Both flows rise monotonically with the pressure drop, so the flow is
+    the smaller in magnitude of the two. With valves far larger than the line this is the
+    line's flow from the set point (an ideal source behind the line)."""
+    held = mass_flow(set_abs, chamber_abs, line, critical_ratio)
+    if set_abs >= chamber_abs:
+        m = min(held, mass_flow(supply_abs, chamber_abs,
+                                series_conductance(supply_valve, line), critical_ratio))
+    else:
+        m = max(held, mass_flow(exhaust_abs, chamber_abs,
+                                series_conductance(exhaust_valve, line), critical_ratio))
+    return m
+
+
+def chamber_step(chamber_abs: float, mass_flow_in: float, volume: float, dvdx: float,
+                 v: float, dt: float) -> float:
     """One explicit Euler step of dp/dt = (R T0 m_dot - p dV/dx v) / V: the chamber's
-    new pressure [Pa abs] at volume V [m^3], dV/dx [m^2] and velocity v [m/s]."""
-    m = mass_flow(source_abs, chamber_abs, conductance, critical_ratio)
-    return chamber_abs + dt * (RT0 * m - chamber_abs * dvdx * v) / volume
+    new pressure [Pa abs] at inflow m_dot [kg/s], volume V [m^3], dV/dx [m^2] and
+    velocity v [m/s]."""
+    return chamber_abs + dt * (RT0 * mass_flow_in - chamber_abs * dvdx * v) / volume
 
 
 def inner_volume(bag_volume_inner: float, tube_volume: float) -> float:
@@ -222,20 +253,19 @@ def outer_dvdx(area: float, axial_area: float) -> float:
     return -(area + axial_area)
 
 
-def outer_chamber_step(outer_chamber: bool, chamber_abs: float, source_abs: float,
+def outer_chamber_step(outer_chamber: bool, chamber_abs: float, mass_flow_in: float,
                        bag_volume_inner: float, x: float, area: float, axial_area: float,
-                       outer_bag_volume: float, tube_volume: float, v: float,
-                       conductance: float, critical_ratio: float, dt: float,
+                       outer_bag_volume: float, tube_volume: float, v: float, dt: float,
                        atmosphere: float) -> float:
     """The outer chamber's new pressure [Pa abs]: `chamber_step` at V_o and dV_o/dx, or,
     for a muscle type without an outer bag (MuscleType.outer_chamber false: rlam,
     mckibben), the atmosphere exactly: the inner bag swells into the open air, so Po is
     0 gauge always and leaves the tension (eqs. 1-3) and the friction level alone."""
     if outer_chamber:
-        p = chamber_step(chamber_abs, source_abs,
+        p = chamber_step(chamber_abs, mass_flow_in,
                          outer_volume(bag_volume_inner, x, axial_area, outer_bag_volume,
                                       tube_volume),
-                         outer_dvdx(area, axial_area), v, conductance, critical_ratio, dt)
+                         outer_dvdx(area, axial_area), v, dt)
     else:
         p = atmosphere
     return p

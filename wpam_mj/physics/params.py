@@ -131,6 +131,20 @@ class Pneumatics(_Validated):
     outer_conductance: float = _p(2e-9, "m^3/(s Pa)", 0.0, 1e-6,
                                   "calibrated: as inner_conductance, for the Po line into the "
                                   "outer bag", lo_open=True, plausible=(1e-9, 3.6e-8))
+    supply_pressure: float = _p(0.6 * MPA, "Pa", 0.0, 1.0 * MPA,
+                                "not stated in the paper: shop air at the usual 0.6 MPa "
+                                "gauge; the ITV2031 takes at most 1.0 MPa and needs the set "
+                                "pressure + 0.1 MPa (SMC catalogue)",
+                                plausible=(0.5 * MPA, 0.7 * MPA), measured=True)
+    supply_valve_conductance: float = _p(3.6e-8, "m^3/(s Pa)", 0.0, 1e-6,
+                                         "ITV2031 catalogue: 1500 L/min (ANR), read as choked "
+                                         "flow from 0.7 MPa abs (the regulator's valve and "
+                                         "ports up to its outlet)", lo_open=True,
+                                         measured=True)
+    exhaust_valve_conductance: float = _p(3.6e-8, "m^3/(s Pa)", 0.0, 1e-6,
+                                          "the catalogue states no relief flow: taken equal "
+                                          "to the supply side's (one main valve, a supply "
+                                          "and an exhaust seat)", lo_open=True)
     critical_ratio: float = _p(0.5, "1", 0.0, 0.99, "ISO 6358 b, typical valve value")
     tube_volume: float = _p(2.5e-5, "m^3", 0.0, 0.01, "estimate (2 m of 4 mm bore tube)")
     atmosphere: float = _p(101325.0, "Pa", 5e4, 2e5, "standard atmosphere")

@@ -1,16 +1,18 @@
-"""Regulators and chambers: ITV2031-like pressure sources behind a flow restriction.
+"""Regulators and chambers: ITV2031-like regulators feeding the chambers through their lines.
 
-The two state-holding pieces the muscle advances once per physics step are
-`Regulator` (command -> set pressure) and `Chamber` (set pressure -> chamber pressure).
-Their equations are `wpam_mj.physics.kernel`'s, which every engine runs (the compiled
-plugin as generated C); this module binds them for the analysis code.
+Per physics step the muscle advances each regulator (command -> set pressure,
+`Regulator` here) and each chamber (the regulator's flow -> chamber pressure). Their
+equations are `wpam_mj.physics.kernel`'s, which every engine runs (the compiled plugin as
+generated C); this module binds them for the analysis code.
 
 Each regulator (SMC ITV2031: 0.005-0.5 MPa) is modelled as
   1. its command clamped to [0, p_max] (0 = vented; the controllers never command
      below p_min while they drive a chamber),
   2. a dead time and a first-order lag on the command -> the regulator's set pressure p_set,
-  3. an ideal pressure source p_set feeding the chamber through the valve + tubing,
-     a restriction with ISO 6358 sonic conductance C and critical ratio b:
+  3. a device that holds its own outlet, where its pressure sensor is, at p_set by
+     throttling a supply valve (from the supply, `supply_pressure`) or an exhaust valve (to
+     the atmosphere); the line (tube, fittings) joins the outlet to the chamber. Each
+     restriction follows ISO 6358 with sonic conductance C and critical ratio b:
 
         m_dot = C rho_0 p_up psi(r),   r = p_down / p_up  (absolute pressures)
         psi = 1                                  for r <= b   (choked)
@@ -18,6 +20,11 @@ Each regulator (SMC ITV2031: 0.005-0.5 MPa) is modelled as
 
      linearised for r > R_LAMINAR, where the subsonic law has an infinite slope (the
      usual laminar-region treatment, e.g. Beater, Pneumatic Drives, Springer 2007, §5).
+     While the valve can hold the outlet at p_set the chamber fills through the line from
+     p_set; wide open, through valve and line in series (1/C^2 = 1/C_valve^2 +
+     1/C_line^2, ISO 6358-3) from the supply or to the atmosphere: the flow is the
+     smaller of the two (`kernel.regulator_flow`). The ITV2031's valve (1500 L/min) is
+     several times the lines', so on the paper's rig the lines set the flow.
 
 The chamber air is isothermal at T_0 (slow, thin-walled bags):
         d(p V)/dt = R T_0 m_dot   =>   dp/dt = (R T_0 m_dot - p dV/dt) / V.
@@ -91,7 +98,7 @@ def chamber_volumes_of(params: Params, x: np.ndarray) -> tuple[np.ndarray, np.nd
 def stable_timesteps(geometry: BraidGeometry, axial_area: float, bag_length: float,
                      bag_diameter: float, tube_volume: float, conductance_i: float,
                      conductance_o: float, b: float) -> tuple[float, float]:
-    """The largest time steps [s] at which `Chamber.step` (explicit Euler) is stable and
+    """The largest time steps [s] at which `kernel.chamber_step` (explicit Euler) is stable and
     does not oscillate, (inner chamber, outer chamber).
 
     Near equilibrium dp/dt = R T_0 m_dot(p) / V is linear with rate
@@ -148,21 +155,3 @@ class Regulator:
         self.set_point = kernel.regulator_set_point(self.set_point, command, self.p_max,
                                                     self.lag_alpha)
         return self.set_point
-
-
-class Chamber:
-    """Isothermal air volume fed through one restriction; `pressure` absolute [Pa].
-
-    `step` advances dp/dt = (R T_0 m_dot - p dV/dt) / V by one explicit Euler step.
-    """
-
-    def __init__(self, conductance: float, critical_ratio: float, pressure: float) -> None:
-        self.conductance, self.critical_ratio = conductance, critical_ratio
-        self.pressure = pressure
-
-    def step(self, p_source: float, volume: float, dvdx: float, v: float, dt: float) -> float:
-        """One step of `dt` [s] fed from `p_source` [Pa abs] at volume [m^3], dV/dx
-        [m^2] and contraction velocity v [m/s]; returns the new pressure [Pa abs]."""
-        self.pressure = kernel.chamber_step(self.pressure, p_source, volume, dvdx, v,
-                                            self.conductance, self.critical_ratio, dt)
-        return self.pressure

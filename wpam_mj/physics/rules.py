@@ -149,6 +149,9 @@ CROSS_RULES = (
          why="at most the outer bag's cross-section pi braid.outer_bag_diameter^2 / 4"),
     Rule("pneumatics.p_min", lo=0.0, hi="pneumatics.p_max", hi_open=True,
          why="below pneumatics.p_max"),
+    Rule("pneumatics.supply_pressure", lo="pneumatics.p_max", lo_open=True,
+         why="above the regulator's highest output pneumatics.p_max (SMC: the set "
+             "pressure + 0.1 MPa)"),
     Rule("controller.po_cap", lo="pneumatics.p_min", hi="pneumatics.p_max",
          why="within the regulator's range, pneumatics.p_min to pneumatics.p_max"),
     Rule("controller.po_feedforward", lo="pneumatics.p_min", hi="controller.po_cap",

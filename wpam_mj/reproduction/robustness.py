@@ -2,7 +2,9 @@
 
 A reproduction is a region, not a point. Every plant parameter nobody can measure on the
 rig (`UNMEASURED`: those the paper does not give, fitted within a plausible range, and the
-line's critical ratio and tube volume, which are estimates) is known to perhaps +-5 %.
+line's critical ratio and tube volume, which are estimates, the regulators' supply, which
+the paper does not state, and their exhaust valve, which the catalogue does not give) is
+known to perhaps +-5 %.
 `robustness` samples N plants in that box by a seeded Latin hypercube
 (scipy.stats.qmc.LatinHypercube: every parameter's range cut into N strata, each used
 once), runs every study of `wpam reproduce` on each, and reports per finding the fraction
@@ -37,7 +39,8 @@ from wpam_mj.simulation.execution import Batch, Failed, execute
 
 # Unmeasured plant parameters: the fitted ones, and the line's ISO 6358 critical ratio and
 # the tube volume (estimates; models/README.md)
-UNMEASURED = (*fitted_parameters(), "pneumatics.critical_ratio", "pneumatics.tube_volume")
+UNMEASURED = (*fitted_parameters(), "pneumatics.critical_ratio", "pneumatics.tube_volume",
+              "pneumatics.supply_pressure", "pneumatics.exhaust_valve_conductance")
 DEFAULT_REL = 0.05  # +-5 %: what an unmeasured value is known to (issue targets, our reading)
 SAMPLES_RANGE = (1, 4096)
 HOLD_TARGET = 0.8  # a finding "holds across the plant's uncertainty" in >= 80 % of plants

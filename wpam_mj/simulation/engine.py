@@ -335,14 +335,18 @@ class PythonMuscle:
         x = kernel.in_stroke(h[_X], self.x_max)
         area = kernel.area(x, *self.braid)
         vol = kernel.volume(x, *self.braid)
-        p_i = h[_P_I] = kernel.chamber_step(h[_P_I], set_i + k.atmosphere,
+        m_i = kernel.regulator_flow(set_i + k.atmosphere, h[_P_I], k.supply_abs, k.atmosphere,
+                                    k.conductance_i, k.supply_valve, k.exhaust_valve,
+                                    k.critical_ratio)
+        m_o = kernel.regulator_flow(set_o + k.atmosphere, h[_P_O], k.supply_abs, k.atmosphere,
+                                    k.conductance_o, k.supply_valve, k.exhaust_valve,
+                                    k.critical_ratio)
+        p_i = h[_P_I] = kernel.chamber_step(h[_P_I], m_i,
                                             kernel.inner_volume(vol, k.tube_volume), area, v,
-                                            k.conductance_i, k.critical_ratio, k.dt)
-        p_o = h[_P_O] = kernel.outer_chamber_step(self.outer_chamber, h[_P_O],
-                                                  set_o + k.atmosphere, vol, x, area, axial,
-                                                  k.bag_volume, k.tube_volume, v,
-                                                  k.conductance_o, k.critical_ratio, k.dt,
-                                                  k.atmosphere)
+                                            k.dt)
+        p_o = h[_P_O] = kernel.outer_chamber_step(self.outer_chamber, h[_P_O], m_o, vol, x,
+                                                  area, axial, k.bag_volume, k.tube_volume, v,
+                                                  k.dt, k.atmosphere)
         if not (p_i > 0.0 and p_o > 0.0 and math.isfinite(p_i) and math.isfinite(p_o)):
             _set_status(h, plugin.STATUS_PRESSURE)
         block[:] = h

@@ -42,6 +42,9 @@ class RunConstants:
     conductance_i: float
     conductance_o: float
     critical_ratio: float
+    supply_abs: float  # the regulators' supply [Pa abs]
+    supply_valve: float  # the regulators' valve conductances [m^3/(s Pa)]
+    exhaust_valve: float
     tube_volume: float
     bag_volume: float
     start_at_rest: int = 0  # 1: regulators and chambers start settled at the first commands
@@ -58,6 +61,8 @@ class RunConstants:
             delay_steps=round(p.dead_time / dt), atmosphere=p.atmosphere, p_max=p.p_max,
             conductance_i=p.inner_conductance, conductance_o=p.outer_conductance,
             critical_ratio=p.critical_ratio,
+            supply_abs=p.supply_pressure + p.atmosphere,
+            supply_valve=p.supply_valve_conductance, exhaust_valve=p.exhaust_valve_conductance,
             tube_volume=p.tube_volume,
             bag_volume=kernel.outer_bag_volume(params.braid.outer_bag_length,
                                                params.braid.outer_bag_diameter),

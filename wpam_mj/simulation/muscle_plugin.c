@@ -154,6 +154,18 @@ static double pi_feedforward(const Instance* k, double x_ref) {
   return kernel_clip(pi_gauge, p[P_PNEUMATICS_P_MIN], p[P_PNEUMATICS_P_MAX]);
 }
 
+/* A regulator's flow into its chamber at set point `set_gauge` [Pa gauge] through the line of
+   conductance `line` (kernel.regulator_flow) [kg/s]. */
+static double regulator_flow(const Instance* k, double set_gauge, double chamber_abs,
+                             double line) {
+  double atmosphere = k->p[P_PNEUMATICS_ATMOSPHERE];
+  return kernel_regulator_flow(set_gauge + atmosphere, chamber_abs,
+                               k->p[P_PNEUMATICS_SUPPLY_PRESSURE] + atmosphere, atmosphere,
+                               line, k->p[P_PNEUMATICS_SUPPLY_VALVE_CONDUCTANCE],
+                               k->p[P_PNEUMATICS_EXHAUST_VALVE_CONDUCTANCE],
+                               k->p[P_PNEUMATICS_CRITICAL_RATIO]);
+}
+
 /* A regulator's step (Regulator.update): the command through the dead time (ring buffer
    `queue`, shared head), then kernel.regulator_set_point. Returns the set point [Pa gauge]. */
 static double regulator_update(const Instance* k, double* set_gauge, double* queue,
@@ -877,7 +889,7 @@ static void wpam_compute(const mjModel* m, mjData* d, int instance, int capabili
 static void wpam_advance(const mjModel* m, mjData* d, int instance) {
   double* s = d->plugin_state + m->plugin_stateadr[instance];
   Instance* k = instance_of(m, d, instance, s);
-  double atmosphere, x, set_i, set_o, area, vol, v;
+  double atmosphere, x, set_i, set_o, area, vol, v, m_i, m_o;
   int head;
   if (!k || stopped(s)) return;
   atmosphere = k->p[P_PNEUMATICS_ATMOSPHERE];
@@ -897,16 +909,15 @@ static void wpam_advance(const mjModel* m, mjData* d, int instance) {
   x = in_stroke(k, s[S_X]);
   area = area_at(k, x);
   vol = volume_at(k, x);
-  s[S_P_I] = kernel_chamber_step(s[S_P_I], set_i + atmosphere,
+  m_i = regulator_flow(k, set_i, s[S_P_I], k->p[P_PNEUMATICS_INNER_CONDUCTANCE]);
+  m_o = regulator_flow(k, set_o, s[S_P_O], k->p[P_PNEUMATICS_OUTER_CONDUCTANCE]);
+  s[S_P_I] = kernel_chamber_step(s[S_P_I], m_i,
                                  kernel_inner_volume(vol, k->p[P_PNEUMATICS_TUBE_VOLUME]),
-                                 area, v, k->p[P_PNEUMATICS_INNER_CONDUCTANCE],
-                                 k->p[P_PNEUMATICS_CRITICAL_RATIO], k->dt);
+                                 area, v, k->dt);
   /* no outer bag (rlam, mckibben): the atmosphere, exactly */
-  s[S_P_O] = kernel_outer_chamber_step(k->outer_chamber, s[S_P_O], set_o + atmosphere, vol, x,
-                                       area, k->p[P_MUSCLE_AXIAL_AREA], k->bag_volume,
-                                       k->p[P_PNEUMATICS_TUBE_VOLUME], v,
-                                       k->p[P_PNEUMATICS_OUTER_CONDUCTANCE],
-                                       k->p[P_PNEUMATICS_CRITICAL_RATIO], k->dt, atmosphere);
+  s[S_P_O] = kernel_outer_chamber_step(k->outer_chamber, s[S_P_O], m_o, vol, x, area,
+                                       k->p[P_MUSCLE_AXIAL_AREA], k->bag_volume,
+                                       k->p[P_PNEUMATICS_TUBE_VOLUME], v, k->dt, atmosphere);
   if (!(s[S_P_I] > 0.0 && s[S_P_O] > 0.0 && isfinite(s[S_P_I]) && isfinite(s[S_P_O])))
     set_status(s, WPAM_STATUS_PRESSURE);
 }

@@ -79,7 +79,8 @@ WORLD_FIELDS = (
     "natural_diameter", "rubber_stiffness", "output_coeff", "axial_area", "friction_coeff",
     "friction_const", "guided", "atmosphere", "p_min", "p_max", "lag_alpha",
     "delay_steps", "critical_ratio", "inner_conductance", "outer_conductance",
-    "tube_volume", "bag_volume", "outer_chamber", "kp", "ki", "kd", "derivative_filter",
+    "supply_abs", "supply_valve", "exhaust_valve", "tube_volume", "bag_volume",
+    "outer_chamber", "kp", "ki", "kd", "derivative_filter",
     "pa_per_unit", "po_cap", "integral0", "feedforward_friction", "po_feedforward",
     "feedforward_load", "contraction0", "length0", "feedback", "nchannel", "start_at_rest",
     "dt", "stroke_tolerance")
@@ -107,7 +108,9 @@ def world_values(config, length0: float, dt: float, nchannel: int) -> dict[str, 
         "p_max": pn.p_max, "lag_alpha": k.lag_alpha(dt, pn.time_constant),
         "delay_steps": float(round(pn.dead_time / dt)), "critical_ratio": pn.critical_ratio,
         "inner_conductance": pn.inner_conductance, "outer_conductance": pn.outer_conductance,
-        "tube_volume": pn.tube_volume,
+        "supply_abs": pn.supply_pressure + pn.atmosphere,
+        "supply_valve": pn.supply_valve_conductance,
+        "exhaust_valve": pn.exhaust_valve_conductance, "tube_volume": pn.tube_volume,
         "bag_volume": k.outer_bag_volume(br.outer_bag_length, br.outer_bag_diameter),
         "outer_chamber": float(p.outer_chamber),
         "kp": c.kp, "ki": c.ki, "kd": c.kd if config.control == "pid" else 0.0,
@@ -293,14 +296,17 @@ def kernels() -> types.SimpleNamespace:
         area = area_at(p, w, x)
         vol = kf.volume(x, p.natural_length[w], p.thread_sq[w], p.volume_denom[w],
                         p.max_contraction[w])
-        p_i = kf.chamber_step(s[w, S_P_I], set_i + atmosphere,
-                              kf.inner_volume(vol, p.tube_volume[w]), area, v,
-                              p.inner_conductance[w], p.critical_ratio[w], p.dt[w])
-        p_o = kf.outer_chamber_step(p.outer_chamber[w] != 0.0, s[w, S_P_O],
-                                    set_o + atmosphere, vol, x, area, p.axial_area[w],
-                                    p.bag_volume[w], p.tube_volume[w], v,
-                                    p.outer_conductance[w], p.critical_ratio[w], p.dt[w],
-                                    atmosphere)
+        m_i = kf.regulator_flow(set_i + atmosphere, s[w, S_P_I], p.supply_abs[w], atmosphere,
+                                p.inner_conductance[w], p.supply_valve[w], p.exhaust_valve[w],
+                                p.critical_ratio[w])
+        m_o = kf.regulator_flow(set_o + atmosphere, s[w, S_P_O], p.supply_abs[w], atmosphere,
+                                p.outer_conductance[w], p.supply_valve[w], p.exhaust_valve[w],
+                                p.critical_ratio[w])
+        p_i = kf.chamber_step(s[w, S_P_I], m_i, kf.inner_volume(vol, p.tube_volume[w]), area,
+                              v, p.dt[w])
+        p_o = kf.outer_chamber_step(p.outer_chamber[w] != 0.0, s[w, S_P_O], m_o, vol, x, area,
+                                    p.axial_area[w], p.bag_volume[w], p.tube_volume[w], v,
+                                    p.dt[w], atmosphere)
         s[w, S_P_I] = p_i
         s[w, S_P_O] = p_o
         if not (p_i > 0.0 and p_o > 0.0 and wp.isfinite(p_i) and wp.isfinite(p_o)):
