@@ -21,6 +21,7 @@ from common import Figure, parallel_capacity, plugin_missing, print_table
 from wpam_mj.infra.pool import WorkerPool
 from wpam_mj import execute, preset
 from wpam_mj.experiments.drives import drive_for_targets, step_targets
+from wpam_mj.simulation.context import RunContext
 from wpam_mj.simulation.simulate import Run, simulate
 
 DT = 1e-3  # s
@@ -34,7 +35,7 @@ def _drive(load: float, duration: float):
 
 
 def make_runs(n: int, duration: float) -> list[Run]:
-    return [Run.make(preset("wpam"), load, _drive(load, duration), dt=DT, control="pi")
+    return [Run.make(RunContext(preset("wpam"), DT, load, "pi"), _drive(load, duration))
             for load in np.linspace(50.0, 150.0, n)]
 
 

@@ -34,6 +34,7 @@ import wpam_mj
 from wpam_mj.control.controllers import pi_feedforward
 from wpam_mj.environments.dm_env_task import make_env
 from wpam_mj.environments.gym_env import ENV_ID, WPAMEnv
+from wpam_mj.simulation.context import RunContext
 from wpam_mj.simulation.live import LiveRig
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.units import MM, MPA
@@ -53,7 +54,7 @@ def _pi(params) -> float:
 
 
 def time_direct(params, n: int) -> float:
-    rig = LiveRig.build(params, LOAD, DT)
+    rig = LiveRig.build(RunContext(params, DT, LOAD))
     data = mujoco.MjData(rig.model)
     pi = _pi(params)
     start = time.perf_counter()

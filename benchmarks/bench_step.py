@@ -41,6 +41,7 @@ from common import Figure, plugin_missing, print_table
 from wpam_mj import Drive, preset
 from wpam_mj.simulation import plugin
 from wpam_mj.control.controllers import pi_feedforward
+from wpam_mj.simulation.context import RunContext
 from wpam_mj.simulation.model import build_model, rig_spec
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.simulation.simulate import simulate
@@ -60,7 +61,7 @@ def _feedforward(params) -> float:
 
 
 def plugin_model(params) -> mujoco.MjModel:
-    return rig_spec(params, LOAD, DT, control="pi", start_at_rest=True).compile()
+    return rig_spec(RunContext(params, DT, LOAD, "pi"), start_at_rest=True).compile()
 
 
 def settled(params) -> mujoco.MjData:

@@ -35,6 +35,7 @@ from wpam_mj.environments.vector_env import default_threads
 from wpam_mj.physics.params import preset
 from wpam_mj.errors import ParameterError
 from wpam_mj.simulation import warp_muscle
+from wpam_mj.simulation.context import RunContext
 from wpam_mj.simulation.model import rig_spec
 
 ENV_ID = "wpam_mj/WPAMTrack-v0"
@@ -64,7 +65,7 @@ def physics_rate(device: str, worlds: int, nsub: int, seconds: float, repeats: i
     from wpam_mj.simulation.warp_backend import WarpBatch  # noqa: PLC0415 (the extra)
 
     wp, _ = warp_muscle.require_warp()
-    spec = rig_spec(preset("wpam"), 100.0, 1e-3, control="pi")
+    spec = rig_spec(RunContext(preset("wpam"), 1e-3, 100.0, "pi"))
     batch = WarpBatch([spec] * worlds, device)
     batch.reset()
     # channels (x_ref, pi_cmd): hold 25 mm with Pi at 0.3 MPa, Po from the muscle's PI

@@ -68,7 +68,7 @@ def measure(params: Params, *, dt: float, jobs: int) -> dict:
             "pi_plateau_mean_mpa": float(np.mean(s.pi_mean) / MPA)} for s in steps},
         "sweep": [p.as_json() for p in sw.points],
         "checks": [{"finding": c.finding, "verdict": c.verdict, "detail": c.detail}
-                   for c in findings.sweep_checks(sw, params.controller.po_cap)
+                   for c in findings.sweep_checks(sw)
                    + findings.table2_checks(t2)],
     }
 

@@ -24,6 +24,10 @@ from wpam_mj.experiments import paper_studies
 from wpam_mj.cli import JOBS_PER_CPU, main
 from wpam_mj.errors import ParameterError
 from wpam_mj.units import MPA
+from wpam_mj.physics.params import preset
+from wpam_mj.simulation.context import RunContext, StudyContext
+from wpam_mj.simulation.loop_contract import REC_FIELDS
+from wpam_mj.simulation.results import SimResult
 from wpam_mj.simulation.simulate import Drive, SimulationDiverged
 from wpam_mj.experiments.responses import StepRun, SweepPoint, SweepResult
 
@@ -199,9 +203,11 @@ def test_help_lists_each_command_once(capsys):
 
 def test_step_text_has_no_negative_zero():
     from wpam_mj.experiments.tables import step_text
-    run = StepRun(load=100.0, control="open", preset="wpam", settle=5.0,
-                  target=np.array([0.0]), x_mean=np.array([-1e-9]),
-                  pi_mean=np.array([0.05 * MPA]), po_mean=np.array([-3e-3]), result=None)
+    z = np.zeros(2)
+    result = SimResult(**{name: z for name in REC_FIELDS},
+                       context=RunContext(preset(), 1e-3, 100.0, "open"))
+    run = StepRun(settle=5.0, target=np.array([0.0]), x_mean=np.array([-1e-9]),
+                  pi_mean=np.array([0.05 * MPA]), po_mean=np.array([-3e-3]), result=result)
     text = step_text(run)
     assert "-0.0" not in text and "0.0000" in text
 
@@ -211,16 +217,17 @@ def _sweep(gains):
                            po_max=0.05 * MPA)
                 for (load, f), g in zip([(50.0, 0.1), (50.0, 0.5), (150.0, 0.1),
                                          (150.0, 0.5)], gains))
-    return SweepResult(points=pts)
+    return SweepResult(points=pts, context=StudyContext(preset(), 1e-3))
 
 
 def test_checks_print_one_decimal_and_no_bare_dash():
     t2 = types.SimpleNamespace(loads=(50.0,), open_po={50.0: 0.7042 * 0.845},
                                feedback={50.0: 0.001},
-                               paper=lambda: {"open_po": {50.0: 0.7042}})
-    row = findings.check(findings.FINDINGS["table2_po_row"], t2, np.nan)
+                               paper=lambda: {"open_po": {50.0: 0.7042}},
+                               context=StudyContext(preset(), 1e-3))
+    row = findings.check(findings.FINDINGS["table2_po_row"], t2)
     assert "-15.5%" in row.detail
-    spread = next(c for c in findings.sweep_checks(_sweep([np.nan] * 4), 0.08 * MPA)
+    spread = next(c for c in findings.sweep_checks(_sweep([np.nan] * 4))
                   if "within" in c.finding)
     assert "(-)" not in spread.detail and "no finite gain" in spread.detail
 

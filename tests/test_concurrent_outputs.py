@@ -18,6 +18,7 @@ from wpam_mj.visualisation import render
 from wpam_mj.cli import main
 from wpam_mj.physics.params import preset
 from wpam_mj.errors import ParameterError
+from wpam_mj.simulation.context import RunContext
 from wpam_mj.simulation.results import SimResult
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -106,7 +107,7 @@ def _video_result(n: int = 5) -> SimResult:
     z = np.zeros(n)
     return SimResult(time=np.arange(n) * 0.01, x=np.linspace(0, 0.02, n), velocity=z,
                      x_ref=z, pi=z, po=z, pi_cmd=z, po_cmd=z, tension=z, friction=z,
-                     pi_reg=z, po_reg=z, load=100.0, dt=1e-3, control="pi", preset="wpam")
+                     pi_reg=z, po_reg=z, context=RunContext(preset(), 1e-3, 100.0, "pi"))
 
 
 @pytest.mark.parametrize("name", ["run.mp4", "run.gif", "still.png"])

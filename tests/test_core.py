@@ -22,7 +22,8 @@ from wpam_mj.experiments.analysis import frequency_response, loop_area
 from wpam_mj.control.controllers import (CONTROLS, PIControl, PIDControl, make_controller,
                                          pi_feedforward)
 from wpam_mj.experiments.drives import SineSpec, sine_run, static_top_pressure
-from wpam_mj.simulation.model import build_model, check_dt, check_load
+from wpam_mj.simulation.context import RunContext, check_dt, check_load
+from wpam_mj.simulation.model import build_model
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import Controller, Params, preset
 from wpam_mj.errors import ParameterError, check_range
@@ -401,7 +402,7 @@ def test_csv_holds_every_sample_in_display_units(tmp_path):
     r = SimResult(time=t, x=0.03 * np.sin(t), velocity=np.cos(t), x_ref=x_ref,
                   pi=0.3e6 + t, po=0.04e6 - t, pi_cmd=0.3e6 + 0 * t, po_cmd=0 * t,
                   tension=100 + t, friction=5 + 0 * t, pi_reg=0.3e6 + 2 * t,
-                  po_reg=0.04e6 + 0 * t, load=100.0, dt=1e-3, control="pi", preset="wpam")
+                  po_reg=0.04e6 + 0 * t, context=RunContext(WPAM, 1e-3, 100.0, "pi"))
     path = r.to_csv(tmp_path / "run.csv")
     lines = path.read_text().splitlines()
     table = np.genfromtxt(path, delimiter=",", names=True)  # plain: no comment lines

@@ -14,6 +14,7 @@ import pytest
 
 from wpam_mj import preset
 from wpam_mj.simulation import engine, plugin
+from wpam_mj.simulation.context import RunContext
 from wpam_mj.simulation.model import INSTANCE, rig_spec
 
 DT = 1e-3
@@ -21,7 +22,7 @@ PI_HIGH, PI_LOW = 0.3e6, 0.2e6  # Pa gauge, the Pi commands of the runs
 
 
 def spec() -> mujoco.MjSpec:
-    return rig_spec(preset("wpam"), 100.0, DT, control="open")
+    return rig_spec(RunContext(preset("wpam"), DT, 100.0))
 
 
 @pytest.fixture(scope="module")

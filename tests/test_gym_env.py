@@ -24,6 +24,7 @@ from wpam_mj.errors import ParameterError  # noqa: E402
 from wpam_mj.units import MM, MPA  # noqa: E402
 from wpam_mj.environments.policies import mean_return  # noqa: E402
 from wpam_mj.environments.registry import VARIANTS  # noqa: E402
+from wpam_mj.simulation.context import RunContext  # noqa: E402
 from wpam_mj.simulation.live import LiveRig  # noqa: E402
 
 # Code defaults, not the calibration file: these tests pin the environment, not the fit.
@@ -358,7 +359,7 @@ def test_an_env_step_costs_little_beside_its_physics() -> None:
     rig's steps per second): here a loose floor, best of interleaved runs, that the env
     layers once missed by far (0.12 and 0.45: per-step warning lists, dm_control's
     reward and flattening, the observation built twice)."""
-    rig = LiveRig.build(PARAMS, 100.0, 1e-3)
+    rig = LiveRig.build(RunContext(PARAMS, 1e-3, 100.0))
     data = mujoco.MjData(rig.model)
     env = WPAMEnv(PARAMS, target=20 * MM, load=100.0, time_limit=100.0)
     env.reset(seed=0)

@@ -26,7 +26,7 @@ from wpam_mj.display import fmt
 from wpam_mj.environments.dm_env_task import SEED_RANGE, make_env
 from wpam_mj.experiments.drives import SineSpec, step_run
 from wpam_mj.physics.geometry import BraidGeometry
-from wpam_mj.simulation.model import check_dt
+from wpam_mj.simulation.context import RunContext, check_dt
 from wpam_mj.physics.params import Braid, apply_overrides, preset
 from wpam_mj.errors import MAX_TOML_BYTES, ParameterError, load_toml
 from wpam_mj.units import MM, MPA
@@ -54,7 +54,7 @@ def _sim_result(n: int = 50, **changes) -> SimResult:
                   x_ref=np.full(n, np.nan), pi=np.full(n, 0.2 * MPA), po=np.zeros(n),
                   pi_cmd=np.full(n, 0.2 * MPA), po_cmd=np.zeros(n), tension=np.full(n, 100.0),
                   friction=np.full(n, 5.0), pi_reg=np.full(n, 0.2 * MPA), po_reg=np.zeros(n),
-                  load=100.0, dt=1e-3, control="open", preset="wpam")
+                  context=RunContext(PARAMS, 1e-3, 100.0))
     series.update(changes)
     return SimResult(**series)
 
@@ -287,7 +287,8 @@ def test_fps_range_stated_is_the_range_applied(suffix) -> None:
     lambda out: render.render_video(_sim_result(), PARAMS, out / "a.mp4", camera=None),
     lambda out: render.render_video(_sim_result(), PARAMS, out / "a.mp4", shadows="yes"),
     lambda out: render.render_video(_sim_result(), PARAMS, out / "a.mp4", threads=0),
-    lambda out: render.render_video(_sim_result(load=0.0), PARAMS, out / "a.mp4"),
+    lambda out: render.render_video(_sim_result(context=RunContext(PARAMS, 1e-3, 0.0)), PARAMS,
+                                    out / "a.mp4"),  # no result carries a refused load
     lambda out: render.render_frames(_sim_result(pi=np.full(50, np.inf)), PARAMS),
     lambda out: render.still_frame(_sim_result(), PARAMS, 0.1, None),
     lambda out: render.still_frame(_sim_result(), PARAMS, math.nan, out / "a.png"),
@@ -422,13 +423,14 @@ def test_killed_render_leaves_no_partial_video(tmp_path) -> None:
     code = textwrap.dedent(f"""
         import numpy as np, wpam_mj
         from wpam_mj.visualisation.render import render_video
+        from wpam_mj.simulation.context import RunContext
         from wpam_mj.simulation.results import SimResult
         n = 6000
         z = np.zeros(n)
         r = SimResult(time=np.arange(n) * 0.01, x=0.02 * (1 - np.cos(np.arange(n) / 50)),
                       velocity=z, x_ref=z, pi=z, po=z, pi_cmd=z, po_cmd=z, tension=z,
-                      friction=z, pi_reg=z, po_reg=z, load=100.0, dt=1e-3, control="pi",
-                      preset="wpam")
+                      friction=z, pi_reg=z, po_reg=z,
+                      context=RunContext(wpam_mj.preset(), 1e-3, 100.0, "pi"))
         render_video(r, wpam_mj.preset(), {str(target)!r}, fps=30, size=(64, 48), threads=1)
     """)
     proc = subprocess.Popen([sys.executable, "-c", code],

@@ -10,6 +10,7 @@ from wpam_mj.cli import main
 from wpam_mj.design import linear, linear_study
 from wpam_mj.experiments.responses import SweepPoint, SweepResult
 from wpam_mj.physics.params import preset
+from wpam_mj.simulation.context import StudyContext
 from wpam_mj.units import MM, MPA
 
 LOAD = 150.0
@@ -22,7 +23,7 @@ def _sweep(amplitude_mm: float, moved: bool) -> SweepResult:
     gain, lag = (0.9, 30.0) if moved else (1e-15, 180.0)
     return SweepResult(tuple(SweepPoint(LOAD, f, c, gain, lag, 0.1 * MPA, load_moved=moved)
                              for c in linear.CONTROLLERS for f in FREQS),
-                       amplitude=amplitude_mm * MM)
+                       StudyContext(preset("wpam"), 1e-3), amplitude=amplitude_mm * MM)
 
 
 @pytest.fixture(scope="module")

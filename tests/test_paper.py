@@ -7,11 +7,13 @@ import pytest
 from wpam_mj import paper
 from wpam_mj.reproduction import findings
 from wpam_mj.physics.params import preset
+from wpam_mj.simulation.context import StudyContext
 from wpam_mj.units import MPA
 from wpam_mj.experiments.responses import SweepPoint, SweepResult
 from wpam_mj.reproduction.findings import checks_text
 
 CAP = paper.PO_CAP_MPA * MPA
+CONTEXT = StudyContext(preset("wpam"), 1e-3)  # what the sweeps were made with: this cap
 
 
 def _heavy_fast_cap(load, f, c):
@@ -25,7 +27,7 @@ def _sweep(gain, lag, po_max=_heavy_fast_cap):
     points = tuple(SweepPoint(load, f, c, gain(load, f, c), lag(load, f, c), po(load, f, c))
                    for load in paper.LOADS_N for c in paper.SWEEP_CONTROLLERS
                    for f in paper.SWEEP_FREQS_HZ)
-    return SweepResult(points=points)
+    return SweepResult(points=points, context=CONTEXT)
 
 
 def _papers_picture():
@@ -35,7 +37,7 @@ def _papers_picture():
 
 
 def test_sweep_checks_pass_on_the_papers_picture():
-    checks = findings.sweep_checks(_papers_picture(), CAP)
+    checks = findings.sweep_checks(_papers_picture())
     assert all(c.passed is True for c in checks), checks_text(checks)
     assert all(m.margin >= 0.0 for c in checks for m in c.margins)
 
@@ -45,13 +47,14 @@ def test_sweep_checks_fail_where_the_paper_does_not_hold():
                                          * (1.1 if c == "pid" else 1.0)),  # and PID-dependent
                 lag=lambda load, f, c: 40 * f - load / 10 + (2.0 if c == "pid" else 0.0),
                 po_max=lambda load, f, c: CAP if load < 150.0 else 0.05 * MPA)
-    checks = findings.sweep_checks(sw, CAP)
+    checks = findings.sweep_checks(sw)
     assert all(c.passed is False for c in checks), checks_text(checks)
 
 
 def test_sweep_checks_need_their_data():
-    sw = SweepResult(points=(SweepPoint(100.0, 0.5, "pi", 0.9, 30.0, 0.07 * MPA),))
-    assert all(c.passed is None for c in findings.sweep_checks(sw, CAP))
+    sw = SweepResult(points=(SweepPoint(100.0, 0.5, "pi", 0.9, 30.0, 0.07 * MPA),),
+                     context=CONTEXT)
+    assert all(c.passed is None for c in findings.sweep_checks(sw))
 
 
 def test_a_failing_margin_names_its_load_and_frequency():
@@ -62,7 +65,7 @@ def test_a_failing_margin_names_its_load_and_frequency():
         return base + (5.0 if (load, f, c) == (100.0, 0.2, "pi") else 0.0)
 
     sw = _sweep(gain=lambda load, f, c: 1.0 / (1.0 + f), lag=lag)
-    (lag_load,) = [c for c in findings.sweep_checks(sw, CAP) if "lower load" in c.finding]
+    (lag_load,) = [c for c in findings.sweep_checks(sw) if "lower load" in c.finding]
     bad = [(m.load, m.freq, m.controller) for m in lag_load.margins if m.margin < 0.0]
     assert bad == [(150.0, 0.2, "pi")]  # 150 N is now below the 100 N lag
     assert lag_load.passed is False and "out of order at 0.2 Hz" in lag_load.detail
@@ -74,7 +77,7 @@ def test_the_papers_load_findings_are_checked_on_its_controllers_only():
     base = _papers_picture()
     extra = tuple(SweepPoint(p.load, p.freq, "pi_ff", p.gain * (1 + p.load / 100), p.phase_lag_deg
                              + p.load, p.po_max) for p in base.points if p.controller == "pi")
-    checks = findings.sweep_checks(SweepResult(points=base.points + extra), CAP)
+    checks = findings.sweep_checks(SweepResult(points=base.points + extra, context=CONTEXT))
     assert all(c.passed is True for c in checks), checks_text(checks)
     assert not any(m.controller == "pi_ff" for c in checks for m in c.margins)
 
@@ -83,7 +86,7 @@ def test_high_frequency_lags_and_pid_against_pi_are_checked_as_the_paper_says():
     """'The phase lag is almost the same above 0.5 Hz' (PI, loads within LAG_SAME_DEG);
     at 150 N PID's gain equals PI's and its lag is visibly smaller (>= PID_LEAD_MIN_DEG)."""
     def by_name(sw):
-        return {c.name: c for c in findings.sweep_checks(sw, CAP)}
+        return {c.name: c for c in findings.sweep_checks(sw)}
 
     spread = _sweep(gain=lambda load, f, c: 1.0 / (1.0 + f),
                     lag=lambda load, f, c: 40 * f + load / 10 - (2.0 if c == "pid" else 0.0))
@@ -108,7 +111,7 @@ def test_a_load_that_does_not_follow_fails_equal_gains_by_a_number_and_is_named(
     points = tuple(SweepPoint(p.load, p.freq, p.controller, 3e-17, 0.6, p.po_max,
                               load_moved=False) if (p.load, p.freq, p.controller) == stuck
                    else p for p in base.points)
-    (spread,) = [c for c in findings.sweep_checks(SweepResult(points=points), CAP)
+    (spread,) = [c for c in findings.sweep_checks(SweepResult(points, CONTEXT))
                  if c.name == "gain_spread"]
     worst = min(spread.margins, key=lambda m: m.margin)
     assert (worst.freq, worst.controller) == (1.0, "pi")
@@ -121,11 +124,11 @@ def test_a_load_that_does_not_follow_fails_equal_gains_by_a_number_and_is_named(
 def test_calibration_residuals_are_the_margins():
     """Zero where every finding holds with headroom; the Po-cap residual grows as the
     regulator's Po falls short of the cap, in units of a tenth of the cap."""
-    assert not findings.residuals(findings.sweep_checks(_papers_picture(), CAP)).any()
+    assert not findings.residuals(findings.sweep_checks(_papers_picture())).any()
     short = _sweep(gain=lambda load, f, c: 1.0 / (1.0 + f),
                    lag=lambda load, f, c: 40 * f + (load / 20 if f < 0.5 else 0)
                    - (2.0 if c == "pid" else 0.0), po_max=0.5 * CAP)
-    (cap,) = [c for c in findings.sweep_checks(short, CAP) if "reaches" in c.finding]
+    (cap,) = [c for c in findings.sweep_checks(short) if "reaches" in c.finding]
     limit = (1.0 - paper.PO_CAP_RTOL) * CAP
     assert findings.residuals([cap]) == pytest.approx(
         [paper.CALIBRATION_HEADROOM + (limit - 0.5 * CAP) / (0.1 * CAP)])
@@ -147,7 +150,7 @@ def test_feedback_row_is_each_cell_within_a_factor_of_two_of_the_papers():
         t2 = SimpleNamespace(loads=paper.LOADS_N, feedback={50.0: 0.001, 100.0: 0.002,
                                                             150.0: f150},
                              paper=lambda: paper.TABLE2)
-        margins = finding.margins(t2, CAP)
+        margins = finding.margins(t2)
         assert all(m.margin >= 0 for m in margins) is holds, f150
         assert [m.load for m in margins if m.margin < 0] == ([] if holds else [150.0])
 
@@ -155,7 +158,7 @@ def test_feedback_row_is_each_cell_within_a_factor_of_two_of_the_papers():
 def test_extras_are_reported_and_not_counted():
     """A reading of ours that no sentence states (the cap only in the heavy, fast case)
     is printed as an extra and left out of the score."""
-    checks = findings.sweep_checks(_papers_picture(), CAP)
+    checks = findings.sweep_checks(_papers_picture())
     extra = [c for c in checks if not c.counted]
     assert [c.name for c in extra] == ["po_cap_light_slow"]
     assert "(extra)" in checks_text(extra)

@@ -11,6 +11,7 @@ import pytest
 import wpam_mj
 from wpam_mj.experiments import figures as plots
 from wpam_mj.units import MM, MPA
+from wpam_mj.simulation.context import RunContext
 from wpam_mj.simulation.results import SimResult
 from wpam_mj.experiments.responses import StaticLoop, StepRun
 
@@ -24,8 +25,7 @@ def synthetic(load: float, control: str) -> SimResult:
     x = 25 * MM * (1 - np.cos(2 * np.pi * t / 20))
     series = {f.name: np.zeros(len(t)) for f in dataclasses.fields(SimResult)}
     series.update(time=t, x=x, x_ref=x, pi=(0.03 + load / 2000) * MPA + x * 1e3,
-                  po=np.full(len(t), 0.01 * MPA), load=load, dt=1e-3, control=control,
-                  preset="wpam")
+                  po=np.full(len(t), 0.01 * MPA), context=RunContext(PARAMS, 1e-3, load, control))
     return SimResult(**series)
 
 
@@ -33,15 +33,15 @@ def step_run(load: float) -> StepRun:
     levels = np.array([0, 10, 20, 30, 40, 50, 40, 30, 20, 10, 0]) * MM
     pi = np.interp(levels, [0, 50 * MM], [(0.02 + load / 4000) * MPA, (0.04 + load / 2000)
                                            * MPA])
-    return StepRun(load, "pi", "wpam", 5.0, levels, levels, pi, np.full(len(levels), 5e3),
-                   result=None)
+    return StepRun(5.0, levels, levels, pi, np.full(len(levels), 5e3),
+                   result=synthetic(load, "pi"))
 
 
 def figures():
-    yield plots.static_figure([StaticLoop(f, 0.04 * MPA, "wpam", 1.0, synthetic(f, "open"))
+    yield plots.static_figure([StaticLoop(0.04 * MPA, 1.0, synthetic(f, "open"))
                                for f in LOADS])
     yield plots.step_figure([synthetic(100.0, "open"), synthetic(100.0, "pi")])
-    yield plots.closed_loop_static_figure([step_run(f) for f in LOADS], PARAMS)
+    yield plots.closed_loop_static_figure([step_run(f) for f in LOADS])
 
 
 @pytest.mark.parametrize("index", range(3))
@@ -54,6 +54,6 @@ def test_legends_sit_outside_the_axes(index) -> None:
 
 
 def test_fig16_model_is_a_band_wider_than_the_data_it_lies_under() -> None:
-    ax = plots.closed_loop_static_figure([step_run(f) for f in LOADS], PARAMS).axes[0]
+    ax = plots.closed_loop_static_figure([step_run(f) for f in LOADS]).axes[0]
     widths = sorted(line.get_linewidth() for line in ax.get_lines() if len(line.get_xdata()))
     assert widths[-len(LOADS):] == [7] * len(LOADS) and widths[-len(LOADS) - 1] < 2

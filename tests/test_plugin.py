@@ -19,6 +19,7 @@ from wpam_mj.simulation import engine
 from wpam_mj.simulation import plugin
 from wpam_mj.experiments.analysis import frequency_response
 from wpam_mj.experiments.drives import SineSpec, drive_for_targets, sine_run, step_targets
+from wpam_mj.simulation.context import RunContext
 from wpam_mj.simulation.loop_contract import REC_FIELDS
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import preset
@@ -189,7 +190,7 @@ def test_in_plugin_feedforward_equals_the_drives():
     from wpam_mj.simulation.model import rig_spec  # noqa: PLC0415
 
     def one_channel():
-        spec = rig_spec(params, load, dt, control="pi", start_at_rest=True,
+        spec = rig_spec(RunContext(params, dt, load, "pi"), start_at_rest=True,
                         feedforward_load=load)
         spec.delete(spec.actuator("muscle_pi_cmd"))
         return spec
@@ -267,7 +268,7 @@ def test_many_runs_equal_simulate_at_any_thread_count():
         feedback = drive_for_targets(params, load, x_ref, "pi", dt)
         open_loop = Drive(np.full(len(t), 0.2 * MPA), np.zeros(len(t)), np.full(len(t), np.nan))
         for control, drive in (("pi", feedback), ("open", open_loop)):
-            runs.append(Run.make(params, load, drive, dt=dt, control=control))
+            runs.append(Run.make(RunContext(params, dt, load, control), drive))
             singles.append(simulate(params, load, drive, dt=dt, control=control,
                                     engine="python"))
     for nthread in (1, 2):

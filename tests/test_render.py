@@ -18,6 +18,7 @@ import pytest
 import wpam_mj
 import wpam_mj.visualisation.gl
 from wpam_mj.visualisation import render
+from wpam_mj.simulation.context import RunContext
 from wpam_mj.simulation.model import build_model
 from wpam_mj.errors import ParameterError
 from wpam_mj.units import MM, MPA
@@ -61,7 +62,7 @@ def synthetic(x: np.ndarray, *, record_dt: float = 0.01, pi: float = 0.0,
     series = {f.name: np.zeros(n) for f in dataclasses.fields(SimResult)}  # every array
     series.update(time=np.arange(n) * record_dt, x=np.asarray(x, float),
                   x_ref=np.full(n, STEP), pi=np.full(n, pi), po=np.full(n, po),
-                  load=load, dt=1e-3, control="pi", preset="wpam")
+                  context=RunContext(PARAMS, 1e-3, load, "pi"))
     return SimResult(**series)
 
 

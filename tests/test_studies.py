@@ -130,8 +130,7 @@ def test_figures_from_a_small_study(table2_pair, tmp_path):
     t2 = table2_pair[0]
     for name, fig in {"static.png": figures.static_figure(t2.open_loops + t2.po_loops),
                       "step.png": figures.step_figure([r.result for r in t2.feedback_runs]),
-                      "fig16.png": figures.closed_loop_static_figure(t2.feedback_runs,
-                                                                     preset("wpam")),
+                      "fig16.png": figures.closed_loop_static_figure(t2.feedback_runs),
                       "table2.png": figures.table2_figure(t2)}.items():
         path = figures.save_figure(fig, tmp_path / name)
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name

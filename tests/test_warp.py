@@ -25,6 +25,7 @@ from wpam_mj.errors import ParameterError
 from wpam_mj.units import MM
 from wpam_mj.simulation import plugin, warp_muscle
 from wpam_mj.simulation.execution import SimulationTask, execute
+from wpam_mj.simulation.context import RunContext
 from wpam_mj.simulation.simulate import Run, simulate_run
 
 # float32 tolerances of the Warp backend against the float64 plugin over PARITY_S (docs/warp.md)
@@ -55,8 +56,9 @@ def _short_runs(seconds: float = 0.3) -> list[Run]:
     dt = 1e-3
     x_ref = np.full(round(seconds / dt), 15 * MM)
     p = preset("wpam")
-    return [Run.make(p, load, drive_for_targets(p, load, x_ref, control, dt), dt=dt,
-                     control=control) for load, control in ((60.0, "pi"), (140.0, "open"))]
+    return [Run.make(RunContext(p, dt, load, control),
+                     drive_for_targets(p, load, x_ref, control, dt))
+            for load, control in ((60.0, "pi"), (140.0, "open"))]
 
 
 def test_execute_on_warp_refused_in_one_line_without_the_extra(without_warp):
@@ -83,7 +85,8 @@ def test_run_warp_refuses_a_controller_only_python_defines():
     defines would silently run another one."""
     from wpam_mj.simulation.warp_backend import run_warp  # noqa: PLC0415 (imports without Warp)
 
-    run = dataclasses.replace(_short_runs()[0], control="mine")
+    run = _short_runs()[0]
+    run = dataclasses.replace(run, context=dataclasses.replace(run.context, control="mine"))
     with pytest.raises(ParameterError, match="controller 'mine' runs on the Python engine "
                                              "only; backend = 'warp' runs open, pi"):
         run_warp([run])
@@ -133,9 +136,9 @@ def _runs() -> list[Run]:
     dt = 1e-3
     t = np.arange(round(PARITY_S / dt)) * dt
     x_ref = step_targets(t, LEVELS_MM, hold=PARITY_S / len(LEVELS_MM))
-    return [Run.make(preset(name), 100.0, drive_for_targets(preset(name), 100.0, x_ref,
-                                                            control, dt),
-                     dt=dt, control=control, record_dt=0.01) for name, control in CASES]
+    return [Run.make(RunContext(preset(name), dt, 100.0, control, 0.01),
+                     drive_for_targets(preset(name), 100.0, x_ref, control, dt))
+            for name, control in CASES]
 
 
 @pytest.fixture(scope="module")
@@ -207,8 +210,9 @@ def test_every_world_holds_its_own_plant():
 
     dt, n = 1e-3, 300
     light, heavy = preset("wpam"), preset("wpam").with_values({"muscle.friction_coeff": 0.05})
-    runs = [Run.make(p, load, drive_for_targets(p, load, np.full(n, 15 * MM), "pi", dt),
-                     dt=dt, control="pi") for p, load in ((light, 50.0), (heavy, 150.0))]
+    runs = [Run.make(RunContext(p, dt, load, "pi"),
+                     drive_for_targets(p, load, np.full(n, 15 * MM), "pi", dt))
+            for p, load in ((light, 50.0), (heavy, 150.0))]
     alone = [run_warp([run], device="cpu")[0] for run in runs]
     together = run_warp(runs, device="cpu")
     for a, b in zip(alone, together):
@@ -222,7 +226,7 @@ def test_many_worlds_need_one_timestep():
     from wpam_mj.simulation.model import rig_spec  # noqa: PLC0415
     from wpam_mj.simulation.warp_backend import WarpBatch  # noqa: PLC0415
 
-    specs = [rig_spec(preset("wpam"), 100.0, dt, control="open") for dt in (1e-3, 5e-4)]
+    specs = [rig_spec(RunContext(preset("wpam"), dt, 100.0)) for dt in (1e-3, 5e-4)]
     with pytest.raises(ParameterError, match="one timestep"):
         WarpBatch(specs, "cpu")
 

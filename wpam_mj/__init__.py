@@ -55,6 +55,7 @@ with _termination.importing("wpam_mj"):
     from wpam_mj.simulation import stand_in as _stand_in
     from wpam_mj.simulation import plugin as _plugin
     from wpam_mj.simulation.loop_contract import SimulationDiverged
+    from wpam_mj.simulation.context import RunContext
     from wpam_mj.simulation.results import SimResult
     from wpam_mj.simulation.execution import execute
     from wpam_mj.simulation.simulate import Drive, Run, simulate
@@ -70,5 +71,5 @@ with _termination.importing("wpam_mj"):
 
         _register_all()
 
-__all__ = ["CONTROLS", "Drive", "MUSCLE_TYPES", "Params", "ParameterError", "Run", "SimResult",
-           "SimulationDiverged", "__version__", "execute", "preset", "simulate"]
+__all__ = ["CONTROLS", "Drive", "MUSCLE_TYPES", "Params", "ParameterError", "Run", "RunContext",
+           "SimResult", "SimulationDiverged", "__version__", "execute", "preset", "simulate"]

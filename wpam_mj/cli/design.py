@@ -16,7 +16,7 @@ from wpam_mj.infra import pool
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.errors import ParameterError
 from wpam_mj.units import MM
-from wpam_mj.simulation.model import check_load
+from wpam_mj.simulation.context import check_load
 
 
 def add_parsers(add, sub) -> None:

@@ -192,17 +192,16 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     sw = paper_studies.sweep(run.params, loads, freqs, controllers, keep=[key], dt=run.dt,
                        jobs=run.jobs_for(len(loads) * len(freqs) * len(controllers)),
                        progress=run.progress, amplitude=amplitude)
-    po_cap = run.params.controller.po_cap
     settings = {"loads_n": loads, "freqs_hz": freqs, "controllers": controllers,
                 "amplitude_mm": amplitude / MM, "dt_s": run.dt}
     rid = run_id_of(args, run.params, settings)
-    written = writers.write_sweep_outputs(out, sw, key, po_cap, run_id=rid)
+    written = writers.write_sweep_outputs(out, sw, key, run_id=rid)
     manifest = write_run_manifest(args, out, rid, run.params, settings, written)
     if args.json:
         print_json(sw.as_json())
     else:
         print(tables.sweep_text(sw))
-        print(findings.checks_text(findings.sweep_checks(sw, po_cap)))
+        print(findings.checks_text(findings.sweep_checks(sw)))
     note_still_loads([(f"sweep {point}", False) for point in writers.still_points(sw)], args.json)
     if not args.json:
         wrote([*written, manifest])

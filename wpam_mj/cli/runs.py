@@ -19,7 +19,7 @@ from wpam_mj.infra import outputs, pool
 from wpam_mj.physics.params import Params, apply_overrides, preset
 from wpam_mj.errors import ParameterError, check_range, load_toml
 from wpam_mj.units import MM, MPA
-from wpam_mj.simulation.model import check_dt, check_load
+from wpam_mj.simulation.context import check_dt, check_load
 
 RECORD_DT_S = 0.01  # the period every run records at (`wpam_mj.simulation.simulate.simulate`)
 

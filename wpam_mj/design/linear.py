@@ -44,7 +44,8 @@ import numpy as np
 from wpam_mj.physics import pneumatics as pn
 from wpam_mj.control.controllers import pi_feedforward
 from wpam_mj.physics.geometry import BraidGeometry
-from wpam_mj.simulation.model import MuscleIndex, build_model, check_load
+from wpam_mj.simulation.context import check_load
+from wpam_mj.simulation.model import MuscleIndex, build_model
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import Params
 from wpam_mj.errors import ParameterError, check_range

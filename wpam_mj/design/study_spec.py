@@ -49,7 +49,7 @@ from wpam_mj.paper import PO_DOWN_STATIC_MPA, STEP_HOLD_S, STEP_LEVELS_MM
 from wpam_mj.physics.params import PRESETS, Params, preset
 from wpam_mj.errors import ParameterError, check_range, load_toml
 from wpam_mj.units import MM, MPA
-from wpam_mj.simulation.model import check_dt, check_load
+from wpam_mj.simulation.context import check_dt, check_load
 
 EXPERIMENTS = ("static", "step", "sine", "table2")
 METHODS = ("grid", "list", "random", "lhs")

@@ -82,7 +82,7 @@ from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import Params, preset
 from wpam_mj.errors import ParameterError, check_range, check_whole_steps
 from wpam_mj.units import MM
-from wpam_mj.simulation.model import check_dt, check_load
+from wpam_mj.simulation.context import check_dt, check_load
 from wpam_mj.visualisation import gl
 
 with gl.quiet_display_probe():  # dm_control probes GLFW on import
@@ -432,6 +432,7 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
         shapes the commands around the agent's Po (action="po"; see the module docstring).
     """
     check_dm_control()
+    dt = check_dt(dt)
     physics, task, time_limit, n_sub = build(
         MusclePhysics, params, action=action, time_limit=time_limit,
         control_timestep=control_timestep, dt=dt, seed=seed, target=target, load=load,
@@ -445,14 +446,14 @@ def make_env(params: Params | None = None, *, action: str = "po", time_limit: fl
 def build(physics_class: type[MusclePhysics] | type[RigPhysics], params: Params | None,
           *, time_limit: float, control_timestep: float, dt: float, seed: int | None,
           randomize, **task_kwargs) -> tuple:
-    """`make_env`'s arguments validated: (physics of `physics_class`, its `TrackingTask`,
-    time limit [s], physics steps per control step)."""
+    """`make_env`'s arguments validated, but for dt [s], which the environment checked as
+    its first use: (physics of `physics_class`, its `TrackingTask`, time limit [s],
+    physics steps per control step)."""
     params = preset() if params is None else params
     randomize = ranges_of(randomize, params)
     time_limit = check_range("time_limit", time_limit, *TIME_LIMIT_RANGE, "s")
     control_timestep = check_range("control_timestep", control_timestep,
                                    *CONTROL_TIMESTEP_RANGE, "s")
-    dt = check_dt(dt)
     n_sub = check_whole_steps("control_timestep", control_timestep, dt)
     physics = physics_class.create(params, dt)
     task = TrackingTask(params, random=seed, randomize=randomize, time_limit=time_limit,

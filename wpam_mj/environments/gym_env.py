@@ -69,7 +69,7 @@ from wpam_mj.environments.dm_env_task import (LOAD_RANGE, REWARD_BOUND, SINE_FRE
                                               check_actions, check_seed)
 from wpam_mj.environments.muscle_physics import RigPhysics
 from wpam_mj.physics.geometry import BraidGeometry
-from wpam_mj.simulation.model import check_dt
+from wpam_mj.simulation.context import check_dt
 from wpam_mj.physics.params import Params, preset
 from wpam_mj.errors import ParameterError
 from wpam_mj.units import MM

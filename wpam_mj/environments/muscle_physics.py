@@ -23,7 +23,7 @@ from wpam_mj.units import STANDARD_GRAVITY
 from wpam_mj.simulation import plugin
 from wpam_mj.simulation.live import LiveRig
 from wpam_mj.simulation.loop_contract import SimulationDiverged
-from wpam_mj.simulation.model import check_dt, check_load
+from wpam_mj.simulation.context import RunContext, check_load
 from wpam_mj.visualisation import gl
 
 with gl.quiet_display_probe():  # dm_control probes GLFW on import
@@ -50,7 +50,7 @@ class _MuscleReadings:
     @classmethod
     def build_rig(cls, params: Params, load: float, dt: float) -> LiveRig:
         """The rig on `XML` for `params`, `load` [N], physics step `dt` [s]."""
-        return LiveRig.build(params, load, check_dt(dt), xml=cls.XML)
+        return LiveRig.build(RunContext(params, dt, load), xml=cls.XML)
 
     def _setup(self, params: Params, rig: LiveRig) -> None:
         self.params = params

@@ -24,6 +24,7 @@ from wpam_mj.environments.vector_env import DEAD_TIME, _BatchedEpisodes
 from wpam_mj.errors import ParameterError
 from wpam_mj.simulation import warp_muscle
 from wpam_mj.simulation.loop_contract import state_failure
+from wpam_mj.simulation.context import RunContext
 from wpam_mj.simulation.model import rig_spec
 from wpam_mj.simulation.warp_backend import WarpBatch
 
@@ -54,7 +55,7 @@ class WarpEpisodes(_BatchedEpisodes):
     def _open(self, model: mujoco.MjModel, n: int, nthread: int) -> None:
         env = self.envs[0]
         physics = env.physics
-        spec = rig_spec(physics.params, physics.load(), physics.timestep(), control="open")
+        spec = rig_spec(RunContext(physics.params, physics.timestep(), physics.load()))
         self.per_world = model_fields_per_load(model)
         ranges = env.task.randomize.ranges if env.task.randomize is not None else {}
         dead_time = max(ranges.get(DEAD_TIME, (0.0, 0.0))[1], physics.params.value(DEAD_TIME))

@@ -24,7 +24,7 @@ from wpam_mj.control.controllers import CONTROLLERS, check_control
 from wpam_mj.display import fmt
 from wpam_mj.experiments.feasibility import check_liftable
 from wpam_mj.physics.geometry import BraidGeometry
-from wpam_mj.simulation.model import check_dt, check_load
+from wpam_mj.simulation.context import RunContext
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.paper import SINE_AMPLITUDE_MM, STEP_HOLD_S, STEP_LEVELS_MM
 from wpam_mj.physics.params import Params
@@ -82,7 +82,8 @@ def static_plan(params: Params, load: float, *, po_down: float = 0.0,
         is 50 mm for this load, so every load sweeps the working range of the step runs.
       ramp_time: duration of each ramp [s]. A 1 s dwell at each end lets the state settle.
     """
-    load, dt = check_load(load), check_dt(dt)
+    context = RunContext(params, dt, load, "open", record_dt)  # load and dt checked here
+    load, dt = context.load, context.dt
     po_down = check_po("po_down", po_down, params)
     p_min = params.pneumatics.p_min
     pi_top = static_top_pressure(params, load) if pi_top is None else \
@@ -95,7 +96,7 @@ def static_plan(params: Params, load: float, *, po_down: float = 0.0,
     pi_cmd = np.interp(t, knots_t, [p_min, p_min, pi_top, p_min, p_min])
     po_cmd = np.where(t > dwell + ramp_time, po_down, 0.0)
     drive = Drive(pi_cmd=pi_cmd, po_cmd=po_cmd, x_ref=np.full(n, np.nan))
-    return Run.make(params, load, drive, dt=dt, control="open", record_dt=record_dt)
+    return Run.make(context, drive)
 
 
 def check_targets(params: Params, load: float, lo: float, hi: float, what: str) -> None:
@@ -145,7 +146,8 @@ def step_run(params: Params, load: float, control: str, *, levels_mm=STEP_LEVELS
 def step_plan(params: Params, load: float, control: str, *, levels_mm=STEP_LEVELS_MM,
               hold: float = STEP_HOLD_S, dt: float = 1e-3, record_dt: float = 0.01) -> Run:
     """The run of `step_run`, validated and built, not yet simulated."""
-    load, dt, control = check_load(load), check_dt(dt), check_control(control)
+    context = RunContext(params, dt, load, control, record_dt)  # load and dt checked here
+    load, dt, control = context.load, context.dt, check_control(control)
     hold = check_range("hold", hold, 0.0, 3600.0, "s", lo_open=True)
     if len(levels_mm) < 1:
         raise ParameterError("levels_mm is empty: a step run needs at least one target")
@@ -154,8 +156,7 @@ def step_plan(params: Params, load: float, control: str, *, levels_mm=STEP_LEVEL
     n, t = _steps(f"a staircase of {len(levels_mm)} levels of {hold:g} s",
                   len(levels_mm) * hold - dt, dt, record_dt)
     x_ref = step_targets(t, levels_mm, hold)
-    return Run.make(params, load, drive_for_targets(params, load, x_ref, control, dt), dt=dt,
-                    control=control, record_dt=record_dt)
+    return Run.make(context, drive_for_targets(params, load, x_ref, control, dt))
 
 
 @dataclass(frozen=True)
@@ -206,13 +207,13 @@ def sine_run(params: Params, load: float, control: str, spec: SineSpec, *,
 def sine_plan(params: Params, load: float, control: str, spec: SineSpec, *,
               dt: float = 1e-3, record_dt: float = 0.01) -> Run:
     """The run of `sine_run`, validated and built, not yet simulated."""
-    load, dt, control = check_load(load), check_dt(dt), check_control(control)
+    context = RunContext(params, dt, load, control, record_dt)  # load and dt checked here
+    load, dt, control = context.load, context.dt, check_control(control)
     check_targets(params, load, spec.mean - spec.amplitude, spec.mean + spec.amplitude,
                   "the sine's target")
     n, t = _steps(f"a sine at {spec.freq:g} Hz", spec.duration, dt, record_dt)
     x_ref = spec.target(t)
-    return Run.make(params, load, drive_for_targets(params, load, x_ref, control, dt), dt=dt,
-                    control=control, record_dt=record_dt)
+    return Run.make(context, drive_for_targets(params, load, x_ref, control, dt))
 
 
 def simulate_for_render(params: Params, load: float, experiment: str, control: str,

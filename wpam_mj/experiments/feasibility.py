@@ -16,7 +16,7 @@ from typing import Iterable
 
 import numpy as np
 
-from wpam_mj.simulation.model import LOAD_RANGE_N
+from wpam_mj.simulation.context import LOAD_RANGE_N
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.paper import STEP_LEVELS_MM
 from wpam_mj.physics.params import Params

@@ -18,7 +18,6 @@ from wpam_mj.experiments.drives import step_targets
 from wpam_mj.infra.manifest import png_metadata
 from wpam_mj.physics.muscle_types import MUSCLE_TYPES
 from wpam_mj.physics.muscle import MuscleModel
-from wpam_mj.physics.params import Params
 from wpam_mj.units import MM, MPA
 from wpam_mj.simulation.results import SimResult
 from wpam_mj.infra.files import write_atomic
@@ -173,12 +172,14 @@ def step_figure(results: Sequence[SimResult], *, title: str | None = None) -> Fi
     return fig
 
 
-def closed_loop_static_figure(runs: Sequence[StepRun], params: Params) -> Figure:
+def closed_loop_static_figure(runs: Sequence[StepRun]) -> Figure:
     """Plateau means x [mm] against mean chamber Pi [MPa] (paper Fig. 16), beside the
-    mechanical-equilibrium model (the Pi feedforward at Po = po_feedforward)."""
+    mechanical-equilibrium model (the Pi feedforward at Po = po_feedforward) of the
+    parameters the runs were made with."""
     fig = Figure(figsize=(8.4, 4.6), layout="constrained")
     ax = fig.subplots()
     colours = _load_colours([r.load for r in runs])
+    params = runs[0].context.params
     muscle = MuscleModel.from_params(params)
     x_model = np.linspace(0.0, 50.0, 101) * MM
     po_ff = params.controller.po_feedforward
@@ -276,9 +277,10 @@ def sweep_figure(sw: SweepResult) -> Figure:
     return fig
 
 
-def sine_figure(r: SimResult, freq: float, po_cap: float) -> Figure:
-    """One sinusoidal run (paper Figs. 18-19): x and target [mm]; Pi and Po [MPa] with the
-    Po cap `po_cap` [Pa] drawn as a line."""
+def sine_figure(r: SimResult, freq: float) -> Figure:
+    """One sinusoidal run (paper Figs. 18-19) at `freq` [Hz]: x and target [mm]; Pi and Po
+    [MPa] with the run's Po cap drawn as a line."""
+    po_cap = r.context.po_cap
     fig = Figure(figsize=(9.0, 6.0), layout="constrained")
     ax_x, ax_p = fig.subplots(2, 1, sharex=True)
     ax_x.plot(r.time, r.x_ref / MM, "k--", lw=1.0, label="target x_r")

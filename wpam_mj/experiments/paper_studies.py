@@ -24,7 +24,7 @@ from wpam_mj.control.controllers import check_control
 from wpam_mj.experiments.feasibility import load_moved
 from wpam_mj.experiments.drives import (STATIC_RAMP_S, SineSpec, check_po, sine_plan, static_plan,
                                         step_plan)
-from wpam_mj.simulation.model import check_dt, check_load
+from wpam_mj.simulation.context import StudyContext, check_dt, check_load
 from wpam_mj.paper import (FIG18_FREQ_HZ, FIG18_LOAD_N, LOADS_N, PO_DOWN_STATIC_MPA,
                            SINE_AMPLITUDE_MM, STEP_HOLD_S, STEP_LEVELS_MM, SWEEP_CONTROLLERS,
                            SWEEP_FREQS_HZ)
@@ -58,8 +58,8 @@ class StaticTask(SimulationTask):
 
     def reduce(self, results: list[SimResult]) -> StaticLoop:
         (r,) = results
-        return StaticLoop(load=self.load, po_down=self.po_down, preset=self.params.preset,
-                          area=loop_area(r.pi, r.x, method=LOOP_METHOD), result=r)
+        return StaticLoop(po_down=self.po_down, area=loop_area(r.pi, r.x, method=LOOP_METHOD),
+                          result=r)
 
 
 def _check_loads(loads: Iterable[float]) -> tuple[float, ...]:
@@ -120,8 +120,7 @@ class StepTask(SimulationTask):
         seg = plateau_segments()
         means = {name: steady_state_means(r.time, getattr(r, name), seg, PLATEAU_SETTLE_S)
                  for name in ("x", "pi", "po")}
-        return StepRun(load=self.load, control=self.control, preset=self.params.preset,
-                       settle=PLATEAU_SETTLE_S,
+        return StepRun(settle=PLATEAU_SETTLE_S,
                        target=np.asarray(STEP_LEVELS_MM, dtype=float) * MM,
                        x_mean=means["x"], pi_mean=means["pi"], po_mean=means["po"], result=r)
 
@@ -150,8 +149,9 @@ def _table2_batch(params: Params, *, loads: Iterable[float] = LOADS_N,
                  po_down: float = PO_DOWN_STATIC_MPA * MPA, dt: float = 1e-3,
                  ramp_time: float = STATIC_RAMP_S) -> Batch:
     """The runs of `table2` as a `Batch` (to run together with other studies)."""
-    loads, dt, ramp_time = _check_loads(loads), check_dt(dt), check_ramp_time(ramp_time)
-    po_down = check_po("po_down", po_down, params)
+    loads, ramp_time = _check_loads(loads), check_ramp_time(ramp_time)
+    context = StudyContext(params, dt)  # dt checked here, once for the study
+    dt, po_down = context.dt, check_po("po_down", po_down, params)
     tasks = ([StaticTask(params, load, 0.0, dt, ramp_time) for load in loads]
              + [StaticTask(params, load, po_down, dt, ramp_time) for load in loads]
              + [StepTask(params, load, "pi", dt) for load in loads])
@@ -164,7 +164,7 @@ def _table2_batch(params: Params, *, loads: Iterable[float] = LOADS_N,
                 raise ParameterError(f"the open-loop Po = 0 loop at {o.load:g} N has no "
                                      "area; cannot normalize Table 2 (is there friction?)")
         return Table2Result(loads=loads, po_down=po_down, open_loops=open_loops,
-                            po_loops=po_loops, feedback_runs=fb)
+                            po_loops=po_loops, feedback_runs=fb, context=context)
     return Batch(tasks, assemble)
 
 
@@ -236,7 +236,9 @@ def sweep_batch(params: Params, loads: Iterable[float] = LOADS_N,
                 keep: Iterable[SweepKey] | None = None, dt: float = 1e-3,
                 amplitude: float = SINE_AMPLITUDE_MM * MM) -> Batch:
     """The runs of `sweep` as a `Batch` (to run together with other studies)."""
-    loads, dt = _check_loads(loads), check_dt(dt)
+    loads = _check_loads(loads)
+    context = StudyContext(params, dt)  # dt checked here, once for the study
+    dt = context.dt
     freqs = tuple(SineSpec(f, amplitude=amplitude).freq for f in freqs)  # validates each
     controllers = tuple(check_control(c) for c in controllers)
     if not freqs or not controllers:
@@ -247,6 +249,6 @@ def sweep_batch(params: Params, loads: Iterable[float] = LOADS_N,
 
     def assemble(res: list) -> SweepResult:
         series = {(p.load, p.freq, p.controller): r for p, r in res if r is not None}
-        return SweepResult(points=tuple(p for p, _ in res), series=series,
+        return SweepResult(points=tuple(p for p, _ in res), context=context, series=series,
                            amplitude=amplitude)
     return Batch(tasks, assemble)

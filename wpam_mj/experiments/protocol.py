@@ -31,7 +31,7 @@ import numpy as np
 
 from wpam_mj.experiments.analysis import loop_area
 from wpam_mj.experiments.drives import STATIC_RAMP_S, check_po, static_top_pressure
-from wpam_mj.simulation.model import check_dt, check_load
+from wpam_mj.simulation.context import RunContext, StudyContext, check_load
 from wpam_mj.paper import LOADS_N, PO_DOWN_STATIC_MPA
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import Params
@@ -164,13 +164,14 @@ class ProtocolStaticTask(SimulationTask):
         return (2.0 * self.protocol.ramp_time + self.protocol.top_hold) / self.dt
 
     def runs(self):
-        drive = static_drive(self.params, self.load, self.po_down, self.protocol, self.dt)
-        return [Run.make(self.params, self.load, drive, dt=self.dt, control="open",
-                         record_dt=0.01)]
+        context = RunContext(self.params, self.dt, self.load)  # load and dt checked here
+        drive = static_drive(self.params, context.load, self.po_down, self.protocol,
+                             context.dt)
+        return [Run.make(context, drive)]
 
     def reduce(self, results: list[SimResult]) -> StaticLoop:
         (r,) = results
-        return StaticLoop(load=self.load, po_down=self.po_down, preset=self.params.preset,
+        return StaticLoop(po_down=self.po_down,
                           area=loop_area(r.pi, r.x, method=self.protocol.loop_method),
                           result=r)
 
@@ -183,7 +184,8 @@ def table2_batch(params: Params, protocol: Protocol = SHIPPED, *,
     loads = tuple(check_load(v) for v in loads)
     if not loads:
         raise ParameterError("no loads given")
-    dt, po_down = check_dt(dt), check_po("po_down", po_down, params)
+    context = StudyContext(params, dt)  # dt checked here, once for the study
+    dt, po_down = context.dt, check_po("po_down", po_down, params)
     tasks = ([ProtocolStaticTask(params, load, 0.0, dt, protocol) for load in loads]
              + [ProtocolStaticTask(params, load, po_down, dt, protocol) for load in loads]
              + [StepTask(params, load, "pi", dt) for load in loads])
@@ -195,5 +197,6 @@ def table2_batch(params: Params, protocol: Protocol = SHIPPED, *,
                 raise ParameterError(f"the open-loop Po = 0 loop at {o.load:g} N has no "
                                      "area; cannot normalize Table 2 (is there friction?)")
         return Table2Result(loads=loads, po_down=po_down, open_loops=tuple(res[:n]),
-                            po_loops=tuple(res[n:2 * n]), feedback_runs=tuple(res[2 * n:]))
+                            po_loops=tuple(res[n:2 * n]), feedback_runs=tuple(res[2 * n:]),
+                            context=context)
     return Batch(tasks, assemble)

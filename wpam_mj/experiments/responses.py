@@ -18,6 +18,7 @@ from wpam_mj.experiments.feasibility import load_moved
 from wpam_mj.paper import (PO_DOWN_STATIC_MPA, SINE_AMPLITUDE_MM, STEP_HOLD_S, TABLE2,
                            TABLE2_SOURCE)
 from wpam_mj.units import MM, MPA
+from wpam_mj.simulation.context import RunContext, StudyContext
 from wpam_mj.simulation.results import SimResult
 
 LOOP_METHOD = "branches"  # one loop-area method for every Table 2 cell
@@ -32,15 +33,25 @@ def load_key(load: float) -> str:
 class StaticLoop:
     """One open-loop Pi ramp up then down (paper Figs. 3, 8, 9).
 
-    load [N]; po_down: Po while Pi falls [Pa]; preset: muscle type;
-    area: loop area of the measured (Pi, x) trace [Pa m]; result: the run.
+    po_down: Po while Pi falls [Pa]; area: loop area of the measured (Pi, x) trace
+    [Pa m]; result: the run, whose context gives the load [N] and the muscle type.
     """
 
-    load: float
     po_down: float
-    preset: str
     area: float
     result: SimResult
+
+    @property
+    def context(self) -> RunContext:
+        return self.result.context
+
+    @property
+    def load(self) -> float:
+        return self.result.load
+
+    @property
+    def preset(self) -> str:
+        return self.result.preset
 
     @property
     def area_mpa_mm(self) -> float:
@@ -57,18 +68,32 @@ class StepRun:
     """A staircase run (paper Figs. 12-15) and its settled plateau means (Fig. 16).
 
     Plateau arrays have shape (n_plateaus,), averaged over the last `settle` seconds of
-    each plateau: target [m], x [m], measured chamber Pi and Po [Pa].
+    each plateau: target [m], x [m], measured chamber Pi and Po [Pa]; result: the run,
+    whose context gives the load [N], the controller and the muscle type.
     """
 
-    load: float
-    control: str
-    preset: str
     settle: float
     target: np.ndarray
     x_mean: np.ndarray
     pi_mean: np.ndarray
     po_mean: np.ndarray
     result: SimResult
+
+    @property
+    def context(self) -> RunContext:
+        return self.result.context
+
+    @property
+    def load(self) -> float:
+        return self.result.load
+
+    @property
+    def control(self) -> str:
+        return self.result.control
+
+    @property
+    def preset(self) -> str:
+        return self.result.preset
 
     @property
     def area(self) -> float:
@@ -108,8 +133,9 @@ class Table2Result:
     """Hysteresis-loop areas behind the paper's Table 2, per load.
 
     open_loops: open loop, Po = 0 (Fig. 8); po_loops: open loop, Po = `po_down` while Pi
-    falls (Fig. 9); feedback_runs: PI staircase runs (Figs. 14-16). Normalized values
-    divide each area by the open-loop, Po = 0 area of the same load.
+    falls (Fig. 9); feedback_runs: PI staircase runs (Figs. 14-16); context: the
+    parameters and dt of every run. Normalized values divide each area by the open-loop,
+    Po = 0 area of the same load.
     """
 
     loads: tuple[float, ...]
@@ -117,6 +143,7 @@ class Table2Result:
     open_loops: tuple[StaticLoop, ...]
     po_loops: tuple[StaticLoop, ...]
     feedback_runs: tuple[StepRun, ...]
+    context: StudyContext
 
     @property
     def open_po(self) -> dict[float, float]:
@@ -207,10 +234,12 @@ SweepKey = tuple[float, float, str]  # (load [N], freq [Hz], controller)
 
 @dataclass(frozen=True)
 class SweepResult:
-    """Points in (load, freq, controller) loop order; `series` holds the kept runs;
-    amplitude: of the sinusoidal target [m]."""
+    """Points in (load, freq, controller) loop order; context: the parameters (the Po
+    cap the findings and figures read among them) and dt of every run; `series` holds the
+    kept runs; amplitude: of the sinusoidal target [m]."""
 
     points: tuple[SweepPoint, ...]
+    context: StudyContext
     series: Mapping[SweepKey, SimResult] = field(default_factory=dict)
     amplitude: float = SINE_AMPLITUDE_MM * MM
 

@@ -134,16 +134,16 @@ def table2_still(t2: Table2Result) -> list[str]:
     return [name for name, result in runs if not load_moved(result)]
 
 
-def write_sweep_outputs(out: Path, sw: SweepResult, key: SweepKey, po_cap: float, *,
+def write_sweep_outputs(out: Path, sw: SweepResult, key: SweepKey, *,
                         run_id: str | None = None) -> dict[Path, dict]:
     """sweep.json/.csv, the gain-phase figure, and the CSV and figure of the kept run
-    `key` (`wpam sweep`); po_cap [Pa] is drawn in the Po panel."""
+    `key` (`wpam sweep`), its Po cap drawn in the Po panel."""
     series = sw.series[key]
     return {**dict.fromkeys(write_sweep(out, sw), {}),
             figures.save_figure(mark_still_on_figure(figures.sweep_figure(sw), still_points(sw)),
                                 out / "sweep_gain_phase.png", run_id=run_id): {},
             series.to_csv(out / sine_csv_name(key)): run_metadata(series),
-            figures.save_figure(mark_still_on_figure(figures.sine_figure(series, key[1], po_cap),
+            figures.save_figure(mark_still_on_figure(figures.sine_figure(series, key[1]),
                                            [] if load_moved(series) else [sine_csv_name(key)[:-4]]),
                                 out / sine_csv_name(key).replace(".csv", ".png"),
                                 run_id=run_id): {}}

@@ -39,7 +39,7 @@ import numpy as np
 from wpam_mj.fitting import estimation
 from wpam_mj.infra.budget import check_run
 from wpam_mj.fitting.measurements import Experiment
-from wpam_mj.simulation.model import DT_RANGE_S, check_dt
+from wpam_mj.simulation.context import DT_RANGE_S, RunContext, check_dt
 from wpam_mj.physics.params import Params
 from wpam_mj.errors import ParameterError
 from wpam_mj.units import MM
@@ -98,7 +98,7 @@ def check_names(experiments: Sequence[Experiment]) -> None:
 def replay(params: Params, exp: Experiment, dt: float = 1e-3, *,
            engine: str = "auto") -> np.ndarray:
     """Simulated contraction [m] at the sample times of `exp`."""
-    task = ReplayTask(params, exp, dt)
+    task = ReplayTask(params, exp, check_dt(dt))
     return task.reduce([simulate_run(run, engine) for run in task.runs()])
 
 
@@ -115,9 +115,9 @@ class ReplayTask(SimulationTask):
         return self.experiment.duration / self.dt
 
     def runs(self) -> list[Run]:
-        dt = check_dt(self.dt)
-        p, drive, _ = replay_inputs(self.params, self.experiment, dt)
-        return [Run.make(p, self.experiment.load, drive, dt=dt, control="open", record_dt=dt)]
+        """The replay at dt [s], which `replay` or `fit_data` checked."""
+        p, drive, _ = replay_inputs(self.params, self.experiment, self.dt)
+        return [Run.make(RunContext(p, self.dt, self.experiment.load, "open", self.dt), drive)]
 
     def reduce(self, results: list[SimResult]) -> np.ndarray:
         (r,) = results

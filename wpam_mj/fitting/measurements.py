@@ -35,7 +35,7 @@ from typing import Callable
 import numpy as np
 
 from wpam_mj.physics.geometry import BraidGeometry
-from wpam_mj.simulation.model import check_load
+from wpam_mj.simulation.context import check_load
 from wpam_mj.infra.budget import check_duration
 from wpam_mj.physics.params import Params
 from wpam_mj.errors import ParameterError, check_regular_file, file_kind

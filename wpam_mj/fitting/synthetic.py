@@ -21,7 +21,7 @@ import numpy as np
 from wpam_mj import paper
 from wpam_mj.experiments.drives import STATIC_RAMP_S, SineSpec, sine_run, static_loop, step_run
 from wpam_mj.fitting.measurements import Experiment
-from wpam_mj.simulation.model import check_dt, check_load
+from wpam_mj.simulation.context import check_dt, check_load
 from wpam_mj.physics.params import Params
 from wpam_mj.errors import ParameterError, check_int, check_range
 from wpam_mj.units import MM, MPA

@@ -155,15 +155,15 @@ class PaperTargets:
         return table2, {"pi": table2.feedback_runs}, sw.assemble(results[n:])
 
     def scores(self, params: Params, results: list) -> Scores:
-        return self._scores(params, *self._assemble(params, results))
+        return self._scores(*self._assemble(params, results))
 
     def scores_and_table2(self, params: Params, results: list):
         """`scores` and the Table 2 result they come from (its checks need it)."""
         table2, steps, sweep = self._assemble(params, results)
-        return self._scores(params, table2, steps, sweep), table2
+        return self._scores(table2, steps, sweep), table2
 
     @staticmethod
-    def _scores(params: Params, table2, steps, sweep) -> Scores:
+    def _scores(table2, steps, sweep) -> Scores:
         loads = paper.LOADS_N
         return Scores(
             table2_po_row=tuple(table2.open_po[f] for f in loads),
@@ -176,14 +176,14 @@ class PaperTargets:
             po_plateau_mpa=tuple(float(np.mean(r.po_mean)) / MPA for r in steps["pi"]),
             po_max_mpa={(p.load, p.freq): p.po_max / MPA for p in sweep.points
                         if p.controller == "pi"},
-            sweep_checks=tuple(findings.sweep_checks(sweep, params.controller.po_cap)))
+            sweep_checks=tuple(findings.sweep_checks(sweep)))
 
     def residual_groups(self, params: Params, results: list) -> dict[str, np.ndarray]:
         """The residuals by target (each §4.2 finding as "sweep.<name>"), in the order
         `residuals` concatenates them."""
         w = WEIGHTS
         table2, steps, sweep = self._assemble(params, results)
-        s = self._scores(params, table2, steps, sweep)
+        s = self._scores(table2, steps, sweep)
         row = [paper.TABLE2["open_po"][f] for f in paper.LOADS_N]
         beyond = []
         for c in s.step_error_mm:
@@ -194,10 +194,10 @@ class PaperTargets:
         groups = {
             "table2": [w.table2 * math.log(v / p) for v, p in zip(s.table2_po_row, row)],
             "table2_po_row": w.table2_limit * findings.residuals(
-                [findings.check(findings.FINDINGS["table2_po_row"], table2, math.nan)]),
+                [findings.check(findings.FINDINGS["table2_po_row"], table2)]),
             "steps": beyond,
             "feedback_row": w.feedback_row * findings.residuals(
-                [findings.check(findings.FINDINGS["table2_feedback_row"], table2, math.nan)]),
+                [findings.check(findings.FINDINGS["table2_feedback_row"], table2)]),
             **{f"sweep.{c.name}": w.sweep * findings.residuals([c]) for c in s.sweep_checks},
             "po_rise": [max(0.0, a - b) / w.po_rise_mpa for a, b in zip(po, po[1:])],
             "pressure": _pressure_walls(params, self.protocol)}

@@ -9,7 +9,6 @@ residuals and the search as its map's coordinates. Findings are looked up by nam
 
 from __future__ import annotations
 
-import math
 from wpam_mj.reproduction.margins import (Check, Finding, Margin, check, check_all,  # noqa: F401
                                           checks_markdown, checks_text, residuals, score)
 from wpam_mj.reproduction.sweep_findings import SWEEP_FINDINGS
@@ -21,22 +20,23 @@ FINDINGS: dict[str, Finding] = {f.name: f for f in (*TABLE2_FINDINGS, *OPEN_STEP
                                                     *SWEEP_FINDINGS)}
 
 
-def sweep_checks(sw, po_cap: float) -> list[Check]:
-    """The §4.2 findings on a `wpam_mj.experiments.responses.SweepResult` (po_cap [Pa])."""
-    return check_all(SWEEP_FINDINGS, sw, po_cap)
+def sweep_checks(sw) -> list[Check]:
+    """The §4.2 findings on a `wpam_mj.experiments.responses.SweepResult` (the Po cap
+    from its context)."""
+    return check_all(SWEEP_FINDINGS, sw)
 
 
 def table2_checks(t2) -> list[Check]:
     """Table 2 and the PI staircases on a `wpam_mj.experiments.responses.Table2Result`."""
-    return check_all(TABLE2_FINDINGS, t2, math.nan)
+    return check_all(TABLE2_FINDINGS, t2)
 
 
 def open_step_checks(run) -> list[Check]:
     """Fig. 12's open loop on the 100 N open-loop `StepRun`."""
-    return check_all(OPEN_STEP_FINDINGS, run, math.nan)
+    return check_all(OPEN_STEP_FINDINGS, run)
 
 
-def all_checks(t2, open_step, sw, po_cap: float) -> list[Check]:
+def all_checks(t2, open_step, sw) -> list[Check]:
     """Every finding of `wpam reproduce`, in the paper's order."""
-    return [*table2_checks(t2), *open_step_checks(open_step), *sweep_checks(sw, po_cap)]
+    return [*table2_checks(t2), *open_step_checks(open_step), *sweep_checks(sw)]
 

@@ -46,18 +46,19 @@ class Finding:
 
     `name`: how code and files refer to it; `sentence`: the paper's own words with where
     they stand; `text`: our reading as a test, with its limits (formatted with the
-    simulated po_cap_mpa); `short`: a label; `margins(result, po_cap)` (None when the
-    result lacks the data, said by `needs`); `detail(result, po_cap, margins)`: the
-    numbers a reader checks it by. `counted`: False for a reading of ours that no
-    sentence of the paper states (reported as an extra, not counted in the score).
+    simulated po_cap_mpa, read from the result's context); `short`: a label;
+    `margins(result)` (None when the result lacks the data, said by `needs`);
+    `detail(result, margins)`: the numbers a reader checks it by. `counted`: False for a
+    reading of ours that no sentence of the paper states (reported as an extra, not
+    counted in the score).
     """
 
     name: str
     short: str
     sentence: str
     text: str
-    margins: Callable[[Any, float], list[Margin] | None]
-    detail: Callable[[Any, float, list[Margin]], str]
+    margins: Callable[[Any], list[Margin] | None]
+    detail: Callable[[Any, list[Margin]], str]
     needs: str
     counted: bool = True
 
@@ -85,19 +86,20 @@ class Check:
         return min((m.margin / m.scale for m in self.margins), default=math.nan)
 
 
-def check(finding: Finding, result, po_cap: float) -> Check:
-    """Evaluate one finding on a study result (po_cap: the simulated Po cap [Pa])."""
-    text = finding.text.format(po_cap_mpa=po_cap / 1e6)
+def check(finding: Finding, result) -> Check:
+    """Evaluate one finding on a study result, which carries its context (the simulated
+    Po cap among it)."""
+    text = finding.text.format(po_cap_mpa=result.context.po_cap / 1e6)
     where = dict(sentence=finding.sentence, counted=finding.counted)
-    margins = finding.margins(result, po_cap)
+    margins = finding.margins(result)
     if margins is None:
         return Check(finding.name, text, None, finding.needs, **where)
     return Check(finding.name, text, all(m.margin >= 0.0 for m in margins),
-                 finding.detail(result, po_cap, margins), tuple(margins), **where)
+                 finding.detail(result, margins), tuple(margins), **where)
 
 
-def check_all(findings: Sequence[Finding], result, po_cap: float) -> list[Check]:
-    return [check(f, result, po_cap) for f in findings]
+def check_all(findings: Sequence[Finding], result) -> list[Check]:
+    return [check(f, result) for f in findings]
 
 
 def residuals(checks: Sequence[Check]) -> np.ndarray:

@@ -8,7 +8,7 @@ from typing import Sequence
 import numpy as np
 
 from wpam_mj import paper
-from wpam_mj.physics.params import CALIBRATION_FILE, Params
+from wpam_mj.physics.params import CALIBRATION_FILE
 from wpam_mj.units import MM, MPA
 from wpam_mj.experiments.protocol import SHIPPED, Protocol
 from wpam_mj.experiments.responses import StaticLoop, StepRun, SweepResult, Table2Result
@@ -16,9 +16,11 @@ from wpam_mj.experiments.tables import fmt_value, mpa_label, params_markdown
 from wpam_mj.reproduction.margins import Check, checks_markdown, score
 
 
-def report_markdown(params: Params, dt: float, t2: Table2Result, sw: SweepResult,
-                     open_step: StepRun, preset_loops: Sequence[StaticLoop],
-                     checks: Sequence[Check], protocol: Protocol = SHIPPED) -> str:
+def report_markdown(t2: Table2Result, sw: SweepResult, open_step: StepRun,
+                    preset_loops: Sequence[StaticLoop], checks: Sequence[Check],
+                    protocol: Protocol = SHIPPED) -> str:
+    """report.md of `wpam reproduce`; the parameters and dt are those Table 2 ran with."""
+    params, dt = t2.context.params, t2.context.dt
     ref = t2.paper()
     calib = (f"`{CALIBRATION_FILE.name}` present" if CALIBRATION_FILE.exists() else
              "no calibration file: built-in defaults")

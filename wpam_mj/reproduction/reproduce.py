@@ -121,7 +121,7 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
                 "fig14_15_step_pi.png": ("step_figure", ([r.result for r in t2.feedback_runs],),
                                          dict(title="PI on Po at each load (cf. Figs. 14-15)")),
                 "fig16_closed_loop_static.png": ("closed_loop_static_figure",
-                                                 (t2.feedback_runs, params), {}),
+                                                 (t2.feedback_runs,), {}),
                 "table2.png": ("table2_figure", (t2,), {})}))
         files.update(dict.fromkeys(write_table2(out, t2), {}))
 
@@ -147,13 +147,12 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
             [csv_task(data / sine_csv_name(fig_key), sw.series[fig_key])]
             + figure_tasks({
                 "fig17_frequency_response.png": ("sweep_figure", (sw,), {}),
-                "fig18_19_sine.png": ("sine_figure", (sw.series[fig_key], fig_key[1],
-                                                      params.controller.po_cap), {})}))
+                "fig18_19_sine.png": ("sine_figure", (sw.series[fig_key], fig_key[1]), {})}))
         files.update(dict.fromkeys(write_sweep(out, sw), {}))
-        checks = findings.all_checks(t2, open_step, sw, params.controller.po_cap)
+        checks = findings.all_checks(t2, open_step, sw)
         files[write_checks(out, checks)] = {}
         execute(outputs, workers, progress=progress, desc="files")
-    text = report_markdown(params, dt, t2, sw, open_step, preset_loops, checks, protocol)
+    text = report_markdown(t2, sw, open_step, preset_loops, checks, protocol)
     if robustness_samples:
         rob = robustness.robustness(params, robustness_samples, seed=robustness_seed,
                                     rel=robustness_rel, dt=dt, jobs=jobs, progress=progress,

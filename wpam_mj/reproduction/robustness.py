@@ -136,7 +136,7 @@ def _plant_batches(plant: Params, protocol: Protocol, dt: float) -> list[Batch]:
 
 
 def _outcome(plant: Params, t2, open_step, sw) -> PlantOutcome:
-    checks = findings.all_checks(t2, open_step, sw, plant.controller.po_cap)
+    checks = findings.all_checks(t2, open_step, sw)
     cells = {**{("open_po", k): v for k, v in t2.open_po.items()},
              **{("feedback", k): v for k, v in t2.feedback.items()}}
     return PlantOutcome(plant.plant_deviation, tuple(checks), cells)

@@ -1,8 +1,9 @@
 """§4.2's findings, the frequency response (on a
-`wpam_mj.experiments.responses.SweepResult`): each a `margins.Finding` with the paper's
-words. The paper states its load findings for the PI controller and compares PID with PI
-at 150 N only; each finding is checked where the paper states it, on the paper's
-controllers (a sweep of other controllers is not held to them)."""
+`wpam_mj.experiments.responses.SweepResult`, whose context gives the Po cap): each a
+`margins.Finding` with the paper's words. The paper states its load findings for the PI
+controller and compares PID with PI at 150 N only; each finding is checked where the
+paper states it, on the paper's controllers (a sweep of other controllers is not held to
+them)."""
 
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ def _paper_controllers(sw) -> list[str]:
     return [c for c in sw.controllers if c in SWEEP_CONTROLLERS]
 
 
-def _falls_and_grows(sw, po_cap):
+def _falls_and_grows(sw):
     if len(sw.freqs) < 2:
         return None
     out = []
@@ -40,7 +41,7 @@ def _falls_and_grows(sw, po_cap):
     return out or None
 
 
-def _falls_and_grows_detail(sw, po_cap, margins):
+def _falls_and_grows_detail(sw, margins):
     def worst(limit: float, sign: float) -> tuple[float, str]:
         """The first largest rise (sign +1) or drop (-1) between neighbours, if any."""
         best, where = 0.0, ""
@@ -69,7 +70,7 @@ def _spread(gains, sw) -> float:
     return max(gains) / max(min(gains), _resolved_gain(sw)) - 1.0
 
 
-def _gain_spread(sw, po_cap):
+def _gain_spread(sw):
     if len(sw.loads) < 2 or "pi" not in sw.controllers:
         return None
     out = []
@@ -80,7 +81,7 @@ def _gain_spread(sw, po_cap):
     return out
 
 
-def _gain_spread_detail(sw, po_cap, margins):
+def _gain_spread_detail(sw, margins):
     worst, at = 0.0, None  # all NaN: no spread to place
     for m in margins:  # the last of the largest, as a reader scanning the table finds it
         if m.value >= worst:
@@ -100,7 +101,7 @@ def _lags(sw, f, c):
     return [sw.point(load, f, c).phase_lag_deg for load in sw.loads]
 
 
-def _lag_rises_with_load(sw, po_cap):
+def _lag_rises_with_load(sw):
     low = [f for f in sw.freqs if f < FIG18_FREQ_HZ]
     if len(sw.loads) < 2 or not low or "pi" not in sw.controllers:
         return None
@@ -112,7 +113,7 @@ def _lag_rises_with_load(sw, po_cap):
     return out
 
 
-def _lag_rises_with_load_detail(sw, po_cap, margins):
+def _lag_rises_with_load_detail(sw, margins):
     freqs = list(dict.fromkeys(m.freq for m in margins))
     bad = list(dict.fromkeys(m.freq for m in margins if m.margin < 0.0))
     lags = "; ".join(f"{f:g} Hz: " + "/".join(f"{v:.1f}" for v in _lags(sw, f, "pi"))
@@ -121,7 +122,7 @@ def _lag_rises_with_load_detail(sw, po_cap, margins):
             + lags)
 
 
-def _lag_same_high(sw, po_cap):
+def _lag_same_high(sw):
     high = [f for f in sw.freqs if f >= FIG18_FREQ_HZ]
     if len(sw.loads) < 2 or not high or "pi" not in sw.controllers:
         return None
@@ -129,7 +130,7 @@ def _lag_same_high(sw, po_cap):
                    controller="pi") for f in high]
 
 
-def _lag_same_high_detail(sw, po_cap, margins):
+def _lag_same_high_detail(sw, margins):
     return "; ".join(f"{m.freq:g} Hz: PI lags " + "/".join(
         f"{v:.1f}" for v in _lags(sw, m.freq, "pi")) + f" deg (spread {m.value:.1f})"
         for m in margins) + f" (pass: spread <= {LAG_SAME_DEG:g} deg)"
@@ -141,56 +142,58 @@ def _at_150(sw):
     return list(zip(sw.curve(FIG18_LOAD_N, "pi"), sw.curve(FIG18_LOAD_N, "pid")))
 
 
-def _pid_gain_equal(sw, po_cap):
+def _pid_gain_equal(sw):
     pairs = _at_150(sw)
     return None if pairs is None else [
         Margin(_spread([a.gain, b.gain], sw), GAIN_LOAD_RTOL, -1, 0.1, load=FIG18_LOAD_N,
                freq=a.freq) for a, b in pairs]
 
 
-def _pid_gain_equal_detail(sw, po_cap, margins):
+def _pid_gain_equal_detail(sw, margins):
     return ", ".join(f"{a.freq:g} Hz {a.gain:.3f}/{b.gain:.3f}" for a, b in _at_150(sw)) + (
         f" (PI/PID; worst {max(m.value for m in margins):.1%}, pass: <= {GAIN_LOAD_RTOL:.0%})")
 
 
-def _pid_leads_pi(sw, po_cap):
+def _pid_leads_pi(sw):
     pairs = _at_150(sw)
     return None if pairs is None else [
         Margin(a.phase_lag_deg - b.phase_lag_deg, PID_LEAD_MIN_DEG, +1, 10.0,
                load=FIG18_LOAD_N, freq=a.freq) for a, b in pairs]
 
 
-def _pid_leads_pi_detail(sw, po_cap, margins):
+def _pid_leads_pi_detail(sw, margins):
     return "PI - PID lag " + ", ".join(f"{m.freq:g} Hz {m.value:+.2f}" for m in margins) + (
         f" deg (pass: >= {PID_LEAD_MIN_DEG:g} deg, what Fig. 17 resolves)")
 
 
-def _po_reaches_cap(sw, po_cap):
+def _po_reaches_cap(sw):
     p = sw.point(FIG18_LOAD_N, FIG18_FREQ_HZ, "pi")
     if p is None:
         return None
+    po_cap = sw.context.po_cap
     return [Margin(p.po_max, (1.0 - PO_CAP_RTOL) * po_cap, +1, 0.1 * po_cap,
                    load=FIG18_LOAD_N, freq=FIG18_FREQ_HZ, controller="pi")]
 
 
-def _po_reaches_cap_detail(sw, po_cap, margins):
+def _po_reaches_cap_detail(sw, margins):
     p = sw.point(FIG18_LOAD_N, FIG18_FREQ_HZ, "pi")
     return (f"regulator-gauge Po max {p.po_max / MPA:.4f} MPa "
             f"(pass: >= {margins[0].limit / MPA:.4f} MPa); "
             f"chamber Po max {p.po_chamber_max / MPA:.4f} MPa")
 
 
-def _po_cap_heavy_fast_only(sw, po_cap):
+def _po_cap_heavy_fast_only(sw):
     f = min(sw.freqs)
     light = [load for load in sw.loads if load < FIG18_LOAD_N]
     points = [(load, sw.point(load, f, "pi")) for load in light]
     if f >= FIG18_FREQ_HZ or not points or any(p is None for _, p in points):
         return None
+    po_cap = sw.context.po_cap
     return [Margin(p.po_max, PO_SLOW_LIGHT_MAX_FRAC * po_cap, -1, 0.1 * po_cap, load=load,
                    freq=f, controller="pi") for load, p in points]
 
 
-def _po_cap_heavy_fast_only_detail(sw, po_cap, margins):
+def _po_cap_heavy_fast_only_detail(sw, margins):
     return ", ".join(f"{m.load:g} N at {m.freq:g} Hz: Po max {m.value / MPA:.4f} MPa"
                      for m in margins) + f" (pass: < {margins[0].limit / MPA:.4f} MPa)"
 

@@ -20,19 +20,19 @@ def _po_row_errors(t2) -> dict[float, float]:
     return {load: t2.open_po[load] / paper[load] - 1.0 for load in t2.loads if load in paper}
 
 
-def _po_row(t2, po_cap):
+def _po_row(t2):
     errs = _po_row_errors(t2)
     return [Margin(abs(e), TABLE2_PO_RTOL, -1, 0.1, load=load)
             for load, e in errs.items()] or None
 
 
-def _po_row_detail(t2, po_cap, margins):
+def _po_row_detail(t2, margins):
     paper = t2.paper()["open_po"]
     return ", ".join(f"{load:g} N: {t2.open_po[load]:.4f} vs {paper[load]:.4f} ({e:+.1%})"
                      for load, e in _po_row_errors(t2).items())
 
 
-def _feedback_row(t2, po_cap):
+def _feedback_row(t2):
     """Each cell within FEEDBACK_FACTOR of the paper's: |log(ours / paper)| <= log 2."""
     paper = t2.paper().get("feedback", {})
     out = []
@@ -44,14 +44,14 @@ def _feedback_row(t2, po_cap):
     return out or None
 
 
-def _feedback_row_detail(t2, po_cap, margins):
+def _feedback_row_detail(t2, margins):
     paper = t2.paper()["feedback"]
     return ", ".join(f"{load:g} N: {t2.feedback[load]:.4f} vs {paper[load]:.4f} "
                      f"(x{t2.feedback[load] / paper[load]:.2f})"
                      for load in t2.loads if load in paper)
 
 
-def _shape(t2, po_cap):
+def _shape(t2):
     """Po = 0.04 MPa shrinks every loop, more at heavier loads; the feedback loop is
     smaller still at every load."""
     po, fb = t2.open_po, t2.feedback
@@ -61,7 +61,7 @@ def _shape(t2, po_cap):
             + [Margin(fb[load] - po[load], 0.0, -1, 0.1, load=load) for load in t2.loads])
 
 
-def _shape_detail(t2, po_cap, margins):
+def _shape_detail(t2, margins):
     return ("Po row " + "/".join(f"{t2.open_po[v]:.4f}" for v in t2.loads)
             + ", feedback row " + "/".join(f"{t2.feedback[v]:.4f}" for v in t2.loads)
             + " (" + "/".join(f"{v:g}" for v in t2.loads) + " N)")
@@ -82,7 +82,7 @@ def plateau_error_limit(t2) -> dict[float, float]:
     return out
 
 
-def _steps_settle(t2, po_cap):
+def _steps_settle(t2):
     limits = plateau_error_limit(t2)
     out = []
     for run in t2.feedback_runs:
@@ -93,7 +93,7 @@ def _steps_settle(t2, po_cap):
     return out or None
 
 
-def _steps_settle_detail(t2, po_cap, margins):
+def _steps_settle_detail(t2, margins):
     err, pp = margins[0::2], margins[1::2]  # per run: its error, then its peak-to-peak
     return ("worst settled error " + "/".join(f"{m.value / MM:.2f}" for m in err)
             + " mm against " + "/".join(f"{m.limit / MM:.2f}" for m in err)
@@ -107,7 +107,7 @@ def _plateau_pressures(t2) -> tuple[list[float], list[float]]:
             [float(np.mean(r.po_mean)) for r in t2.feedback_runs])
 
 
-def _pressures_rise(t2, po_cap):
+def _pressures_rise(t2):
     if len(t2.loads) < 2:
         return None
     pi, po = _plateau_pressures(t2)
@@ -115,7 +115,7 @@ def _pressures_rise(t2, po_cap):
             for series in (pi, po) for load, a, b in zip(t2.loads[1:], series, series[1:])]
 
 
-def _pressures_rise_detail(t2, po_cap, margins):
+def _pressures_rise_detail(t2, margins):
     pi, po = _plateau_pressures(t2)
     return ("plateau-mean Pi " + "/".join(f"{v / MPA:.4f}" for v in pi) + " MPa, Po "
             + "/".join(f"{v / MPA:.4f}" for v in po) + " MPa ("
@@ -161,7 +161,7 @@ def _give_back(run) -> tuple[float, float]:
     return x_turn, x_turn - float(r.x[-1])
 
 
-def _hardly_extends(run, po_cap):
+def _hardly_extends(run):
     if run.control != "open" or run.result.time[-1] <= OPEN_LOOP_TURN_S:
         return None
     x_turn, back = _give_back(run)
@@ -169,7 +169,7 @@ def _hardly_extends(run, po_cap):
                    load=run.load, controller="open")]
 
 
-def _hardly_extends_detail(run, po_cap, margins):
+def _hardly_extends_detail(run, margins):
     x_turn, back = _give_back(run)
     return (f"{run.load:g} N: x {x_turn / MM:.1f} mm at {OPEN_LOOP_TURN_S:g} s, gives back "
             f"{back / MM:.1f} mm while the target falls 50 mm (pass: <= "

@@ -346,7 +346,7 @@ def _simulate_runs(runs: list[Run], nthread: int) -> list[SimResult | Simulation
     defines) run one after another on the Python engine, as `simulate` runs them."""
     done: dict[int, tuple] = {}
     batched = [i for i, run in enumerate(runs)
-               if _select_engine("auto", run.control) is _run_plugin]
+               if _select_engine("auto", run.context.control) is _run_plugin]
     models = {i: runs[i].spec.compile() for i in batched}
     groups: dict[tuple, list[int]] = {}
     for i in batched:

@@ -18,10 +18,11 @@ import mujoco
 from wpam_mj.simulation import engine
 from wpam_mj.simulation import plugin
 from wpam_mj.simulation.loop_contract import SimulationDiverged, state_failure
+from wpam_mj.simulation.context import RunContext
 from wpam_mj.simulation.model import INSTANCE, check_chamber_step, rig_spec
-from wpam_mj.physics.params import Params
 from wpam_mj.errors import ParameterError
 from wpam_mj.paths import MODEL_XML
+
 
 @dataclass
 class LiveRig:
@@ -36,13 +37,15 @@ class LiveRig:
     atmosphere: float  # [Pa]
 
     @classmethod
-    def build(cls, params: Params, load: float, dt: float, *,
-              xml: str | Path = MODEL_XML) -> "LiveRig":
-        check_chamber_step(params, dt)
+    def build(cls, context: RunContext, *, xml: str | Path = MODEL_XML) -> "LiveRig":
+        """The rig for a live run's `context` (its parameters, load and dt, checked where
+        it was made), driven open loop."""
+        params = context.params
+        check_chamber_step(params, context.dt)
         if not params.outer_chamber:  # every live driver commands Po (simulate refuses it too)
             raise ParameterError(f"the {params.preset} preset has no outer chamber for the "
                                  "Po command a live rig takes; use a preset with one (wpam)")
-        spec = rig_spec(params, load, dt, control="open", xml=xml)
+        spec = rig_spec(context, xml=xml)
         names = [f"{INSTANCE}_{c}" for c in plugin.CONTROL_BY_NAME["open"].channels]
         if plugin.available():
             model, muscles = spec.compile(), None

@@ -18,31 +18,10 @@ from wpam_mj.simulation import plugin
 from wpam_mj.physics import pneumatics
 from wpam_mj.physics.geometry import BraidGeometry
 from wpam_mj.physics.params import Params
-from wpam_mj.errors import ParameterError, check_range, whole_steps
+from wpam_mj.errors import ParameterError
+from wpam_mj.simulation.context import RunContext
 from wpam_mj.units import STANDARD_GRAVITY
 from wpam_mj.paths import MODEL_XML
-
-LOAD_RANGE_N = (1.0, 2000.0)  # N: what a hanging mass on this rig can sensibly be
-DT_RANGE_S = (1e-5, 0.005)  # s: the pneumatics need a step well below their time constants
-
-
-def check_load(load: float) -> float:
-    """Validate a hanging load [N]."""
-    return check_range("load", load, *LOAD_RANGE_N, "N")
-
-
-def check_dt(dt: float, *, divides: float | None = None, name: str = "dt") -> float:
-    """Validate a physics time step [s]; with `divides` [s] (a recording period) it must
-    also be a whole fraction of it, so that the stated range is the range applied."""
-    dt = check_range(name, dt, *DT_RANGE_S, "s")
-    if divides is not None:
-        if not whole_steps(divides, dt):
-            lo, hi = DT_RANGE_S
-            fits = [divides / k for k in (1, 2, 4, 5, 10, 20) if lo <= divides / k <= hi]
-            raise ParameterError(
-                f"{name} = {dt:g} s must divide the {divides:g} s recording period into whole "
-                f"steps, within [{lo:g}, {hi:g}] s (e.g. {', '.join(f'{f:g}' for f in fits)})")
-    return dt
 
 
 @dataclass(frozen=True)
@@ -76,26 +55,24 @@ def check_chamber_step(params: Params, dt: float) -> None:
                              f"would oscillate or diverge); use dt <= {limit:.3g} s")
 
 
-def rig_spec(params: Params, load: float, dt: float = 1e-3, *, control: str = "open",
-             start_at_rest: bool = False, feedforward_load: float = 0.0,
-             xml: str | Path = MODEL_XML) -> mujoco.MjSpec:
-    """The hung-muscle MJCF with a parameter set and a run's settings applied.
+def rig_spec(context: RunContext, *, start_at_rest: bool = False,
+             feedforward_load: float = 0.0, xml: str | Path = MODEL_XML) -> mujoco.MjSpec:
+    """The hung-muscle MJCF with a run's context applied (validated where it was made).
 
     Args:
-      params: muscle parameters (SI), written into the instance's configuration.
-      load: hanging load [N]; the load mass is load / g.
-      dt: physics time step [s].
-      control: the plugin's control mode; the instance gets every input channel of it
-        (`wpam_mj.simulation.plugin.CONTROLS`) that the muscle type takes (no Po channel
-        without an outer chamber), one actuator each, named after the channel.
+      context: the run's: its parameter set's plant (SI) written into the instance's
+        configuration; its load [N] (the load mass is load / g); its physics time step
+        dt [s]; its control, the plugin's control mode: the instance gets every input
+        channel of it (`wpam_mj.simulation.plugin.CONTROLS`) that the muscle type takes
+        (no Po channel without an outer chamber), one actuator each, named after the
+        channel.
       start_at_rest: the regulators and chambers start settled at the first commands.
       feedforward_load: the load [N] the in-plugin Pi feedforward holds (used only when no
         Pi command channel is given; the rig always gives one).
       xml: MJCF file (the scene file for rendering).
     """
-    params = params.plant  # the simulated plant (`Params.plant_deviation`)
-    load = check_load(load)
-    dt = check_dt(dt)
+    params = context.params.plant  # the simulated plant (`Params.plant_deviation`)
+    load, dt, control = context.load, context.dt, context.control
     stand_in.register_stand_in()
     spec = mujoco.MjSpec.from_file(str(xml))
     spec.option.timestep = dt
@@ -133,5 +110,5 @@ def build_model(params: Params, load: float, dt: float = 1e-3, *,
     bare-step benchmark. Compiled at a step the chambers can take (the rule table refuses
     a longer one), as only its mechanics are read."""
     dt = min(dt, pneumatics.largest_stable_dt(params)[0])
-    model, _ = engine.python_model(rig_spec(params, load, dt, xml=xml))
+    model, _ = engine.python_model(rig_spec(RunContext(params, dt, load), xml=xml))
     return model

@@ -10,6 +10,7 @@ import numpy as np
 
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.errors import ParameterError
+from wpam_mj.simulation.context import RunContext
 from wpam_mj.units import MM, MPA
 
 _CSV_BLOCK_ROWS = 4096
@@ -40,6 +41,8 @@ class SimResult:
     tension frictionless muscle tension [N], friction dry-friction level [N],
     pi_reg/po_reg the regulators' outlet pressures [Pa] (what the ITV2031's own gauge reads,
     the pressures the paper plots), before the line restriction into the chambers.
+    `context`: what the run was made with (parameters, dt, load, controller); `load`,
+    `dt`, `control` and `preset` read it.
     """
 
     time: np.ndarray
@@ -54,10 +57,7 @@ class SimResult:
     friction: np.ndarray
     pi_reg: np.ndarray
     po_reg: np.ndarray
-    load: float
-    dt: float
-    control: str
-    preset: str
+    context: RunContext
 
     def __post_init__(self) -> None:
         n = len(np.atleast_1d(self.time))
@@ -71,6 +71,24 @@ class SimResult:
             object.__setattr__(self, f.name, arr)
         if n == 0:
             raise ParameterError("SimResult has no samples (a run of zero duration)")
+
+    @property
+    def load(self) -> float:
+        """The hanging load [N]."""
+        return self.context.load
+
+    @property
+    def dt(self) -> float:
+        """The physics step [s]."""
+        return self.context.dt
+
+    @property
+    def control(self) -> str:
+        return self.context.control
+
+    @property
+    def preset(self) -> str:
+        return self.context.preset
 
     def arrays(self) -> dict[str, np.ndarray]:
         return {f.name: getattr(self, f.name) for f in fields(self)

@@ -30,7 +30,8 @@ from wpam_mj.infra import termination
 from wpam_mj.control.controllers import make_controller
 from wpam_mj.simulation.loop_contract import (REC_FIELDS, REC_ROWS, RunConstants,
                                               SimulationDiverged, state_failure)
-from wpam_mj.simulation.model import INSTANCE, check_chamber_step, check_dt, check_load, rig_spec
+from wpam_mj.simulation.context import RunContext
+from wpam_mj.simulation.model import INSTANCE, check_chamber_step, rig_spec
 from wpam_mj.physics.params import Params
 from wpam_mj.errors import ParameterError
 from wpam_mj.units import MPA
@@ -75,26 +76,23 @@ class Drive:
 
 @dataclass(frozen=True)
 class Run:
-    """One validated run: the rig's spec, one row of input channels per step, and what
-    turns its record into a `SimResult`."""
+    """One validated run: its context, the rig's spec, one row of input channels per step,
+    and what turns its record into a `SimResult` (which carries the context)."""
 
+    context: RunContext
     spec: mujoco.MjSpec
     inputs: np.ndarray  # (n steps, channels)
     record_every: int
-    load: float
-    dt: float
-    control: str
-    preset: str
 
     @classmethod
-    def make(cls, params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
-             control: str = "open", record_dt: float = 0.01) -> "Run":
-        """Validate a run (see `simulate` for the arguments) and build its model spec."""
-        load, dt = check_load(load), check_dt(dt)
+    def make(cls, context: RunContext, drive: Drive) -> "Run":
+        """Validate a run of `drive` in `context` (its load and dt were checked where it was
+        made; see `simulate` for the rest) and build its model spec."""
+        dt, control = context.dt, context.control
         # the drive's feedforward came from the nominal values; the rig is the plant
-        params = params.plant
+        params = context.params.plant
         check_chamber_step(params, dt)
-        k = RunConstants.make(params, dt, record_dt, start_at_rest=drive.start_at_rest)
+        k = RunConstants.make(params, dt, context.record_dt, start_at_rest=drive.start_at_rest)
         controller = make_controller(control, params, dt)
         _check_commands(drive, params, dt, feedback=controller.feedback)
         if controller.feedback and not np.all(np.isfinite(drive.x_ref)):
@@ -102,21 +100,20 @@ class Run:
         if not params.outer_chamber and (controller.feedback or np.any(drive.po_cmd > 0.0)):
             raise ParameterError(f"the {params.preset} preset has no outer chamber: Po must "
                                  "stay 0 (open loop with --po-down 0)")
-        spec = rig_spec(params, load, dt, control=control, start_at_rest=drive.start_at_rest)
+        spec = rig_spec(context, start_at_rest=drive.start_at_rest)
         inputs = np.column_stack([getattr(drive, name)
                                   for name in plugin.control_mode(control).channels_for(
                                       params.outer_chamber)])
-        return cls(spec, inputs, k.record_every, load, dt, control, params.preset)
+        return cls(context, spec, inputs, k.record_every)
 
     def result(self, rec: np.ndarray, failure: tuple[int, str] | None) -> SimResult:
         """The run's `SimResult`; raises SimulationDiverged for a failure (step, reason)."""
         if failure is not None:
             step, what = failure
-            raise SimulationDiverged(f"simulation diverged at t = {step * self.dt:.4f} s: "
-                                     f"{what}; reduce dt or check the gains and pneumatic "
+            raise SimulationDiverged(f"simulation diverged at t = {step * self.context.dt:.4f} "
+                                     f"s: {what}; reduce dt or check the gains and pneumatic "
                                      "parameters")
-        return SimResult(**dict(zip(REC_FIELDS, rec)), load=self.load, dt=self.dt,
-                         control=self.control, preset=self.preset)
+        return SimResult(**dict(zip(REC_FIELDS, rec)), context=self.context)
 
 
 def simulate(params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
@@ -136,13 +133,13 @@ def simulate(params: Params, load: float, drive: Drive, *, dt: float = 1e-3,
         "plugin").
     """
     _select_engine(engine, control)  # an unknown engine is refused before the run is built
-    return simulate_run(Run.make(params, load, drive, dt=dt, control=control,
-                                 record_dt=record_dt), engine)
+    context = RunContext(params, dt, load, control, record_dt)
+    return simulate_run(Run.make(context, drive), engine)
 
 
 def simulate_run(run: Run, engine: str = "auto") -> SimResult:
     """`simulate` of a run already validated and built (`Run.make`)."""
-    run_engine = _select_engine(engine, run.control)
+    run_engine = _select_engine(engine, run.context.control)
     return run.result(*run_engine(run.spec, run.inputs, run.record_every))
 
 

@@ -299,15 +299,16 @@ def run_warp(runs: list, *, device: str = "cpu") -> list:
     on MuJoCo Warp: runs of one model layout and length share a batch (any presets, loads
     and the plugin's control modes). Records as the plugin does, in float32."""
     for run in runs:  # the kernels are the plugin's: a Python-only controller would not run
-        if run.control not in plugin.CONTROL_BY_NAME:
-            raise ParameterError(f"controller {run.control!r} runs on the Python engine only; "
+        control = run.context.control
+        if control not in plugin.CONTROL_BY_NAME:
+            raise ParameterError(f"controller {control!r} runs on the Python engine only; "
                                  f"backend = 'warp' runs {', '.join(plugin.CONTROL_BY_NAME)}")
     warp_muscle.require_warp()
     out: dict[int, object] = {}
     groups: dict[tuple, list[int]] = {}
     for i, run in enumerate(runs):
-        groups.setdefault((len(run.inputs), run.record_every, run.inputs.shape[1], run.dt),
-                          []).append(i)
+        key = (len(run.inputs), run.record_every, run.inputs.shape[1], run.context.dt)
+        groups.setdefault(key, []).append(i)
     for ids in groups.values():
         for i, (rec, failure) in zip(ids, _run_group([runs[i] for i in ids], device)):
             try:

@@ -48,7 +48,7 @@ from wpam_mj.control.controllers import (CONTROLLERS, LIVE_CONTROLS, check_contr
 from wpam_mj.experiments.drives import STEP_LEVELS_MM, SineSpec
 from wpam_mj.physics.geometry import BraidGeometry
 from wpam_mj.simulation.live import LiveRig as _Stepper
-from wpam_mj.simulation.model import check_dt, check_load
+from wpam_mj.simulation.context import RunContext
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import Params
 from wpam_mj.errors import ParameterError, check_range
@@ -102,8 +102,9 @@ class LiveRig:
 
     def __init__(self, params: Params, load: float, control: str, target: str | float,
                  dt: float = 1e-3) -> None:
-        self.params, self.load, self.dt = params, check_load(load), check_dt(dt)
-        self.stepper = _Stepper.build(params, self.load, self.dt, xml=SCENE_XML)
+        context = RunContext(params, dt, load)  # load and dt checked here, once
+        self.params, self.load, self.dt = params, context.load, context.dt
+        self.stepper = _Stepper.build(context, xml=SCENE_XML)
         self.model = self.stepper.model
         self.data = mujoco.MjData(self.model)
         self.x_max = BraidGeometry.from_params(params.braid).max_contraction
