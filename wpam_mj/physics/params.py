@@ -170,10 +170,10 @@ class Controller(_Validated):
     po_cap: float = _p(paper.PO_CAP_MPA * MPA, "Pa", 0.0, 1.0 * MPA, "paper §4.2 (bag durability)")
     po_feedforward: float = _p(0.04 * MPA, "Pa", 0.0, 1.0 * MPA,
                                "protocol reading (the paper does not state it): the Po the "
-                               "Pi feedforward assumes; the W-PAM's lies just above the "
-                               "regulator's minimum p_min, so that Pi sits near eq. 5's "
-                               "contracting branch at the least Po (docs/physics.md); "
-                               "plausible from the regulator minimum to Fig. 9's 0.04 MPa",
+                               "Pi feedforward assumes; the W-PAM's is the regulator's "
+                               "minimum p_min, the least Po, so that Po only ever holds "
+                               "the over-contraction back (docs/physics.md); plausible from "
+                               "the regulator minimum to Fig. 9's 0.04 MPa",
                                plausible=(0.005 * MPA, 0.04 * MPA))
     feedforward_friction: float = _p(0.0, "1", 0.0, 1.2,
                                      "calibrated protocol reading of §4.1: the share of the "
