@@ -33,8 +33,8 @@ def test_default_free_set_is_the_plausible_ranges_minus_the_measured_and_the_con
     free = set(estimation.default_free())
     assert free < ranged
     assert ranged - free == {"muscle.damping", "pneumatics.time_constant",
-                             "pneumatics.dead_time", "controller.feedforward_friction",
-                             "controller.po_feedforward"}
+                             "pneumatics.dead_time", "pneumatics.supply_pressure",
+                             "controller.feedforward_friction", "controller.po_feedforward"}
 
 
 def test_unknown_names_and_bad_bounds_are_refused():

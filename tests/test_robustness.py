@@ -10,6 +10,7 @@ import pytest
 
 from wpam_mj.experiments.drives import step_plan
 from wpam_mj.experiments.limit_velocity import limit_velocity, variant
+from wpam_mj.physics import kernel
 from wpam_mj.physics.params import preset
 from wpam_mj.errors import ParameterError
 from wpam_mj.reproduction import findings, robustness
@@ -48,6 +49,22 @@ def test_the_plant_deviates_while_the_feedforward_keeps_the_nominal_model():
     assert np.array_equal(nominal_run.inputs, deviated_run.inputs)
     # ... while the rig simulates the deviated plant
     assert nominal_run.spec.to_xml() != deviated_run.spec.to_xml()
+
+
+def test_a_sample_that_physics_does_not_admit_is_pulled_toward_the_nominal():
+    """A braid angle 2 % below its locking angle cannot deviate +5 %: the sampled plant is
+    the deviation halved until the bag still fills before the threads lock; an admissible
+    deviation is kept as drawn."""
+    base = preset("wpam")
+    locking = kernel.locking_angle(base.braid.natural_diameter, base.braid.max_diameter)
+    near = base.with_values({"braid.braid_angle": 0.98 * locking})
+    names = ("braid.braid_angle", "muscle.friction_coeff")
+    plants = robustness.sampled_plants(near, np.array([[0.05, 0.05], [0.01, -0.05]]), names)
+    (name, bent), (_, mu) = plants[0].plant_deviation
+    assert name == "braid.braid_angle" and 0.0 < bent < 0.02 / 0.98 and mu == bent
+    assert plants[0].plant.value("braid.braid_angle") < locking
+    assert plants[1].plant_deviation == (("braid.braid_angle", 0.01),
+                                         ("muscle.friction_coeff", -0.05))
 
 
 @pytest.mark.parametrize("name", ["controller.kp", "muscle.no_such"])

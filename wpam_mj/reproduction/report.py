@@ -130,9 +130,6 @@ def report_markdown(t2: Table2Result, sw: SweepResult, open_step: StepRun,
 # on the shipped plant (`wpam reproduce`; `python scripts/limit_velocity.py`), written in
 # docs/physics.md ("What the shipped plant gives up, and why").
 GIVEN_UP = {
-    "table2_feedback_row": (
-        "a feedback cell beyond a factor of 2 of the paper's: the cells are friction-held "
-        "residuals, 0.01-0.05 of the open loop, that move with where each plateau lands."),
     "steps_settle": (
         "the plateaus settle 0.30/0.40/0.71 mm off target at 50/100/150 N, beyond the "
         "0.11/0.13/0.61 mm the paper's own feedback cells imply, and the 150 N plateaus "

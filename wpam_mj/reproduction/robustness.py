@@ -32,7 +32,7 @@ from wpam_mj.experiments.paper_studies import StepTask, sweep_batch
 from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.physics.params import Params, fitted_parameters
-from wpam_mj.errors import check_int, check_range
+from wpam_mj.errors import ParameterError, check_int, check_range
 from wpam_mj.reproduction import findings
 from wpam_mj.reproduction.margins import Check
 from wpam_mj.simulation.execution import Batch, Failed, execute
@@ -56,11 +56,29 @@ def sample_deviations(n: int, seed: int, rel: float = DEFAULT_REL,
     return rel * (2.0 * u - 1.0)
 
 
+ADMISSIBLE_HALVINGS = 10  # a deviation halved this often is within 0.1 % of the nominal
+
+
 def sampled_plants(nominal: Params, deviations: np.ndarray,
                    names: Sequence[str] = UNMEASURED) -> list[Params]:
-    """The nominal parameters with each row of `deviations` as its plant's deviation."""
-    return [dataclasses.replace(nominal, plant_deviation=tuple(zip(names, map(float, row))))
-            for row in deviations]
+    """The nominal parameters with each row of `deviations` as its plant's deviation. A row
+    whose plant physics does not admit (a rule of `wpam_mj.physics.rules` broken: e.g. a
+    braid angle pushed past the locking angle) is halved toward the nominal point until it
+    is admissible: a plant that cannot exist is not part of the uncertainty."""
+    plants = []
+    for row in deviations:
+        for _ in range(ADMISSIBLE_HALVINGS):
+            plant = dataclasses.replace(nominal,
+                                        plant_deviation=tuple(zip(names, map(float, row))))
+            try:
+                plant.plant  # noqa: B018 (builds, so checks, the deviated plant)
+                break
+            except ParameterError:
+                row = row / 2.0
+        else:
+            plant = dataclasses.replace(nominal, plant_deviation=())
+        plants.append(plant)
+    return plants
 
 
 @dataclass(frozen=True)
