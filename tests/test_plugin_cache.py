@@ -16,6 +16,8 @@ import signal
 import subprocess
 import sys
 import time
+import tomllib
+from fnmatch import fnmatch
 from pathlib import Path
 
 import mujoco
@@ -104,6 +106,34 @@ def test_a_library_built_from_other_tables_is_rebuilt_not_registered(cached, goo
     proc = _run(cache)
     assert (proc.returncode, proc.stdout.strip(), proc.stderr) == (0, "True None", "")
     assert _library(cache).read_bytes() == good
+
+
+def test_an_edit_of_any_c_file_of_the_plugin_rebuilds_it_and_the_wheel_ships_each(
+        tmp_path, monkeypatch):
+    """The plugin's C is several files: every one beside plugin.py is compiled or
+    included, enters the cached library's name (an edit of any one of them is a new
+    library, built afresh) and is package data of the wheel and the sdist."""
+    files = (*plugin.SOURCES, *plugin.HEADERS)
+    beside = {p.name for p in plugin.SOURCES[0].parent.iterdir() if p.suffix in (".c", ".h")}
+    assert beside == {p.name for p in files}
+    copies = []
+    for path in files:
+        copies.append(tmp_path / path.name)
+        copies[-1].write_bytes(path.read_bytes())
+    monkeypatch.setattr(plugin, "SOURCES", tuple(copies[:len(plugin.SOURCES)]))
+    monkeypatch.setattr(plugin, "HEADERS", tuple(copies[len(plugin.SOURCES):]))
+    header = plugin.tables_header()
+    original = plugin_build.library_path(header)
+    for copy in copies:
+        text = copy.read_bytes()
+        copy.write_bytes(text + b"/* edited */\n")
+        assert plugin_build.library_path(header) != original, f"{copy.name} is not hashed"
+        copy.write_bytes(text)
+    assert plugin_build.library_path(header) == original
+    package_data = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"][
+        "package-data"]["wpam_mj.simulation"]
+    for path in files:
+        assert any(fnmatch(path.name, pattern) for pattern in package_data), path.name
 
 
 def test_a_library_stamped_for_other_mujoco_headers_is_refused(tmp_path, good):

@@ -1,6 +1,6 @@
 """The compiled plugin's cache: build, check before loading, register, prune.
 
-`muscle_plugin.c` is built against the installed mujoco wheel into
+The plugin's C (`plugin.SOURCES`) is built against the installed mujoco wheel into
 ``$XDG_CACHE_HOME/wpam_mj`` (default ``~/.cache/wpam_mj``) under a name that hashes
 everything it is built from (`library_path`). Loading a library runs its constructor,
 which registers the plugin with MuJoCo (``mjPLUGIN_LIB_INIT``) for the life of the
@@ -102,9 +102,12 @@ def registered() -> bool:
 
 
 def library_path(header: str) -> Path:
-    """Where the plugin built from this source, `header` and MuJoCo is cached."""
+    """Where the plugin built from these C files (every source and header, by name and
+    content), `header` and MuJoCo is cached."""
     key = hashlib.sha256()
-    for part in (plugin.SOURCE.read_bytes(), STAMP_C.encode(), header.encode(),
+    files = [part for path in (*plugin.SOURCES, *plugin.HEADERS)
+             for part in (path.name.encode(), path.read_bytes())]
+    for part in (*files, STAMP_C.encode(), header.encode(),
                  mujoco.__version__.encode(), str(libmujoco_path()).encode(),
                  " ".join(plugin.CFLAGS).encode()):
         key.update(part)
@@ -172,7 +175,7 @@ def build(target: Path, header: str) -> None:
         out = folder / target.name
         libmujoco = libmujoco_path()
         _compile([cc, *plugin.CFLAGS, f"-I{include}", f"-I{folder}", "-o", str(out),
-                  str(plugin.SOURCE), str(folder / "wpam_stamp.c"), str(libmujoco),
+                  *map(str, plugin.SOURCES), str(folder / "wpam_stamp.c"), str(libmujoco),
                   f"-Wl,-rpath,{libmujoco.parent}", "-lm"], limit, target.parent)
         with open(out, "r+b") as f:
             f.write(TRAILER + hashlib.sha256(f.read()).hexdigest().encode())

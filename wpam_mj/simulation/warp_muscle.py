@@ -73,7 +73,7 @@ def kernel_funcs() -> types.SimpleNamespace:
 
 
 # What each world's muscle reads, derived on the host in float64 from its Params, run and
-# model (as muscle_plugin.c's derive_for_model does), then stored in float32.
+# model (as muscle_config.c's derive_for_model does), then stored in float32.
 WORLD_FIELDS = (
     "natural_length", "thread_sq", "volume_denom", "diameter_denom", "max_contraction",
     "natural_diameter", "rubber_stiffness", "output_coeff", "axial_area", "friction_coeff",
