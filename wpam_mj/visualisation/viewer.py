@@ -302,6 +302,8 @@ def view(params: Params, *, load: float = 100.0, control: str = "pi",
         try:
             _frame_the_rig(handle.cam)
             handle.opt.flags[mujoco.mjtVisFlag.mjVIS_TENDON] = False  # the sleeve replaces it
+            with handle.lock():  # so that the first frame the window shows has the sleeve too
+                _draw_muscle(handle.user_scn, decor, rig)
             start = time.perf_counter()
             while handle.is_running() and (duration is None or rig.time < duration - 0.5 * dt):
                 handle.sync()  # draws this state; clears xfrc_applied, then adds the mouse's
