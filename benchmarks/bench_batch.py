@@ -68,7 +68,7 @@ def measure(runs: list[Run], repeats: int, *, pool: bool = True) -> tuple[dict, 
 
 
 def _duration(run: Run) -> float:
-    return len(run.inputs) * run.dt
+    return len(run.inputs) * run.context.dt
 
 
 def figures(runs: int = 40, duration: float = 20.0, repeats: int = 2) -> list[Figure]:
