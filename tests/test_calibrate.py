@@ -5,6 +5,7 @@ The fit itself runs for minutes (`wpam calibrate`); the search is the engine of
 `wpam fit`, checked in tests/test_fitting.py (including resuming from a journal)."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -210,3 +211,32 @@ def test_the_plateau_limit_is_the_split_that_meets_the_papers_feedback_cell():
     x_mean[int(np.argmax(levels))] += limit / 2  # the turning plateau halfway
     area = loop_area(pi_mean, x_mean)
     assert area / open_area == pytest.approx(paper.TABLE2["feedback"][150.0], rel=0.15)
+
+
+class _PlantValue:
+    """A model whose one task is its parameter set and whose residual is the friction
+    coefficient of the plant it simulates."""
+
+    def tasks(self, params):
+        return [params]
+
+    def residuals(self, params, results):
+        return np.array([results[0].plant.value("muscle.friction_coeff")])
+
+
+def test_a_robust_fit_stacks_the_residuals_of_the_point_and_its_sampled_plants():
+    """`--robust K`: the point's residuals, then each sampled plant's (the plant deviated,
+    its feedforward nominal), in the order of the seeded sample."""
+    import wpam_mj.reproduction.calibrate as cal
+    from wpam_mj.reproduction import robustness
+
+    deviations = robustness.sample_deviations(3, robustness.ROBUST_SEED)
+    model = cal.RobustTargets(_PlantValue(), deviations)
+    params = preset("wpam")
+    tasks = model.tasks(params)
+    assert len(tasks) == 4 and tasks[0] is params
+    mu = params.muscle.friction_coeff
+    column = list(robustness.UNMEASURED).index("muscle.friction_coeff")
+    expected = [mu, *(mu * (1.0 + d) for d in deviations[:, column])]
+    assert model.residuals(params, tasks) == pytest.approx(expected, rel=1e-12)
+    assert cal.journal_path(Path("fit.toml"), 3) != cal.journal_path(Path("fit.toml"))

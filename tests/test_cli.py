@@ -194,6 +194,23 @@ def test_calibrate_calls_the_library(files, capsys, monkeypatch):
     assert seen["out"] == Path("calibrated.toml") != CALIBRATION_FILE and seen["resume"]
 
 
+def test_calibrate_robust_fits_the_sampled_plants_too(files, capsys, monkeypatch):
+    import types
+
+    seen = {}
+
+    def calibrate(**kwargs):
+        seen.update(kwargs)
+        return _FakeCalibration()
+
+    monkeypatch.setitem(sys.modules, "wpam_mj.reproduction.calibrate",
+                        types.SimpleNamespace(calibrate=calibrate))
+    code, _, err = _run(capsys, "calibrate", "--out", "fit.toml", "--robust", "2",
+                        "--no-progress")
+    assert code == 0, err
+    assert seen["robust"] == 2
+
+
 def test_calibrate_refuses_other_presets(files, capsys):
     code, _, err = _run(capsys, "calibrate", "--preset", "mckibben")
     assert code == 2

@@ -105,6 +105,10 @@ def add_parsers(add) -> None:
     protocol_options(p)
     p.add_argument("--max-steps", type=int, default=6, metavar="N",
                    help="most least-squares steps, each ~10 parameter sets (default: 6)")
+    p.add_argument("--robust", type=int, default=0, metavar="K",
+                   help="fit each parameter set on itself and K plants sampled within +-5 %% "
+                        "of its unmeasured values, their residuals together, so that the fit "
+                        "is what survives the plant's uncertainty (default: 0)")
     scheduler_option(p)
 
 
@@ -163,11 +167,13 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     start, protocol = protocol_of(args, run.params)
     out = out_file(Path("calibrated.toml") if args.out is None else args.out)
     from wpam_mj.reproduction.calibrate import calibrate  # noqa: PLC0415 (scipy.optimize: slow import)
-    readings = {} if protocol == SHIPPED else {"protocol": protocol}  # as before: none
+    options = {} if protocol == SHIPPED else {"protocol": protocol}  # as before: none
+    if args.robust:
+        options["robust"] = args.robust
     jobs = run.jobs if args.scheduler is None else Cluster(args.scheduler)
     result = calibrate(out=out, jobs=jobs, dt=run.dt, progress=run.progress,
                        start=start, samples=args.samples, seed=args.seed,
-                       max_nfev=args.max_steps, resume=args.resume, **readings)
+                       max_nfev=args.max_steps, resume=args.resume, **options)
     print(result.table())
     print(f"wrote {out} (use it with --config {out})")
     return 0

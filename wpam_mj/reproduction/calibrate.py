@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from wpam_mj import paper
-from wpam_mj.reproduction import findings
+from wpam_mj.reproduction import findings, robustness
 from wpam_mj.fitting import estimation
 from wpam_mj.experiments.drives import STATIC_TOP_MM
 from wpam_mj.physics.muscle import MuscleModel
@@ -207,6 +207,30 @@ class PaperTargets:
         return np.concatenate(list(self.residual_groups(params, results).values()))
 
 
+@dataclass(frozen=True, eq=False)
+class RobustTargets:
+    """`PaperTargets` on a parameter set and on the plants sampled about it within their
+    uncertainty (`robustness.sampled_plants`, seeded): their residuals stacked, so that
+    least squares fits what survives the plant's uncertainty, not the point alone."""
+
+    targets: PaperTargets
+    deviations: np.ndarray  # (plants, len(robustness.UNMEASURED)) relative deviations
+
+    def plants(self, params: Params) -> list[Params]:
+        return [params, *robustness.sampled_plants(params, self.deviations)]
+
+    def tasks(self, params: Params) -> list:
+        return [t for p in self.plants(params) for t in self.targets.tasks(p)]
+
+    def residuals(self, params: Params, results: list) -> np.ndarray:
+        out, start = [], 0
+        for p in self.plants(params):
+            n = len(self.targets.tasks(p))
+            out.append(self.targets.residuals(p, results[start:start + n]))
+            start += n
+        return np.concatenate(out)
+
+
 def _pressure_walls(params: Params, protocol: Protocol) -> list[float]:
     """Walls if 150 N at the top step would need more than `pressure_share` of p_max."""
     w, p_max, worst = WEIGHTS, params.pneumatics.p_max, paper.LOADS_N[-1]
@@ -252,9 +276,11 @@ class CalibrationResult:
         return "\n".join(out)
 
 
-def journal_path(out: Path) -> Path:
-    """Where `calibrate` journals every evaluation of a fit to `out`."""
-    return out.with_name(f".{out.name}.journal.json")
+def journal_path(out: Path, robust: int = 0) -> Path:
+    """Where `calibrate` journals every evaluation of a fit to `out` (a robust fit's
+    residuals are its plants' too, so it keeps a journal of its own)."""
+    tag = f".robust{robust}" if robust else ""
+    return out.with_name(f".{out.name}{tag}.journal.json")
 
 
 def random_starts(start: Params, samples: int, seed: int) -> list[Params]:
@@ -272,7 +298,7 @@ def random_starts(start: Params, samples: int, seed: int) -> list[Params]:
     return out
 
 
-def _best_start(model: PaperTargets, candidates: list[Params], ex: Workers,
+def _best_start(model: estimation.ResidualModel, candidates: list[Params], ex: Workers,
                 journal: estimation.ResidualJournal, progress: bool) -> Params:
     """The candidate of least cost (the first on ties: the given start)."""
     costs = []
@@ -297,7 +323,7 @@ def _best_start(model: PaperTargets, candidates: list[Params], ex: Workers,
 def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
               progress: bool = True, start: Params | None = None, samples: int = 0,
               seed: int = 7, max_nfev: int = 6, resume: bool = False,
-              protocol: Protocol = SHIPPED) -> CalibrationResult:
+              protocol: Protocol = SHIPPED, robust: int = 0) -> CalibrationResult:
     """Fit FREE to `PaperTargets` (module docstring) and write the TOML to `out` (None: do
     not write).
 
@@ -311,25 +337,31 @@ def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
         are not run again).
       protocol: the static ramps' readings (`wpam_mj.experiments.protocol`) Table 2 is
         measured with.
+      robust: fit each parameter set on itself and `robust` plants sampled within +-5 %
+        of its unmeasured values (`RobustTargets`; 0: the set alone).
     """
     check_range("samples", samples, *SAMPLES_RANGE, "")
     check_range("max_nfev", max_nfev, *NFEV_RANGE, "")
     check_int("seed", seed, 0, 2**32 - 1)
+    check_int("robust", robust, 0, 64)
     params = start if start is not None else preset("wpam")
-    journal_file = None if out is None else journal_path(Path(out))
+    journal_file = None if out is None else journal_path(Path(out), robust)
     if resume and (journal_file is None or not journal_file.exists()):
         raise ParameterError(f"--resume: no journal {journal_file} of an interrupted fit")
     journal = estimation.ResidualJournal(journal_file, keep=resume)
     model = PaperTargets(dt, protocol)
+    fitted_model = (RobustTargets(model, robustness.sample_deviations(robust,
+                                                                       robustness.ROBUST_SEED))
+                    if robust else model)
     started = time.perf_counter()
     with open_workers(jobs) as ex:
         if samples:
-            params = _best_start(model, random_starts(params, samples, seed), ex, journal,
-                                 progress)
+            params = _best_start(fitted_model, random_starts(params, samples, seed), ex,
+                                 journal, progress)
         free = [estimation.FreeParameter.of(n) for n in FREE]
-        fit = estimation.fit(model, params, free, executor=ex, max_nfev=max_nfev,
+        fit = estimation.fit(fitted_model, params, free, executor=ex, max_nfev=max_nfev,
                              diff_step=DIFF_STEP, progress=progress, journal=journal)
-        (first,) = estimation.evaluate(model, [params], ex, journal=journal)
+        (first,) = estimation.evaluate(fitted_model, [params], ex, journal=journal)
         tasks = model.tasks(fit.params)  # once more, for the figures behind the residuals
         results = execute(tasks, ex)
     # the fit, then the protocol readings it started from (written with it)

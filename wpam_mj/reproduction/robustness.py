@@ -43,6 +43,7 @@ UNMEASURED = (*fitted_parameters(), "pneumatics.critical_ratio", "pneumatics.tub
               "pneumatics.supply_pressure", "pneumatics.exhaust_valve_conductance")
 DEFAULT_REL = 0.05  # +-5 %: what an unmeasured value is known to (issue targets, our reading)
 SAMPLES_RANGE = (1, 4096)
+ROBUST_SEED = 0  # the plants a robust search or calibration scores each point on
 HOLD_TARGET = 0.8  # a finding "holds across the plant's uncertainty" in >= 80 % of plants
 CELLS = tuple((row, load) for row in ("open_po", "feedback") for load in paper.LOADS_N)
 

@@ -62,7 +62,6 @@ POPSIZE, MAXITER = 3, 8  # `wpam search`'s defaults: 21 points a generation, 9 g
 SPACE = tuple(estimation.FreeParameter.of(n) for n in FREE if n not in STATIC_FIT)
 
 
-ROBUST_SEED = 0  # the plants a robust search scores each point on (`Evaluator`)
 
 
 def keep_static(params: Params, protocol: Protocol) -> tuple[Params, Protocol, float]:
@@ -205,7 +204,7 @@ class Evaluator:
         # unmeasured value within +-5 % (the same Latin hypercube for every point, so
         # points differ only by themselves), and keeps each finding's worst margin and the
         # worst cost: what survives the plant's uncertainty, not the nominal point
-        self.deviations = (robustness.sample_deviations(robust, ROBUST_SEED) if robust
+        self.deviations = (robustness.sample_deviations(robust, robustness.ROBUST_SEED) if robust
                            else np.zeros((0, len(robustness.UNMEASURED))))
         self.region = region
         self.objective = OBJECTIVES[objective]  # Record -> the value DE minimises
