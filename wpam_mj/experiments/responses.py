@@ -18,7 +18,7 @@ from wpam_mj.experiments.feasibility import load_moved
 from wpam_mj.paper import (PO_DOWN_STATIC_MPA, SINE_AMPLITUDE_MM, STEP_HOLD_S, TABLE2,
                            TABLE2_SOURCE)
 from wpam_mj.units import MM, MPA
-from wpam_mj.simulation.context import RunContext, StudyContext
+from wpam_mj.simulation.context import InContext, RunContext, StudyContext
 from wpam_mj.simulation.results import SimResult
 
 LOOP_METHOD = "branches"  # one loop-area method for every Table 2 cell
@@ -30,7 +30,7 @@ def load_key(load: float) -> str:
 
 
 @dataclass(frozen=True)
-class StaticLoop:
+class StaticLoop(InContext):
     """One open-loop Pi ramp up then down (paper Figs. 3, 8, 9).
 
     po_down: Po while Pi falls [Pa]; area: loop area of the measured (Pi, x) trace
@@ -46,14 +46,6 @@ class StaticLoop:
         return self.result.context
 
     @property
-    def load(self) -> float:
-        return self.result.load
-
-    @property
-    def preset(self) -> str:
-        return self.result.preset
-
-    @property
     def area_mpa_mm(self) -> float:
         return self.area / (MPA * MM)
 
@@ -64,7 +56,7 @@ class StaticLoop:
 
 
 @dataclass(frozen=True)
-class StepRun:
+class StepRun(InContext):
     """A staircase run (paper Figs. 12-15) and its settled plateau means (Fig. 16).
 
     Plateau arrays have shape (n_plateaus,), averaged over the last `settle` seconds of
@@ -82,18 +74,6 @@ class StepRun:
     @property
     def context(self) -> RunContext:
         return self.result.context
-
-    @property
-    def load(self) -> float:
-        return self.result.load
-
-    @property
-    def control(self) -> str:
-        return self.result.control
-
-    @property
-    def preset(self) -> str:
-        return self.result.preset
 
     @property
     def area(self) -> float:

@@ -75,3 +75,28 @@ class RunContext(StudyContext):
     def __post_init__(self) -> None:
         object.__setattr__(self, "load", check_load(self.load))
         super().__post_init__()
+
+
+class InContext:
+    """What a result reads from the `context` (a `RunContext`) it was made in: its load
+    [N], physics step dt [s], controller and muscle type."""
+
+    context: RunContext
+
+    @property
+    def load(self) -> float:
+        """The hanging load [N]."""
+        return self.context.load
+
+    @property
+    def dt(self) -> float:
+        """The physics step [s]."""
+        return self.context.dt
+
+    @property
+    def control(self) -> str:
+        return self.context.control
+
+    @property
+    def preset(self) -> str:
+        return self.context.preset

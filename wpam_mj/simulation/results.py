@@ -10,7 +10,7 @@ import numpy as np
 
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.errors import ParameterError
-from wpam_mj.simulation.context import RunContext
+from wpam_mj.simulation.context import InContext, RunContext
 from wpam_mj.units import MM, MPA
 
 _CSV_BLOCK_ROWS = 4096
@@ -33,7 +33,7 @@ _COLUMNS = (
 
 
 @dataclass(frozen=True)
-class SimResult:
+class SimResult(InContext):
     """One run, sampled every record_dt. Arrays have shape (n_samples,), SI units.
 
     time [s], x contraction [m], velocity [m/s], x_ref target [m] (NaN in open loop),
@@ -71,24 +71,6 @@ class SimResult:
             object.__setattr__(self, f.name, arr)
         if n == 0:
             raise ParameterError("SimResult has no samples (a run of zero duration)")
-
-    @property
-    def load(self) -> float:
-        """The hanging load [N]."""
-        return self.context.load
-
-    @property
-    def dt(self) -> float:
-        """The physics step [s]."""
-        return self.context.dt
-
-    @property
-    def control(self) -> str:
-        return self.context.control
-
-    @property
-    def preset(self) -> str:
-        return self.context.preset
 
     def arrays(self) -> dict[str, np.ndarray]:
         return {f.name: getattr(self, f.name) for f in fields(self)
