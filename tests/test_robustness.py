@@ -2,6 +2,7 @@
 the controller keeps while the plant deviates, the summary of held findings, and the
 limit-velocity experiment."""
 
+import math
 import subprocess
 import sys
 
@@ -9,12 +10,12 @@ import numpy as np
 import pytest
 
 from wpam_mj.experiments.drives import step_plan
-from wpam_mj.experiments.limit_velocity import limit_velocity, variant
+from wpam_mj.experiments.limit_velocity import limit_velocity, sine_at_the_limit, variant
 from wpam_mj.physics import kernel
 from wpam_mj.physics.params import preset
 from wpam_mj.errors import ParameterError
 from wpam_mj.reproduction import findings, robustness
-from wpam_mj.reproduction.margins import Check
+from wpam_mj.reproduction.margins import Check, Margin
 
 
 def test_the_sample_is_a_seeded_latin_hypercube_within_its_box():
@@ -93,6 +94,27 @@ def test_the_summary_counts_plants_and_a_failed_plant_holds_nothing():
     assert "50% (2 of 4)" in md and "**fragile**" in md and "could not be run" in md
 
 
+def test_the_sensitivity_recovers_which_deviation_decides_a_finding():
+    """A margin that is a known plane in the deviations (2 per +rel of the first, -0.5 per
+    +rel of the third, none of the second) comes back as its slopes, largest first, with
+    R² 1; a margin that never varies is left out."""
+    rel, name, flat = 0.05, "po_reaches_cap", "open_loop_hardly_extends"
+    names = ("muscle.friction_coeff", "muscle.axial_area", "braid.braid_angle")
+    dev = robustness.sample_deviations(12, seed=1, rel=rel, names=names)
+    outcomes = []
+    for row in dev:
+        margin = 0.3 + 2.0 * row[0] / rel - 0.5 * row[2] / rel
+        checks = (Check(name, name, margin >= 0, "", (Margin(margin, 0.0, 1, 1.0),)),
+                  Check(flat, flat, True, "", (Margin(2.0, 0.0, 1, 1.0),)))
+        outcomes.append(robustness.PlantOutcome(tuple(zip(names, row)), checks, {}))
+    sens = robustness.Robustness(tuple(outcomes), rel, 1).sensitivity()
+    assert set(sens) == {name}
+    assert [n for n, _ in sens[name].slopes] == [names[0], names[2], names[1]]
+    assert [s for _, s in sens[name].slopes] == pytest.approx([2.0, -0.5, 0.0], abs=1e-9)
+    assert sens[name].r2 == pytest.approx(1.0)
+    assert sens[name].describe() == "friction_coeff +2.00, braid_angle -0.50 (R² 1.00)"
+
+
 def test_the_limit_velocity_grows_with_the_lines_that_set_it():
     """The fastest contraction and extension under a saturated Po command; wider lines move
     the air the motion needs faster (docs/physics.md, "What sets the limit velocity")."""
@@ -124,3 +146,17 @@ def test_one_sampled_plant_runs_every_study_and_writes_its_files(tmp_path):
     assert sorted(p.name for p in written) == ["robustness.csv", "robustness.json",
                                                "robustness.md", "robustness.png"]
     assert not list(tmp_path.glob(".*"))
+
+
+@pytest.mark.parametrize("load", [50.0, 150.0])
+def test_from_half_a_hertz_the_pi_loop_works_at_its_limits(load):
+    """§4.2: above about 0.5 Hz "the system ... operates at almost the limit velocity": the
+    Po command sits at its cap or floor most of each cycle (bang-bang), unlike at 0.1 Hz,
+    and the fastest speeds reached are the limit's order, not the target's 78.5 mm/s
+    (2 pi 0.5 Hz x 25 mm) both ways."""
+    params = preset("wpam")
+    slow, fast = (sine_at_the_limit(params, load, f) for f in (0.1, 0.5))
+    assert slow.at_floor + slow.at_cap < 0.6
+    assert fast.at_floor + fast.at_cap > 0.8
+    assert fast.gain < 0.8 * slow.gain and fast.lag_deg > 5.0 * slow.lag_deg
+    assert min(fast.contraction, fast.extension) < 2 * math.pi * 0.5 * 0.025

@@ -17,7 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from wpam_mj.control.controllers import pi_feedforward
-from wpam_mj.experiments.drives import SINE_MEAN_MM
+from wpam_mj.experiments.analysis import frequency_response
+from wpam_mj.experiments.drives import SINE_MEAN_MM, SineSpec, sine_run
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import Params
 from wpam_mj.units import MM
@@ -94,3 +95,51 @@ def variant(params: Params, overrides: dict[str, float]) -> Params:
               for name, v in overrides.items()}
     return params.with_values(values) if values else params
 
+
+
+@dataclass(frozen=True)
+class SineAtTheLimit:
+    """The PI sine at one load and frequency, seen as a bang-bang loop: gain [1] and lag
+    [deg] of x; the share of the analysed cycles with the Po command at the regulator's
+    floor (pushing the contraction) and at its cap (pushing the extension); the fastest
+    contraction and extension [m/s]; and how far the response's centre sits below the
+    target's [m]."""
+
+    load: float
+    freq: float
+    gain: float
+    lag_deg: float
+    at_floor: float
+    at_cap: float
+    contraction: float
+    extension: float
+    centre_offset: float
+
+
+def sine_at_the_limit(params: Params, load: float, freq: float, *,
+                      dt: float = 1e-3) -> SineAtTheLimit:
+    """Run the paper's PI sine (`SineSpec`) and measure where its Po command sits and how
+    fast the load moves each way (§4.2: "operates at almost the limit velocity")."""
+    spec = SineSpec(freq)
+    r = sine_run(params, load, "pi", spec, dt=dt, record_dt=max(dt, 2e-3))
+    fr = frequency_response(r.time, r.x_ref, r.x, freq, settle_cycles=spec.settle_cycles,
+                            n_cycles=spec.cycles)
+    w = spec.analysed(r.time)
+    po, c = r.po_cmd[w], params.controller
+    return SineAtTheLimit(load, freq, fr.gain, fr.phase_lag_deg,
+                          float(np.mean(po <= params.pneumatics.p_min * (1 + 1e-6))),
+                          float(np.mean(po >= c.po_cap * (1 - 1e-6))),
+                          float(np.max(r.velocity[w])), float(-np.min(r.velocity[w])),
+                          float(np.mean(r.x_ref[w]) - np.mean(r.x[w])))
+
+
+# A grid of the two lines, each scaled by these factors (`line_grid`): the element that
+# sets the limit velocity, searched for a plant whose loads lag alike at 0.5-1 Hz.
+LINE_FACTORS = (0.5, 1.0, 2.0, 4.0)
+
+
+def line_grid(factors=LINE_FACTORS) -> dict[str, dict[str, float]]:
+    """VARIANTS-style overrides: every pair of Pi-line and Po-line factors but the plant's."""
+    return {f"Pi line x{a:g}, Po line x{b:g}": {"pneumatics.inner_conductance": a,
+                                                "pneumatics.outer_conductance": b}
+            for a in factors for b in factors if (a, b) != (1.0, 1.0)}

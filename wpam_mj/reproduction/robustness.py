@@ -93,6 +93,19 @@ class PlantOutcome:
 
 
 @dataclass(frozen=True)
+class Sensitivity:
+    """What decides a finding over the sample: r2 of a plane of its worst margin in the
+    deviations, and each parameter's slope (margin change at +rel), largest first."""
+
+    r2: float
+    slopes: tuple[tuple[str, float], ...]
+
+    def describe(self, top: int = 2) -> str:
+        return ", ".join(f"{name.partition('.')[2]} {slope:+.2f}"
+                         for name, slope in self.slopes[:top]) + f" (R² {self.r2:.2f})"
+
+
+@dataclass(frozen=True)
 class Robustness:
     """Every sampled plant's outcome and the summaries the report prints."""
 
@@ -119,6 +132,34 @@ class Robustness:
             out[cell] = tuple(np.percentile(v, [5, 50, 95])) if v else (math.nan,) * 3
         return out
 
+    def sensitivity(self) -> dict[str, Sensitivity]:
+        """Per finding, what decides it over the sample: a least-squares plane of its worst
+        margin over the plants' deviations, each deviation scaled so that +-1 is +-rel.
+        A slope is how far a deviation of +rel moves the margin (in the check's scale; the
+        finding holds at margin >= 0). Needs more plants than parameters; findings whose
+        margin does not vary (or that no plant could check) are left out."""
+        ran = [o for o in self.outcomes if not o.error and o.deviation]
+        if not ran:
+            return {}
+        names = [n for n, _ in ran[0].deviation]
+        if len(ran) <= len(names) + 1:
+            return {}
+        x = np.array([[d for _, d in o.deviation] for o in ran]) / self.rel
+        design = np.column_stack([np.ones(len(ran)), x])
+        out = {}
+        for name in findings.FINDINGS:
+            y = np.array([next((c.worst_margin for c in o.checks if c.name == name), math.nan)
+                          for o in ran])
+            ok = np.isfinite(y)
+            if ok.sum() <= len(names) + 1 or np.ptp(y[ok]) == 0.0:
+                continue
+            coef, *_ = np.linalg.lstsq(design[ok], y[ok], rcond=None)
+            resid = y[ok] - design[ok] @ coef
+            r2 = 1.0 - float(resid @ resid) / float(np.sum((y[ok] - y[ok].mean()) ** 2))
+            order = np.argsort(-np.abs(coef[1:]))
+            out[name] = Sensitivity(r2, tuple((names[i], float(coef[1 + i])) for i in order))
+        return out
+
     def markdown(self) -> str:
         held = self.held_fraction()
         n = len(self.outcomes)
@@ -126,14 +167,19 @@ class Robustness:
                  f"nominal value (Latin hypercube, seed {self.seed}); the controller's "
                  "feedforward keeps the nominal values. A finding holds across the plant's "
                  f"uncertainty where at least {HOLD_TARGET:.0%} of the plants hold it.", "",
-                 "| finding | plants holding it | |", "|---|---|---|"]
+                 f"Decided by: the two deviations that move the finding's worst margin "
+                 f"most, each as the change at +{self.rel:.0%} (the check's scale; it holds "
+                 "at >= 0), and how much of the margin's spread a plane in all of them "
+                 "explains (R²).", "",
+                 "| finding | plants holding it | | decided by |", "|---|---|---|---|"]
+        sens = self.sensitivity()
         for name, frac in held.items():
             f = findings.FINDINGS[name]
             mark = "n/a" if math.isnan(frac) else ("holds" if frac >= HOLD_TARGET else
                                                      "**fragile**")
             extra = "" if f.counted else " (extra)"
             lines.append(f"| {f.short}{extra} | {frac:.0%} ({round(frac * n)} of {n}) | "
-                         f"{mark} |")
+                         f"{mark} | {sens[name].describe() if name in sens else '-'} |")
         lines += ["", "Table 2 cells over the plants (5th percentile / median / 95th "
                   "percentile) beside the paper's:", "",
                   "| cell | 5 % | median | 95 % | paper |", "|---|---|---|---|---|"]
@@ -201,6 +247,8 @@ def write_robustness(out: Path, result: Robustness) -> list[Path]:
     summary = {"plants": len(result.outcomes), "rel": result.rel, "seed": result.seed,
                "parameters": list(UNMEASURED), "hold_target": HOLD_TARGET,
                "held_fraction": result.held_fraction(),
+               "sensitivity": {name: {"r2": s.r2, "margin_change_at_plus_rel": dict(s.slopes)}
+                               for name, s in result.sensitivity().items()},
                "table2_cells": {f"{r} {load:g} N": {"p5": lo, "median": mid, "p95": hi,
                                                     "paper": paper.TABLE2[r][load]}
                                 for (r, load), (lo, mid, hi) in result.cell_spread().items()}}
