@@ -32,7 +32,9 @@ def shown(value: Any) -> str:
 def check_range(name: str, value: float, lo: float, hi: float, unit: str = "", *,
                 lo_open: bool = False) -> float:
     """Return ``float(value)`` or raise ParameterError naming the value and the range
-    (or saying that no value is allowed when a computed range is empty)."""
+    (or saying that no value is allowed when a computed range is empty). A unitless
+    value ("1", the parameter tables' unit of a ratio) is shown without a unit."""
+    unit = "" if unit == "1" else unit
     try:
         v = float(value)
     except (TypeError, ValueError):

@@ -114,6 +114,19 @@ class MuscleModel:
         return kernel.equilibrium_pressure(po, load, args[0], self.geometry.area(x),
                                            self.rubber_force(x), *args[1:])
 
+    def friction_share(self, x, load: float, pi, po: float):
+        """The branch at which Pi [Pa] holds contraction x [m] under `load` [N] at `po`
+        [Pa]: `equilibrium_pressure` solved for its direction s (1 on the contracting
+        branch, eq. 5; -1 extending, eq. 6; above 1 beyond the contracting branch, where
+        the muscle at rest would contract further). With D = (Pi - Po) S and
+        N = F + A_ax Po + Kf Fco, D (Kf - s mu) = N + s F_f0 gives
+        s = (Kf D - N) / (F_f0 + mu D). Elementwise on arrays of x or pi."""
+        x = np.asarray(x, dtype=float)
+        drive = (np.asarray(pi, dtype=float) - po) * self.geometry.area(x)
+        rest = load + self.axial_area * po + self.output_coeff * self.rubber_force(x)
+        return (self.output_coeff * drive - rest) / (self.friction_const
+                                                     + self.friction_coeff * drive)
+
     def equilibrium_contraction(self, pi: float, po: float, load: float,
                                 direction: int = 0) -> float:
         """Contraction x [m] at rest for pressures and load; clipped to the hard stops."""

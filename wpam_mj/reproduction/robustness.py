@@ -33,7 +33,7 @@ from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.physics.params import Params, fitted_parameters
 from wpam_mj.errors import ParameterError, check_int, check_range
-from wpam_mj.reproduction import findings
+from wpam_mj.reproduction import authority, findings
 from wpam_mj.reproduction.margins import Check
 from wpam_mj.simulation.execution import Batch, Failed, execute
 
@@ -90,6 +90,17 @@ class PlantOutcome:
     checks: tuple[Check, ...]
     cells: dict[tuple[str, float], float]
     error: str = ""
+    # the branch the nominal feedforward puts this plant on (>= 1: over-contracted, so
+    # the Po loop can reach every target) and the nominal φ that would put it on its
+    # own contracting branch (`wpam_mj.reproduction.authority`); nan where not computed
+    feedforward_share: float = math.nan
+    needed_share: float = math.nan
+
+    def holds(self, name: str) -> bool | None:
+        """This plant's verdict on finding `name` (False where the plant failed to run)."""
+        if self.error:
+            return False
+        return next((c.passed for c in self.checks if c.name == name), False)
 
 
 @dataclass(frozen=True)
@@ -116,13 +127,21 @@ class Robustness:
     def held_fraction(self) -> dict[str, float]:
         """Per finding, the fraction of plants that hold it (a plant that failed to run
         holds none; a finding its data cannot check, nan)."""
+        return self._held(self.outcomes)
+
+    @staticmethod
+    def _held(outcomes) -> dict[str, float]:
         out = {}
         for name in findings.FINDINGS:
-            verdicts = [next((c.passed for c in o.checks if c.name == name), False)
-                        if not o.error else False for o in self.outcomes]
-            known = [v for v in verdicts if v is not None]
+            known = [v for v in (o.holds(name) for o in outcomes) if v is not None]
             out[name] = sum(known) / len(known) if known else math.nan
         return out
+
+    def over_contracted(self) -> tuple[list[PlantOutcome], list[PlantOutcome]]:
+        """The plants the nominal feedforward over-contracts (share >= 1) and the rest."""
+        shares = [o for o in self.outcomes if math.isfinite(o.feedforward_share)]
+        return ([o for o in shares if o.feedforward_share >= 1.0],
+                [o for o in shares if o.feedforward_share < 1.0])
 
     def cell_spread(self) -> dict[tuple[str, float], tuple[float, float, float]]:
         """Per Table 2 cell: (5th percentile, median, 95th percentile) over the plants."""
@@ -171,15 +190,34 @@ class Robustness:
                  f"most, each as the change at +{self.rel:.0%} (the check's scale; it holds "
                  "at >= 0), and how much of the margin's spread a plane in all of them "
                  "explains (R²).", "",
-                 "| finding | plants holding it | | decided by |", "|---|---|---|---|"]
+                 "Over-contracted: the plants whose own contracting branch the nominal "
+                 "feedforward's Pi reaches at Po = p_min at every load and staircase target "
+                 "(§4.1's excessive contraction; Po can only hold a contraction back), and "
+                 "the others.", "",
+                 "| finding | plants holding it | | decided by | over-contracted | others |",
+                 "|---|---|---|---|---|---|"]
         sens = self.sensitivity()
+        over, short = self.over_contracted()
+        held_over, held_short = self._held(over), self._held(short)
+
+        def share(frac: float, k: int) -> str:
+            return "-" if not k or math.isnan(frac) else f"{round(frac * k)} of {k}"
+
         for name, frac in held.items():
             f = findings.FINDINGS[name]
             mark = "n/a" if math.isnan(frac) else ("holds" if frac >= HOLD_TARGET else
                                                      "**fragile**")
             extra = "" if f.counted else " (extra)"
             lines.append(f"| {f.short}{extra} | {frac:.0%} ({round(frac * n)} of {n}) | "
-                         f"{mark} | {sens[name].describe() if name in sens else '-'} |")
+                         f"{mark} | {sens[name].describe() if name in sens else '-'} | "
+                         f"{share(held_over[name], len(over))} | "
+                         f"{share(held_short[name], len(short))} |")
+        needed = [o.needed_share for o in self.outcomes if math.isfinite(o.needed_share)]
+        if needed:
+            lines += ["", f"The nominal feedforward over-contracts {len(over)} of {n} plants. "
+                      "The nominal friction share φ that would over-contract "
+                      + ", ".join(f"{q:.0%} of them is {np.quantile(needed, q):.2f}"
+                                  for q in (0.5, HOLD_TARGET, 1.0)) + "."]
         lines += ["", "Table 2 cells over the plants (5th percentile / median / 95th "
                   "percentile) beside the paper's:", "",
                   "| cell | 5 % | median | 95 % | paper |", "|---|---|---|---|---|"]
@@ -217,12 +255,14 @@ def robustness(nominal: Params, n: int = 32, *, seed: int = 0, rel: float = DEFA
     for i, plant in enumerate(plants):
         t2, open_step, sw = results[3 * i:3 * i + 3]
         failed = next((r for r in (t2, open_step, sw) if isinstance(r, Failed)), None)
+        shares = dict(feedforward_share=authority.plant_share(plant),
+                      needed_share=authority.needed_share(plant))
         if failed is None:
-            outcomes.append(_outcome(plant, t2, open_step, sw))
+            outcomes.append(dataclasses.replace(_outcome(plant, t2, open_step, sw), **shares))
         else:
             first = str(failed.error).splitlines()[0] if str(failed.error) else \
                 type(failed.error).__name__
-            outcomes.append(PlantOutcome(plant.plant_deviation, (), {}, first))
+            outcomes.append(PlantOutcome(plant.plant_deviation, (), {}, first, **shares))
     return Robustness(tuple(outcomes), rel, seed)
 
 
@@ -234,6 +274,7 @@ def write_robustness(out: Path, result: Robustness) -> list[Path]:
     for i, o in enumerate(result.outcomes):
         row = {"plant": i, **{f"dev_{name}": d for name, d in o.deviation},
                **{f"{r}_{load:g}N": o.cells.get((r, load), math.nan) for r, load in CELLS},
+               "feedforward_share": o.feedforward_share, "needed_share": o.needed_share,
                "error": o.error}
         for c in o.checks:
             row[f"{c.name}_holds"] = c.passed
@@ -247,6 +288,11 @@ def write_robustness(out: Path, result: Robustness) -> list[Path]:
     summary = {"plants": len(result.outcomes), "rel": result.rel, "seed": result.seed,
                "parameters": list(UNMEASURED), "hold_target": HOLD_TARGET,
                "held_fraction": result.held_fraction(),
+               "over_contracted": len(result.over_contracted()[0]),
+               "needed_share_quantiles": {
+                   f"{q:g}": float(np.quantile(needed, q)) for q in (0.5, HOLD_TARGET, 1.0)}
+               if (needed := [o.needed_share for o in result.outcomes
+                              if math.isfinite(o.needed_share)]) else {},
                "sensitivity": {name: {"r2": s.r2, "margin_change_at_plus_rel": dict(s.slopes)}
                                for name, s in result.sensitivity().items()},
                "table2_cells": {f"{r} {load:g} N": {"p5": lo, "median": mid, "p95": hi,
