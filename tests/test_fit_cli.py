@@ -121,7 +121,7 @@ def test_fit_refuses_a_free_list_naming_no_parameter(synthetic, tmp_path, capsys
     ("muscle.friction_const=40.01:2000000", "muscle.friction_const=40.01:2000000: "
      "muscle.friction_const = 2000000.0 N is outside the allowed range [0, 500] N"),
     ("muscle.friction_coeff=-1:0.3", "muscle.friction_coeff=-1:0.3: muscle.friction_coeff "
-     "= -1.0 1 is outside the allowed range [0, 1]"),
+     "= -1.0 is outside the allowed range [0, 1]"),
 ])
 def test_fit_names_the_bound_given_and_the_allowed_range(synthetic, tmp_path, capsys, bounds,
                                                          words):

@@ -94,6 +94,27 @@ def test_the_summary_counts_plants_and_a_failed_plant_holds_nothing():
     assert "50% (2 of 4)" in md and "**fragile**" in md and "could not be run" in md
 
 
+def test_the_summary_splits_the_plants_by_the_feedforwards_authority():
+    """Over-contracted plants (share >= 1) and the others are counted apart, and the φ
+    that would over-contract a fraction of them is that quantile of their needed shares."""
+    import dataclasses  # noqa: PLC0415
+
+    name = "table2_shape"
+    plants = [dataclasses.replace(_outcome({name: held}), feedforward_share=share,
+                                  needed_share=need)
+              for held, share, need in ((True, 1.05, 0.98), (True, 1.0, 1.02),
+                                        (False, 0.9, 1.2), (True, 0.95, 1.1))]
+    result = robustness.Robustness(tuple(plants), 0.05, 0)
+    over, short = result.over_contracted()
+    assert len(over) == 2 and len(short) == 2
+    md = result.markdown()
+    row = next(line for line in md.splitlines()
+               if line.startswith(f"| {findings.FINDINGS[name].short} |"))
+    assert row.endswith("| 2 of 2 | 1 of 2 |")
+    assert "over-contracts 2 of 4 plants" in md
+    assert "100% of them is 1.20" in md
+
+
 def test_the_sensitivity_recovers_which_deviation_decides_a_finding():
     """A margin that is a known plane in the deviations (2 per +rel of the first, -0.5 per
     +rel of the third, none of the second) comes back as its slopes, largest first, with

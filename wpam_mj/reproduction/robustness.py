@@ -208,7 +208,8 @@ class Robustness:
             mark = "n/a" if math.isnan(frac) else ("holds" if frac >= HOLD_TARGET else
                                                      "**fragile**")
             extra = "" if f.counted else " (extra)"
-            lines.append(f"| {f.short}{extra} | {frac:.0%} ({round(frac * n)} of {n}) | "
+            count = "n/a" if math.isnan(frac) else f"{frac:.0%} ({round(frac * n)} of {n})"
+            lines.append(f"| {f.short}{extra} | {count} | "
                          f"{mark} | {sens[name].describe() if name in sens else '-'} | "
                          f"{share(held_over[name], len(over))} | "
                          f"{share(held_short[name], len(short))} |")

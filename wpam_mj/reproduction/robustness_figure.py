@@ -16,7 +16,8 @@ from wpam_mj.reproduction import findings  # noqa: E402
 
 
 def robustness_figure(result) -> Figure:
-    """Left: fraction of plants holding each finding (the 80 % target dashed); right:
+    """Left: fraction of plants holding each finding (the 80 % target dashed), split into
+    the plants the nominal feedforward over-contracts (solid) and the others (pale); right:
     Table 2's cells of every plant (dots) and the paper's (black bars), log scale."""
     from wpam_mj.reproduction.robustness import CELLS, HOLD_TARGET  # noqa: PLC0415
 
@@ -24,7 +25,17 @@ def robustness_figure(result) -> Figure:
     names = [n for n in held if not math.isnan(held[n])]
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 5), gridspec_kw=dict(width_ratios=[3, 2]))
     colours = ["tab:green" if held[n] >= HOLD_TARGET else "tab:red" for n in names]
-    ax1.barh(range(len(names)), [100 * held[n] for n in names], color=colours)
+    over, short = result.over_contracted()
+    if over or short:  # each plant's share of the bar, by whether it is over-contracted
+        total = len(result.outcomes)
+        solid = [100 * sum(bool(o.holds(n)) for o in over) / total for n in names]
+        pale = [100 * sum(bool(o.holds(n)) for o in short) / total for n in names]
+        ax1.barh(range(len(names)), solid, color=colours,
+                 label=f"over-contracted by the nominal Pi ({len(over)} plants)")
+        ax1.barh(range(len(names)), pale, left=solid, color=colours, alpha=0.4,
+                 label=f"the others ({len(short)} plants)")
+    else:
+        ax1.barh(range(len(names)), [100 * held[n] for n in names], color=colours)
     ax1.set_yticks(range(len(names)),
                    [findings.FINDINGS[n].short + ("" if findings.FINDINGS[n].counted
                                                   else " (extra)") for n in names],
