@@ -30,10 +30,11 @@ def robustness_figure(result) -> Figure:
         total = len(result.outcomes)
         solid = [100 * sum(bool(o.holds(n)) for o in over) / total for n in names]
         pale = [100 * sum(bool(o.holds(n)) for o in short) / total for n in names]
-        ax1.barh(range(len(names)), solid, color=colours,
-                 label=f"over-contracted by the nominal Pi ({len(over)} plants)")
-        ax1.barh(range(len(names)), pale, left=solid, color=colours, alpha=0.4,
-                 label=f"the others ({len(short)} plants)")
+        ax1.barh(range(len(names)), solid, color=colours)
+        ax1.barh(range(len(names)), pale, left=solid, color=colours, alpha=0.4)
+        for alpha, label in ((1.0, f"over-contracted by the nominal Pi ({len(over)} plants)"),
+                             (0.4, f"the others ({len(short)} plants)")):
+            ax1.barh([0], [0], color="0.35", alpha=alpha, label=label)  # legend key only
     else:
         ax1.barh(range(len(names)), [100 * held[n] for n in names], color=colours)
     ax1.set_yticks(range(len(names)),
@@ -46,7 +47,7 @@ def robustness_figure(result) -> Figure:
     ax1.set_xlabel("plants holding the finding [%]")
     ax1.set_title(f"{len(result.outcomes)} plants, unmeasured values within "
                   f"+-{result.rel:.0%}")
-    ax1.legend(loc="lower right", fontsize=8)
+    ax1.legend(loc="upper right", fontsize=8)
     for i, (row, load) in enumerate(CELLS):
         v = [o.cells[(row, load)] for o in result.outcomes if (row, load) in o.cells]
         ax2.plot([i] * len(v), v, "o", color="tab:blue", alpha=0.4, ms=4,
