@@ -34,7 +34,9 @@ def add_parsers(add) -> None:
 
     p = add("robustness", "the paper's findings over plants sampled within the uncertainty "
             "of every unmeasured plant value, the controller keeping its nominal model: the "
-            "fraction of plants holding each finding and the spread of Table 2's cells",
+            "fraction of plants holding each finding (split by whether the nominal Pi "
+            "over-contracts the plant), the deviations that decide it, and the spread of "
+            "Table 2's cells",
             _cmd_robustness)
     p.add_argument("--samples", type=int, default=32, metavar="N",
                    help="plants to sample (default: 32)")
