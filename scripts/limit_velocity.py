@@ -13,13 +13,12 @@ where the Po command sits and the speeds reached; sines.csv, and per variant the
 from __future__ import annotations
 
 import argparse
-import csv
-import io
 from pathlib import Path
 
 import numpy as np
 
 from wpam_mj import paper
+from wpam_mj.design.study_table import csv_text
 from wpam_mj.experiments.limit_velocity import (VARIANTS, limit_velocity, line_grid,
                                                 sine_at_the_limit, variant)
 from wpam_mj.infra.files import write_text_atomic
@@ -33,11 +32,7 @@ STALL_GAIN = 0.05  # a gain below this: the load hardly follows (our reading)
 
 
 def _write_csv(path: Path, rows: list[dict]) -> None:
-    buf = io.StringIO()
-    writer = csv.DictWriter(buf, fieldnames=list(rows[0]))
-    writer.writeheader()
-    writer.writerows(rows)
-    write_text_atomic(path, buf.getvalue())
+    write_text_atomic(path, csv_text(list(rows[0]), rows))
 
 
 def sines(params, out: Path, dt: float) -> None:

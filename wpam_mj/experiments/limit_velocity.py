@@ -96,7 +96,6 @@ def variant(params: Params, overrides: dict[str, float]) -> Params:
     return params.with_values(values) if values else params
 
 
-
 @dataclass(frozen=True)
 class SineAtTheLimit:
     """The PI sine at one load and frequency, seen as a bang-bang loop: gain [1] and lag

@@ -25,11 +25,17 @@ from wpam_mj.physics.params import Params
 from wpam_mj.units import MM
 
 TARGETS_MM = tuple(sorted({x for x in paper.STEP_LEVELS_MM if x > 0}))  # x_r = 0: the stop
+TARGETS = np.array(TARGETS_MM) * MM  # [m]
 
 
-def _branch(params: Params, load: float, po: float, share: float) -> np.ndarray:
-    x = np.array(TARGETS_MM) * MM
-    return MuscleModel.from_params(params).equilibrium_pressure(x, load, po, share)
+def _shares(reader: Params, writer: Params, load: float, writer_po: float,
+            writer_share: float, reader_po: float) -> np.ndarray:
+    """At each target: the branch on which `reader`'s muscle, at `reader_po` [Pa], is held
+    by the Pi that `writer`'s equilibrium model gives on branch `writer_share` at
+    `writer_po` [Pa]."""
+    pi = MuscleModel.from_params(writer).equilibrium_pressure(TARGETS, load, writer_po,
+                                                              writer_share)
+    return MuscleModel.from_params(reader).friction_share(TARGETS, load, pi, reader_po)
 
 
 def plant_share(params: Params, loads: Sequence[float] = paper.LOADS_N) -> float:
@@ -38,19 +44,13 @@ def plant_share(params: Params, loads: Sequence[float] = paper.LOADS_N) -> float
     and the staircase's targets: >= 1 where the plant over-contracts at every one of
     them, so the Po loop can bring it to each target."""
     c, p_min = params.controller, params.pneumatics.p_min
-    muscle = MuscleModel.from_params(params.plant)
-    x = np.array(TARGETS_MM) * MM
-    return min(float(np.min(muscle.friction_share(
-        x, load, _branch(params, load, c.po_feedforward, c.feedforward_friction), p_min)))
-        for load in loads)
+    return min(float(np.min(_shares(params.plant, params, load, c.po_feedforward,
+                                     c.feedforward_friction, p_min))) for load in loads)
 
 
 def needed_share(params: Params, loads: Sequence[float] = paper.LOADS_N) -> float:
     """The nominal φ at which the feedforward puts `params.plant` on its own contracting
     branch (at Po = p_min) at every load and target: the margin this plant asks of φ."""
-    muscle = MuscleModel.from_params(params)
-    x = np.array(TARGETS_MM) * MM
-    return max(float(np.max(muscle.friction_share(
-        x, load, _branch(params.plant, load, params.pneumatics.p_min, 1.0),
-        params.controller.po_feedforward)))
-        for load in loads)
+    po_ff, p_min = params.controller.po_feedforward, params.pneumatics.p_min
+    return max(float(np.max(_shares(params, params.plant, load, p_min, 1.0, po_ff)))
+               for load in loads)

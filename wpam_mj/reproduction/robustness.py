@@ -102,6 +102,10 @@ class PlantOutcome:
             return False
         return next((c.passed for c in self.checks if c.name == name), False)
 
+    def margin(self, name: str) -> float:
+        """This plant's worst margin on finding `name` (nan where it was not checked)."""
+        return next((c.worst_margin for c in self.checks if c.name == name), math.nan)
+
 
 @dataclass(frozen=True)
 class Sensitivity:
@@ -151,6 +155,13 @@ class Robustness:
             out[cell] = tuple(np.percentile(v, [5, 50, 95])) if v else (math.nan,) * 3
         return out
 
+    def needed_share_quantiles(self) -> dict[float, float]:
+        """The nominal φ that would over-contract half, HOLD_TARGET and all of the plants
+        (quantiles of their needed shares; empty where none was computed)."""
+        needed = [o.needed_share for o in self.outcomes if math.isfinite(o.needed_share)]
+        return {q: float(np.quantile(needed, q)) for q in (0.5, HOLD_TARGET, 1.0)} \
+            if needed else {}
+
     def sensitivity(self) -> dict[str, Sensitivity]:
         """Per finding, what decides it over the sample: a least-squares plane of its worst
         margin over the plants' deviations, each deviation scaled so that +-1 is +-rel.
@@ -167,8 +178,7 @@ class Robustness:
         design = np.column_stack([np.ones(len(ran)), x])
         out = {}
         for name in findings.FINDINGS:
-            y = np.array([next((c.worst_margin for c in o.checks if c.name == name), math.nan)
-                          for o in ran])
+            y = np.array([o.margin(name) for o in ran])
             ok = np.isfinite(y)
             if ok.sum() <= len(names) + 1 or np.ptp(y[ok]) == 0.0:
                 continue
@@ -213,12 +223,11 @@ class Robustness:
                          f"{mark} | {sens[name].describe() if name in sens else '-'} | "
                          f"{share(held_over[name], len(over))} | "
                          f"{share(held_short[name], len(short))} |")
-        needed = [o.needed_share for o in self.outcomes if math.isfinite(o.needed_share)]
-        if needed:
+        if needed := self.needed_share_quantiles():
             lines += ["", f"The nominal feedforward over-contracts {len(over)} of {n} plants. "
                       "The nominal friction share φ that would over-contract "
-                      + ", ".join(f"{q:.0%} of them is {np.quantile(needed, q):.2f}"
-                                  for q in (0.5, HOLD_TARGET, 1.0)) + "."]
+                      + ", ".join(f"{q:.0%} of them is {phi:.2f}" for q, phi in needed.items())
+                      + "."]
         lines += ["", "Table 2 cells over the plants (5th percentile / median / 95th "
                   "percentile) beside the paper's:", "",
                   "| cell | 5 % | median | 95 % | paper |", "|---|---|---|---|---|"]
@@ -290,10 +299,8 @@ def write_robustness(out: Path, result: Robustness) -> list[Path]:
                "parameters": list(UNMEASURED), "hold_target": HOLD_TARGET,
                "held_fraction": result.held_fraction(),
                "over_contracted": len(result.over_contracted()[0]),
-               "needed_share_quantiles": {
-                   f"{q:g}": float(np.quantile(needed, q)) for q in (0.5, HOLD_TARGET, 1.0)}
-               if (needed := [o.needed_share for o in result.outcomes
-                              if math.isfinite(o.needed_share)]) else {},
+               "needed_share_quantiles": {f"{q:g}": phi for q, phi
+                                          in result.needed_share_quantiles().items()},
                "sensitivity": {name: {"r2": s.r2, "margin_change_at_plus_rel": dict(s.slopes)}
                                for name, s in result.sensitivity().items()},
                "table2_cells": {f"{r} {load:g} N": {"p5": lo, "median": mid, "p95": hi,
