@@ -93,3 +93,57 @@ def test_feedforward_friction_beyond_the_branch_is_bounded():
     assert CONTRACTING_BRANCH.controller.feedforward_friction == 1.01
     with pytest.raises(ParameterError, match=r"feedforward_friction = 1.3 .*\[0, 1.2\]"):
         WPAM.with_values({"controller.feedforward_friction": 1.3})
+
+
+def quasi_static_pi(pre_sliding: float, seconds: float = 10.0, dt: float = 0.01):
+    """|e(t)| [m] of a quasi-static Maxwell-slip muscle under the paper's PI (0-5 V reading):
+    ten elastoplastic elements of 1-10 N that slip after `pre_sliding` [m] of stretch, a
+    10 N/m spring, Po on 1e-3 m^2 extending it; the integral updated implicitly."""
+    kp, ki, area = 0.01 * MPA / MM, 0.0008 * MPA / MM, 1e-3  # Pa/m, Pa/(m s), m^2
+    limit = np.arange(1.0, 11.0)  # N, each element's slip force
+    k, z = limit / pre_sliding, np.zeros(10)  # N/m; slider positions [m]
+    drive, integral, errors = 60.0, 0.0, []  # N (Pi's pull beyond the load), Pa
+
+    def balance(x, integral):  # contraction force left over at x [N], rising with x
+        return (np.sum(np.clip(k * (x - z), -limit, limit)) + 10.0 * x
+                + area * (kp * x + integral) - drive)
+
+    for _ in range(int(seconds / dt)):
+        lo, hi = -1.0, 1.0
+        for _ in range(80):  # bisection: the balance rises with x
+            mid = 0.5 * (lo + hi)
+            lo, hi = (lo, mid) if balance(mid, integral + ki * mid * dt) > 0 else (mid, hi)
+        x = 0.5 * (lo + hi)
+        integral += ki * x * dt
+        z = np.clip(z, x - limit / k, x + limit / k)  # elements past their limit slip
+        errors.append(abs(x))
+    return np.array(errors), ki / kp
+
+
+@pytest.mark.parametrize("pre_sliding", [1e-6, 1e-4, 1e-2, 1.0])
+def test_no_friction_law_settles_faster_than_the_pi_zero(pre_sliding):
+    """Landed, a quasi-static muscle's error falls no faster than exp(-t Ki/Kp)
+    (`StepRun.landing_floor`): true for stiction (1 um of pre-sliding) and for pre-sliding
+    up to a metre, and approached as the muscle grows compliant."""
+    e, rate = quasi_static_pi(pre_sliding)
+    t = np.arange(1, len(e)) * 0.01
+    achieved = e[1:] / e[0]
+    assert np.all(achieved >= np.exp(-rate * t) * (1 - 1e-9)), "faster than the PI's zero"
+    if pre_sliding >= 1.0:
+        assert achieved[-1] < 1.1 * np.exp(-rate * t[-1]), "a compliant plant nears the bound"
+
+
+def test_plateaus_settle_no_lower_than_their_landing_floor(staircase):
+    """In the simulator too, from the landing on nothing beats the PI's zero: every landed
+    plateau's worst error over the last 5 s is at least its landing floor (a floor above
+    the error would mean the landing is misread: the chambers or the muscle still moving)."""
+    for runs in staircase.values():
+        for s in runs:
+            r, floor = s.result, s.landing_floor(SETTLE_S)
+            late = (r.time % 10.0) >= 10.0 - SETTLE_S
+            plateau = (r.time // 10.0).astype(int)
+            worst = np.array([np.max(np.abs(r.x - r.x_ref)[late & (plateau == k)])
+                              for k in range(len(floor))])
+            landed = np.isfinite(floor)
+            assert landed.sum() >= len(floor) - 2, f"{s.load:g} N: most plateaus land"
+            assert np.all(worst[landed] >= 0.98 * floor[landed]), f"{s.load:g} N"

@@ -22,6 +22,12 @@ from wpam_mj.simulation.context import InContext, RunContext, StudyContext
 from wpam_mj.simulation.results import SimResult
 
 LOOP_METHOD = "branches"  # one loop-area method for every Table 2 cell
+# When a staircase plateau has landed (`StepRun.landings`): from then on the muscle moves
+# slower than the crawl the integral drives at errors below 10 mm (Ki/Kp |e| = 0.08 mm/s
+# per mm with the paper's gains) and both chambers sit at their commands, to a fifth of
+# what an ITV regulator resolves (its sensitivity, 0.2 % of 0.5 MPa = 1 kPa).
+LANDED_SPEED = 1e-3  # m/s
+LANDED_PRESSURE = 200.0  # Pa
 
 
 def load_key(load: float) -> str:
@@ -93,6 +99,44 @@ class StepRun(InContext):
         """Largest |x - x_r| over the last `settle` s of every plateau [m]."""
         r = self.result
         return float(np.max(np.abs(r.x - r.x_ref)[self._settled(settle)]))
+
+    def landings(self, settle: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
+        """Per plateau, the time into it [s] from which the muscle has landed before the
+        last `settle` s begin (slower than `LANDED_SPEED`, both chambers within
+        `LANDED_PRESSURE` of their commands, until then) and its error x - x_r at that time
+        [m]; nan for a plateau not landed by then."""
+        r = self.result
+        phase = r.time % STEP_HOLD_S
+        plateau = (r.time // STEP_HOLD_S).astype(int)
+        moving = ((np.abs(r.velocity) >= LANDED_SPEED)
+                  | (np.abs(r.pi - r.pi_cmd) >= LANDED_PRESSURE)
+                  | (np.abs(r.po - r.po_cmd) >= LANDED_PRESSURE))
+        ks = np.unique(plateau)
+        time, error = np.full(len(ks), math.nan), np.full(len(ks), math.nan)
+        for j, k in enumerate(ks):
+            idx = np.nonzero((plateau == k) & (phase < STEP_HOLD_S - settle))[0]
+            still = idx[np.cumsum(moving[idx][::-1])[::-1] == 0]  # no motion from here on
+            if len(still):
+                time[j], error[j] = phase[still[0]], r.x[still[0]] - r.x_ref[still[0]]
+        return time, error
+
+    def landing_floor(self, settle: float = 3.0) -> np.ndarray:
+        """Per plateau, the least |x - x_r| [m] any quasi-static plant can have when the
+        last `settle` s begin, from where it landed (`landings`), under the PI.
+
+        Landed, x follows Po's history with g = -dx/dPo >= 0 (Po only extends); any friction
+        law, stiction, pre-sliding or creep, only sets g. With Po = Kp e + Ki int(e) dt on the
+        plateau, de/dt = -g (Kp de/dt + Ki e), so de/dt = -e g Ki / (1 + g Kp): the error
+        falls no faster than exp(-t Ki/Kp), Kp/Ki = 12.5 s with the paper's gains in any
+        unit reading. nan for a plateau not landed, for other controllers and for Kp = 0
+        (a pure integral has no such bound).
+        """
+        c = self.context
+        if c.control != "pi" or c.params.controller.kp <= 0.0:
+            return np.full(len(self.target), math.nan)
+        time, error = self.landings(settle)
+        rate = c.params.controller.ki / c.params.controller.kp
+        return np.abs(error) * np.exp(-(STEP_HOLD_S - settle - time) * rate)
 
     def worst_peak_to_peak(self, settle: float = 3.0) -> float:
         """Largest x peak-to-peak over the last `settle` s of any plateau [m]."""

@@ -134,7 +134,11 @@ GIVEN_UP = {
         "the plateaus settle 0.30/0.40/0.71 mm off target at 50/100/150 N, beyond the "
         "0.11/0.13/0.61 mm the paper's own feedback cells imply, and the 150 N plateaus "
         "move 0.21 mm p-p: φ 1.02 holds the muscle 2 % of the friction band over-contracted "
-        "and Po takes it back only as far as the friction band lets it land."),
+        "and Po takes it back only as far as the friction band lets it land. They miss at "
+        "their landings: once the muscle and both chambers are still, the PI's own zero lets "
+        "an error fall no faster than exp(-t Ki/Kp), Kp/Ki = 12.5 s, under any friction law "
+        "(stiction, pre-sliding, creep), and from where they landed that leaves at least "
+        "0.21/0.28/0.71 mm (StepRun.landing_floor)."),
     "gain_spread": (
         "the PI gains of the loads part by 8.8/7.2/6.7 % at 0.25/0.5/1 Hz: the limit "
         "velocity depends on load (fastest contraction 32-37 mm/s, extension 118-68 mm/s "
