@@ -163,7 +163,9 @@ GIVEN_UP = {
     "pid_leads_pi": (
         "PID leads PI by 0.10/0.35/0.94 deg at 0.1/0.2/0.25 Hz, below the 1 deg a figure "
         "resolves: the D term's phase advance atan(Kd w / Kp) is 1.4 deg at 0.1 Hz in a "
-        "linear loop, and friction-held plateaus take part of it."),
+        "linear loop, but the Po command sits at p_min or the cap 35-68 % of each cycle, "
+        "where D only moves the switching instants, and friction takes most of the rest "
+        "(without it 0.51/1.66/1.66 deg; docs/physics.md)."),
 }
 
 
