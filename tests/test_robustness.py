@@ -28,6 +28,31 @@ def test_the_sample_is_a_seeded_latin_hypercube_within_its_box():
     assert not np.array_equal(dev, robustness.sample_deviations(16, seed=4, rel=0.05))
 
 
+def test_a_measured_value_narrows_its_own_range_and_keeps_every_other_draw():
+    """Known to +-1 %, the braid angle's deviations are the +-5 % draw scaled by 0.2; known
+    exactly, they are 0; every other parameter's column is the same draw."""
+    braid = robustness.UNMEASURED.index("braid.braid_angle")
+    wide = robustness.sample_deviations(16, seed=3, rel=0.05)
+    narrow = robustness.sample_deviations(16, seed=3, rel=0.05,
+                                          measured={"braid.braid_angle": 0.01})
+    exact = robustness.sample_deviations(16, seed=3, rel=0.05,
+                                         measured={"braid.braid_angle": 0.0})
+    assert narrow[:, braid] == pytest.approx(0.2 * wide[:, braid], abs=1e-15)
+    assert np.all(exact[:, braid] == 0.0)
+    others = np.arange(wide.shape[1]) != braid
+    assert np.array_equal(narrow[:, others], wide[:, others])
+    assert np.array_equal(exact[:, others], wide[:, others])
+
+
+@pytest.mark.parametrize("measured, what", [({"braid.foo": 0.01}, "not an unmeasured"),
+                                            ({"braid.braid_angle": -0.01}, "allowed range"),
+                                            ({"braid.braid_angle": 0.6}, "allowed range")])
+def test_a_bad_measured_value_is_refused_in_one_line(measured, what):
+    with pytest.raises(ParameterError, match=what) as err:
+        robustness.sample_deviations(4, seed=0, measured=measured)
+    assert "\n" not in str(err.value)
+
+
 @pytest.mark.parametrize("n, rel, what", [(0, 0.05, "samples"), (4, 0.0, "rel"),
                                           (4, 0.9, "rel")])
 def test_a_bad_sample_is_refused_in_one_line(n, rel, what):
@@ -134,6 +159,28 @@ def test_the_sensitivity_recovers_which_deviation_decides_a_finding():
     assert [s for _, s in sens[name].slopes] == pytest.approx([2.0, -0.5, 0.0], abs=1e-9)
     assert sens[name].r2 == pytest.approx(1.0)
     assert sens[name].describe() == "friction_coeff +2.00, braid_angle -0.50 (R² 1.00)"
+
+
+def test_the_sensitivity_reads_a_measured_value_at_its_own_range():
+    """With the braid angle measured to +-1 %, its slope is the margin's change at +1 %;
+    known exactly, it is left out of the plane."""
+    rel, name = 0.05, "po_reaches_cap"
+    names = ("muscle.friction_coeff", "muscle.axial_area", "braid.braid_angle")
+    for width, expected in ((0.01, [2.0, -0.5, 0.0]), (0.0, [2.0, 0.0])):
+        measured = {"braid.braid_angle": width}
+        dev = robustness.sample_deviations(12, seed=1, rel=rel, names=names,
+                                           measured=measured)
+        outcomes = []
+        for row in dev:
+            margin = 0.3 + 2.0 * row[0] / rel - 0.5 * (row[2] / width if width else 0.0)
+            checks = (Check(name, name, margin >= 0, "", (Margin(margin, 0.0, 1, 1.0),)),)
+            outcomes.append(robustness.PlantOutcome(tuple(zip(names, row)), checks, {}))
+        result = robustness.Robustness(tuple(outcomes), rel, 1,
+                                       robustness.check_measured(measured, names))
+        sens = result.sensitivity()[name]
+        assert [s for _, s in sens.slopes] == pytest.approx(expected, abs=1e-9)
+        assert ("braid.braid_angle" in dict(sens.slopes)) == (width > 0.0)
+        assert result.box() == f"+-5%, braid_angle +-{width:.0%}"
 
 
 def test_the_limit_velocity_grows_with_the_lines_that_set_it():

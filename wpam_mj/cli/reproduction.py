@@ -7,8 +7,8 @@ import time
 from pathlib import Path
 
 from wpam_mj import paper
-from wpam_mj.cli.arguments import (out_dir_option, out_path, protocol_options, ramp_time_option,
-                                   scheduler_option)
+from wpam_mj.cli.arguments import (name_list, out_dir_option, out_path, protocol_options,
+                                   ramp_time_option, scheduler_option)
 from wpam_mj.cli.runs import (liftable_loads, out_dir_of, out_file, output_modules, params_of,
                               protocol_of, protocol_settings, run_id_of, run_options, writable_dir,
                               write_run_manifest)
@@ -121,6 +121,23 @@ def robustness_options(p) -> None:
     p.add_argument("--robustness-rel", type=float, default=DEFAULT_REL, metavar="R",
                    help="each unmeasured value within +-R of its nominal value "
                         f"(default: {DEFAULT_REL:g})")
+    p.add_argument("--uncertainty", type=name_list, default=(), metavar="NAME=R,...",
+                   help="the values you measured, each with its own relative half-width "
+                        "(e.g. braid.braid_angle=0.01 for a braid angle known to +-1 %%; "
+                        "0: known exactly); the others keep --robustness-rel")
+
+
+def measured_of(args: argparse.Namespace) -> dict[str, float]:
+    """--uncertainty NAME=R items as {name: R} (checked where the sample is drawn)."""
+    out = {}
+    for item in args.uncertainty:
+        name, _, value = item.partition("=")
+        try:
+            out[name.strip()] = float(value)
+        except ValueError:
+            raise ParameterError(f"--uncertainty {item!r}: expected NAME=R, e.g. "
+                                 "braid.braid_angle=0.01") from None
+    return out
 
 
 def _cmd_robustness(args: argparse.Namespace) -> int:
@@ -131,7 +148,8 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     out = out_dir_of(args)
     start = time.perf_counter()
     result = robustness(params, args.samples, seed=args.robustness_seed,
-                        rel=args.robustness_rel, dt=run.dt, jobs=run.jobs,
+                        rel=args.robustness_rel, measured=measured_of(args), dt=run.dt,
+                        jobs=run.jobs,
                         progress=run.progress, protocol=protocol)
     written = write_robustness(out, result)
     print(result.markdown())
@@ -153,7 +171,8 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     rep = reproduce(out, params, dt=run.dt, jobs=run.jobs, progress=run.progress,
                     compare=compare, run_id=rid, protocol=protocol,
                     robustness_samples=args.robustness, robustness_seed=args.robustness_seed,
-                    robustness_rel=args.robustness_rel)
+                    robustness_rel=args.robustness_rel,
+                    robustness_measured=measured_of(args))
     manifest = write_run_manifest(args, out, rid, params, settings, rep.files)
     print(tables.table2_text(rep.table2))
     print(findings.checks_text(rep.checks))

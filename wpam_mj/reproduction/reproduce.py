@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Mapping, Sequence
 
 from wpam_mj import paper
 from wpam_mj.experiments import figures
@@ -72,7 +72,8 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
               progress: bool = False, compare: Sequence[Params] | None = None,
               run_id: str | None = None, protocol: Protocol = SHIPPED,
               robustness_samples: int = 0, robustness_seed: int = 0,
-              robustness_rel: float = robustness.DEFAULT_REL) -> Reproduction:
+              robustness_rel: float = robustness.DEFAULT_REL,
+              robustness_measured: Mapping[str, float] | None = None) -> Reproduction:
     """Run every experiment and write CSV/PNG/JSON and `report.md` into `out_dir`.
 
     Args:
@@ -83,8 +84,9 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
       run_id: the run's id (`wpam_mj.infra.manifest.run_id`), recorded in every figure.
       protocol: the static ramps' readings (`wpam_mj.experiments.protocol`) for Figs. 8-9, Table 2.
       robustness_samples: N > 0 adds the findings over N plants sampled within
-        +-`robustness_rel` of every unmeasured value (`wpam_mj.reproduction.robustness`,
-        seeded by `robustness_seed`) to report.md and its files.
+        +-`robustness_rel` of every unmeasured value, or the half-width
+        `robustness_measured` gives it (`wpam_mj.reproduction.robustness`, seeded by
+        `robustness_seed`), to report.md and its files.
     """
     out = Path(out_dir)
     data = out / "data"
@@ -155,8 +157,8 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
     text = report_markdown(t2, sw, open_step, preset_loops, checks, protocol)
     if robustness_samples:
         rob = robustness.robustness(params, robustness_samples, seed=robustness_seed,
-                                    rel=robustness_rel, dt=dt, jobs=jobs, progress=progress,
-                                    protocol=protocol)
+                                    rel=robustness_rel, measured=robustness_measured, dt=dt,
+                                    jobs=jobs, progress=progress, protocol=protocol)
         files.update(dict.fromkeys(robustness.write_robustness(out, rob), {}))
         text += ("\n## Robustness: the findings across the plant's uncertainty\n\n"
                  + rob.markdown() + "\n\n![Robustness](robustness.png)\n")

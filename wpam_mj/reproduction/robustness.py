@@ -22,7 +22,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 from scipy.stats import qmc
@@ -50,13 +50,34 @@ HOLD_TARGET = 0.8  # a finding "holds across the plant's uncertainty" in >= 80 %
 CELLS = tuple((row, load) for row in ("open_po", "feedback") for load in paper.LOADS_N)
 
 
+def check_measured(measured: Mapping[str, float],
+                   names: Sequence[str] = UNMEASURED) -> tuple[tuple[str, float], ...]:
+    """Validate per-parameter half-widths: {name: r}, r in [0, 0.5] (0: known exactly)."""
+    for name, r in measured.items():
+        if name not in names:
+            raise ParameterError(f"uncertainty of {name!r}: not an unmeasured parameter; "
+                                 f"one of {', '.join(names)}")
+        check_range(f"uncertainty of {name}", r, 0.0, 0.5)
+    return tuple((name, float(r)) for name, r in measured.items())
+
+
+def half_widths(rel: float, measured: Mapping[str, float] | None = None,
+                names: Sequence[str] = UNMEASURED) -> np.ndarray:
+    """Each name's relative half-width: its own where `measured` gives one, else rel."""
+    return np.array([(measured or {}).get(name, rel) for name in names], dtype=float)
+
+
 def sample_deviations(n: int, seed: int, rel: float = DEFAULT_REL,
-                      names: Sequence[str] = UNMEASURED) -> np.ndarray:
-    """(n, len(names)) relative deviations in [-rel, rel]: a seeded Latin hypercube."""
+                      names: Sequence[str] = UNMEASURED,
+                      measured: Mapping[str, float] | None = None) -> np.ndarray:
+    """(n, len(names)) relative deviations, column j within +-its half-width (rel, or its
+    own in `measured`): a seeded Latin hypercube. The draw does not depend on `measured`,
+    so narrowing one value's range keeps every plant's other deviations."""
     n = check_int("samples", n, *SAMPLES_RANGE)
     rel = check_range("rel", rel, 0.0, 0.5, lo_open=True)
+    width = half_widths(rel, dict(check_measured(measured or {}, names)), names)
     u = qmc.LatinHypercube(d=len(names), seed=seed).random(n)
-    return rel * (2.0 * u - 1.0)
+    return width * (2.0 * u - 1.0)
 
 
 def sampled_plants(nominal: Params, deviations: np.ndarray,
@@ -127,6 +148,12 @@ class Robustness:
     outcomes: tuple[PlantOutcome, ...]
     rel: float
     seed: int
+    measured: tuple[tuple[str, float], ...] = ()  # (name, its own half-width) pairs
+
+    def box(self) -> str:
+        """The sampled box in words: "+-5 %" or "+-5 %, braid_angle +-1 %"."""
+        return ", ".join([f"+-{self.rel:.0%}"] + [f"{name.partition('.')[2]} +-{r:.0%}"
+                                                  for name, r in self.measured])
 
     def held_fraction(self) -> dict[str, float]:
         """Per finding, the fraction of plants that hold it (a plant that failed to run
@@ -165,16 +192,20 @@ class Robustness:
     def sensitivity(self) -> dict[str, Sensitivity]:
         """Per finding, what decides it over the sample: a least-squares plane of its worst
         margin over the plants' deviations, each deviation scaled so that +-1 is +-rel.
-        A slope is how far a deviation of +rel moves the margin (in the check's scale; the
-        finding holds at margin >= 0). Needs more plants than parameters; findings whose
-        margin does not vary (or that no plant could check) are left out."""
+        A slope is how far a deviation to the top of its range (+rel, or its own
+        half-width) moves the margin (in the check's scale; the finding holds at margin
+        >= 0). Values known exactly are left out, as are findings whose margin does not
+        vary (or that no plant could check). Needs more plants than parameters."""
         ran = [o for o in self.outcomes if not o.error and o.deviation]
         if not ran:
             return {}
         names = [n for n, _ in ran[0].deviation]
+        width = half_widths(self.rel, dict(self.measured), names)
+        names = [n for n, w in zip(names, width) if w > 0.0]
         if len(ran) <= len(names) + 1:
             return {}
-        x = np.array([[d for _, d in o.deviation] for o in ran]) / self.rel
+        x = np.array([[d for _, d in o.deviation] for o in ran])[:, width > 0.0] \
+            / width[width > 0.0]
         design = np.column_stack([np.ones(len(ran)), x])
         out = {}
         for name in findings.FINDINGS:
@@ -192,13 +223,13 @@ class Robustness:
     def markdown(self) -> str:
         held = self.held_fraction()
         n = len(self.outcomes)
-        lines = [f"{n} plants, every unmeasured parameter within +-{self.rel:.0%} of its "
+        lines = [f"{n} plants, every unmeasured parameter within {self.box()} of its "
                  f"nominal value (Latin hypercube, seed {self.seed}); the controller's "
                  "feedforward keeps the nominal values. A finding holds across the plant's "
                  f"uncertainty where at least {HOLD_TARGET:.0%} of the plants hold it.", "",
-                 f"Decided by: the two deviations that move the finding's worst margin "
-                 f"most, each as the change at +{self.rel:.0%} (the check's scale; it holds "
-                 "at >= 0), and how much of the margin's spread a plane in all of them "
+                 "Decided by: the two deviations that move the finding's worst margin "
+                 "most, each as the change at the top of its range (the check's scale; it "
+                 "holds at >= 0), and how much of the margin's spread a plane in all of them "
                  "explains (R²).", "",
                  "Over-contracted: the plants whose own contracting branch the nominal "
                  "feedforward's Pi reaches at Po = p_min at every load and staircase target "
@@ -255,10 +286,11 @@ def _outcome(plant: Params, t2, open_step, sw) -> PlantOutcome:
 
 
 def robustness(nominal: Params, n: int = 32, *, seed: int = 0, rel: float = DEFAULT_REL,
-               dt: float = 1e-3, jobs: int = 1, progress: bool = False,
-               protocol: Protocol = SHIPPED) -> Robustness:
-    """Run every study of `wpam reproduce` on `n` plants sampled around `nominal`."""
-    plants = sampled_plants(nominal, sample_deviations(n, seed, rel))
+               measured: Mapping[str, float] | None = None, dt: float = 1e-3, jobs: int = 1,
+               progress: bool = False, protocol: Protocol = SHIPPED) -> Robustness:
+    """Run every study of `wpam reproduce` on `n` plants sampled around `nominal`, every
+    unmeasured value within +-rel of it but those `measured` gives their own half-width."""
+    plants = sampled_plants(nominal, sample_deviations(n, seed, rel, measured=measured))
     jobs_ = [b for p in plants for b in _plant_batches(p, protocol, dt)]
     results = execute(jobs_, jobs, failed=Failed, progress=progress, desc="robustness")
     outcomes = []
@@ -273,7 +305,7 @@ def robustness(nominal: Params, n: int = 32, *, seed: int = 0, rel: float = DEFA
             first = str(failed.error).splitlines()[0] if str(failed.error) else \
                 type(failed.error).__name__
             outcomes.append(PlantOutcome(plant.plant_deviation, (), {}, first, **shares))
-    return Robustness(tuple(outcomes), rel, seed)
+    return Robustness(tuple(outcomes), rel, seed, check_measured(measured or {}))
 
 
 def write_robustness(out: Path, result: Robustness) -> list[Path]:
@@ -296,7 +328,10 @@ def write_robustness(out: Path, result: Robustness) -> list[Path]:
     writer.writeheader()
     writer.writerows(rows)
     summary = {"plants": len(result.outcomes), "rel": result.rel, "seed": result.seed,
-               "parameters": list(UNMEASURED), "hold_target": HOLD_TARGET,
+               "parameters": list(UNMEASURED),
+               "uncertainty": dict(zip(UNMEASURED, half_widths(result.rel,
+                                                               dict(result.measured)))),
+               "hold_target": HOLD_TARGET,
                "held_fraction": result.held_fraction(),
                "over_contracted": len(result.over_contracted()[0]),
                "needed_share_quantiles": {f"{q:g}": phi for q, phi

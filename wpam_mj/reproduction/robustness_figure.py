@@ -46,7 +46,7 @@ def robustness_figure(result) -> Figure:
     ax1.set_xlim(0, 100)
     ax1.set_xlabel("plants holding the finding [%]")
     ax1.set_title(f"{len(result.outcomes)} plants, unmeasured values within "
-                  f"+-{result.rel:.0%}")
+                  f"{result.box()}")
     ax1.legend(loc="upper right", fontsize=8)
     for i, (row, load) in enumerate(CELLS):
         v = [o.cells[(row, load)] for o in result.outcomes if (row, load) in o.cells]
