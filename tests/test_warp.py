@@ -167,6 +167,29 @@ def test_every_preset_and_control_follows_the_plugin_on_warp(parity, case):
 
 
 @needs_warp
+@pytest.mark.skipif(not plugin.available(), reason="compares with the compiled plugin")
+def test_polytropic_chambers_follow_the_plugin_on_warp(parity):
+    """pneumatics.polytropic_index reaches Warp's chambers: adiabatic air (1.4) follows the
+    plugin within the parity tolerances, and moves Pi further than they allow from the
+    isothermal run."""
+    from wpam_mj.simulation.warp_backend import run_warp  # noqa: PLC0415 (the extra)
+
+    dt = 1e-3
+    t = np.arange(round(PARITY_S / dt)) * dt
+    x_ref = step_targets(t, LEVELS_MM, hold=PARITY_S / len(LEVELS_MM))
+    params = preset("wpam").with_values({"pneumatics.polytropic_index": 1.4})
+    run = Run.make(RunContext(params, dt, 100.0, "pi", 0.01),
+                   drive_for_targets(params, 100.0, x_ref, "pi", dt))
+    reference, (warp,) = simulate_run(run, "plugin"), run_warp([run], device="cpu")
+    assert not isinstance(warp, Exception), warp
+    for field, tolerance in TOLERANCE.items():
+        gap = np.max(np.abs(getattr(warp, field) - getattr(reference, field)))
+        assert gap <= tolerance, f"n 1.4 {field}: {gap:g} > {tolerance:g}"
+    isothermal = parity[0][CASES.index(("wpam", "pi"))]
+    assert np.max(np.abs(warp.pi - isothermal.pi)) > 100 * TOLERANCE["pi"]
+
+
+@needs_warp
 @pytest.mark.skipif(not plugin.available(), reason="the parity runs include the plugin's")
 @pytest.mark.parametrize("name", ["rlam", "mckibben"])
 def test_a_muscle_without_an_outer_bag_keeps_po_at_the_atmosphere_on_warp(parity, name):

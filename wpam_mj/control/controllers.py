@@ -221,7 +221,9 @@ class PIFlowFeedforward(PIControl):
         commands = []
         for p, v, conductance in ((p_i, v_i, pn_.inner_conductance),
                                   (p_o, v_o, pn_.outer_conductance)):
-            m_dot = np.gradient(p * v, dt) / pneumatics.RT0  # isothermal: d(pV)/dt = R T0 m
+            # R T0 m_dot = V dp/dt / n + p dV/dt = d(pV)/dt - (1 - 1/n) V dp/dt
+            m_dot = (np.gradient(p * v, dt) - (1.0 - 1.0 / pn_.polytropic_index) * v
+                     * np.gradient(p, dt)) / pneumatics.RT0
             source = pneumatics.source_pressure(m_dot, p, conductance, pn_.critical_ratio,
                                                 pa + pn_.p_max) - pa
             commands.append(_regulator_inverse(source, dt, pn_.dead_time, pn_.time_constant))

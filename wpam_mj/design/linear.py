@@ -19,7 +19,7 @@ feedforward there and the nominal Po.
 The extended model (`extended_model`) adds what §3 leaves out, each slope again taken
 numerically from the package's own functions: the muscle's stiffness -dT/dx and the Pi
 feedforward (Pi follows x_r, so the target also acts through Pi), each regulator's dead time
-(Pade approximant) and first-order lag, both isothermal chambers linearised about zero flow
+(Pade approximant) and first-order lag, both polytropic chambers linearised about zero flow
 (the slope of `pneumatics.mass_flow`, the chamber volume, and the pneumatic stiffness of its
 volume change dV/dx), and the derivative filter of the simulated PID. Dry friction has no
 linearisation: on the shipped plant it is what makes the simulation lag the models at every
@@ -75,10 +75,11 @@ def _slope(f: Callable[[float], float], at: float, step: float) -> float:
 
 @dataclass(frozen=True)
 class Chamber:
-    """One chamber linearised about zero flow (isothermal, `wpam_mj.physics.pneumatics`).
+    """One chamber linearised about zero flow (polytropic index n,
+    `wpam_mj.physics.pneumatics`).
 
-    V dp/dt = R T0 m_dot(p_set, p) - p (dV/dx) v  gives, for small deviations,
-    dp/dt = (R T0 (g_set dp_set - g_p dp) - p0 (dV/dx) v) / V.
+    V dp/dt = n (R T0 m_dot(p_set, p) - p (dV/dx) v)  gives, for small deviations,
+    dp/dt = n (R T0 (g_set dp_set - g_p dp) - p0 (dV/dx) v) / V.
     """
 
     volume: float  # V [m^3]
@@ -86,17 +87,19 @@ class Chamber:
     pressure: float  # p0, absolute [Pa]
     set_slope: float  # g_set = d m_dot / d p_set [kg/(s Pa)]
     pressure_slope: float  # g_p = -d m_dot / d p [kg/(s Pa)]
+    polytropic: float = 1.0  # n [1]
 
     @property
     def time_constant(self) -> float:
-        """V / (R T0 g_p) [s]: how fast the chamber follows its regulator."""
-        return self.volume / (pn.RT0 * self.pressure_slope)
+        """V / (n R T0 g_p) [s]: how fast the chamber follows its regulator."""
+        return self.volume / (self.polytropic * pn.RT0 * self.pressure_slope)
 
     def system(self, name: str, set_input: str, output: str) -> ct.StateSpace:
         """State space: inputs (set pressure [Pa], load velocity v [m/s]), output p [Pa]."""
-        a = -pn.RT0 * self.pressure_slope / self.volume
-        b = [[pn.RT0 * self.set_slope / self.volume,
-              -self.pressure * self.volume_slope / self.volume]]
+        n = self.polytropic
+        a = -n * pn.RT0 * self.pressure_slope / self.volume
+        b = [[n * pn.RT0 * self.set_slope / self.volume,
+              -n * self.pressure * self.volume_slope / self.volume]]
         return ct.ss([[a]], b, [[1.0]], [[0.0, 0.0]], name=name,
                      inputs=[set_input, "v"], outputs=[output])
 
@@ -125,7 +128,8 @@ def _chamber(params: Params, x: float, gauge: float, conductance: float,
         set_slope=_slope(lambda ps: pn.mass_flow(ps, p0, conductance, pnm.critical_ratio),
                          p0, step),
         pressure_slope=-_slope(lambda p: pn.mass_flow(p0, p, conductance,
-                                                      pnm.critical_ratio), p0, step))
+                                                      pnm.critical_ratio), p0, step),
+        polytropic=pnm.polytropic_index)
 
 
 @dataclass(frozen=True)

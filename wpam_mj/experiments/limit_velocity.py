@@ -84,6 +84,8 @@ VARIANTS = {
                               "pneumatics.outer_conductance": 10.0,
                               "pneumatics.supply_valve_conductance": 25.0,
                               "pneumatics.exhaust_valve_conductance": 25.0},
+    "polytropic chambers (n 1.2)": {"pneumatics.polytropic_index": 1.2},
+    "adiabatic chambers (n 1.4)": {"pneumatics.polytropic_index": 1.4},
 }
 _SCALED = ("pneumatics.inner_conductance", "pneumatics.outer_conductance",
            "pneumatics.supply_valve_conductance", "pneumatics.exhaust_valve_conductance")

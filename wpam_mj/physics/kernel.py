@@ -20,7 +20,7 @@ Units: SI (m, m^2, m^3, s, Pa, N, kg/s); pressures `*_gauge` or `pi`, `po` above
 atmosphere, `*_abs` or chamber/source pressures absolute. Sources: the braid's geometry
 Chou & Hannaford, IEEE Trans. Robot. Autom. 12(1), 1996, eqs. 1-5
 (`wpam_mj.physics.geometry`); the force and friction laws and the equilibrium of the
-paper's eqs. 1-7 (`wpam_mj.physics.muscle`); the flow law ISO 6358 and the isothermal
+paper's eqs. 1-7 (`wpam_mj.physics.muscle`); the flow law ISO 6358 and the polytropic
 chambers (`wpam_mj.physics.pneumatics`); the Po feedback of the paper's §4 with
 conditional-integration anti-windup (`wpam_mj.control.controllers`).
 """
@@ -164,7 +164,7 @@ def clip(value: float, lo: float, hi: float) -> float:
     return min(max(value, lo), hi)
 
 
-# ---- the pneumatics (ISO 6358 flow, isothermal chambers); absolute pressures ----
+# ---- the pneumatics (ISO 6358 flow, polytropic chambers); absolute pressures ----
 
 def subsonic_psi(r: float, critical_ratio: float) -> float:
     """sqrt(1 - ((r - b) / (1 - b))^2), ISO 6358's subsonic flow function."""
@@ -230,11 +230,14 @@ def regulator_flow(set_abs: float, chamber_abs: float, supply_abs: float,
 
 
 def chamber_step(chamber_abs: float, mass_flow_in: float, volume: float, dvdx: float,
-                 v: float, dt: float) -> float:
-    """One explicit Euler step of dp/dt = (R T0 m_dot - p dV/dx v) / V: the chamber's
-    new pressure [Pa abs] at inflow m_dot [kg/s], volume V [m^3], dV/dx [m^2] and
-    velocity v [m/s]."""
-    return chamber_abs + dt * (RT0 * mass_flow_in - chamber_abs * dvdx * v) / volume
+                 v: float, polytropic: float, dt: float) -> float:
+    """One explicit Euler step of dp/dt = n (R T0 m_dot - p dV/dx v) / V: the chamber's
+    new pressure [Pa abs] at inflow m_dot [kg/s], volume V [m^3], dV/dx [m^2], velocity
+    v [m/s] and polytropic index n [1] (1: isothermal; 1.4: adiabatic, air entering at
+    T0): the chamber model of Richer & Hurmuzlu, ASME J. Dyn. Syst. Meas. Control 122(3),
+    2000, with one index for charging, venting and the volume's change."""
+    return chamber_abs + dt * polytropic * (RT0 * mass_flow_in - chamber_abs * dvdx * v) \
+        / volume
 
 
 def inner_volume(bag_volume_inner: float, tube_volume: float) -> float:
@@ -255,8 +258,8 @@ def outer_dvdx(area: float, axial_area: float) -> float:
 
 def outer_chamber_step(outer_chamber: bool, chamber_abs: float, mass_flow_in: float,
                        bag_volume_inner: float, x: float, area: float, axial_area: float,
-                       outer_bag_volume: float, tube_volume: float, v: float, dt: float,
-                       atmosphere: float) -> float:
+                       outer_bag_volume: float, tube_volume: float, v: float,
+                       polytropic: float, dt: float, atmosphere: float) -> float:
     """The outer chamber's new pressure [Pa abs]: `chamber_step` at V_o and dV_o/dx, or,
     for a muscle type without an outer bag (MuscleType.outer_chamber false: rlam,
     mckibben), the atmosphere exactly: the inner bag swells into the open air, so Po is
@@ -265,7 +268,7 @@ def outer_chamber_step(outer_chamber: bool, chamber_abs: float, mass_flow_in: fl
         p = chamber_step(chamber_abs, mass_flow_in,
                          outer_volume(bag_volume_inner, x, axial_area, outer_bag_volume,
                                       tube_volume),
-                         outer_dvdx(area, axial_area), v, dt)
+                         outer_dvdx(area, axial_area), v, polytropic, dt)
     else:
         p = atmosphere
     return p
@@ -288,10 +291,11 @@ def max_flow_slope(conductance: float, critical_ratio: float) -> float:
     return conductance * RHO_0 * iso6358_psi(R_LAMINAR, critical_ratio) / (1.0 - R_LAMINAR)
 
 
-def stable_timestep(volume: float, conductance: float, critical_ratio: float) -> float:
+def stable_timestep(volume: float, conductance: float, critical_ratio: float,
+                    polytropic: float) -> float:
     """The largest step [s] at which `chamber_step` decays without oscillating near
-    equilibrium at the chamber's smallest volume [m^3]: V / (R T0 max_flow_slope)."""
-    return volume / (RT0 * max_flow_slope(conductance, critical_ratio))
+    equilibrium at the chamber's smallest volume [m^3]: V / (n R T0 max_flow_slope)."""
+    return volume / (polytropic * RT0 * max_flow_slope(conductance, critical_ratio))
 
 
 # ---- the regulators (command -> set point, gauge [Pa]); the dead time is a queue ----

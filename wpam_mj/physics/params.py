@@ -147,6 +147,10 @@ class Pneumatics(_Validated):
                                           "and an exhaust seat)", lo_open=True)
     critical_ratio: float = _p(0.5, "1", 0.0, 0.99, "ISO 6358 b, typical valve value")
     tube_volume: float = _p(2.5e-5, "m^3", 0.0, 0.01, "estimate (2 m of 4 mm bore tube)")
+    polytropic_index: float = _p(1.0, "1", 1.0, 1.67,
+                                 "isothermal air (slow, thin-walled bags); 1.4 for adiabatic "
+                                 "chambers, 1.2-1.4 measured on fast cylinders (Richer & "
+                                 "Hurmuzlu 2000); docs/physics.md measures what 1.4 changes")
     atmosphere: float = _p(101325.0, "Pa", 5e4, 2e5, "standard atmosphere")
 
 

@@ -26,8 +26,10 @@ Each regulator (SMC ITV2031: 0.005-0.5 MPa) is modelled as
      smaller of the two (`kernel.regulator_flow`). The ITV2031's valve (1500 L/min) is
      several times the lines', so on the paper's rig the lines set the flow.
 
-The chamber air is isothermal at T_0 (slow, thin-walled bags):
-        d(p V)/dt = R T_0 m_dot   =>   dp/dt = (R T_0 m_dot - p dV/dt) / V.
+The chamber air is polytropic with index n, isothermal at T_0 by default (n = 1: slow,
+thin-walled bags); n = 1.4 is adiabatic with the air entering at T_0 (Richer & Hurmuzlu,
+ASME J. Dyn. Syst. Meas. Control 122(3), 2000):
+        dp/dt = n (R T_0 m_dot - p dV/dt) / V   (n = 1: d(p V)/dt = R T_0 m_dot).
 with dV/dt = (dV/dx) v:
 Inner chamber: V_i = V(x) + V_tube, dV_i/dx = S(x).
 Outer chamber: V_o = V_bag - V(x) - A_ax x + V_tube, dV_o/dx = -(S(x) + A_ax).
@@ -97,12 +99,13 @@ def chamber_volumes_of(params: Params, x: np.ndarray) -> tuple[np.ndarray, np.nd
 
 def stable_timesteps(geometry: BraidGeometry, axial_area: float, bag_length: float,
                      bag_diameter: float, tube_volume: float, conductance_i: float,
-                     conductance_o: float, b: float) -> tuple[float, float]:
+                     conductance_o: float, b: float, polytropic: float
+                     ) -> tuple[float, float]:
     """The largest time steps [s] at which `kernel.chamber_step` (explicit Euler) is stable and
     does not oscillate, (inner chamber, outer chamber).
 
-    Near equilibrium dp/dt = R T_0 m_dot(p) / V is linear with rate
-    lambda = R T_0 max_flow_slope / V; explicit Euler decays monotonically for
+    Near equilibrium dp/dt = n R T_0 m_dot(p) / V is linear with rate
+    lambda = n R T_0 max_flow_slope / V; explicit Euler decays monotonically for
     dt lambda <= 1. V is each chamber's smallest volume over the stroke: the inner one at
     x = 0, the outer one at the full contraction. The plugin's rule table
     (`wpam_mj.physics.rules`) bounds the model's time step by both.
@@ -111,8 +114,8 @@ def stable_timesteps(geometry: BraidGeometry, axial_area: float, bag_length: flo
     bag = outer_bag_volume(bag_length, bag_diameter)
     v_i, _ = chamber_volumes(geometry.volume(0.0), 0.0, axial_area, bag, tube_volume)
     _, v_o = chamber_volumes(geometry.volume(x_max), x_max, axial_area, bag, tube_volume)
-    return (kernel.stable_timestep(v_i, conductance_i, b),
-            kernel.stable_timestep(v_o, conductance_o, b))
+    return (kernel.stable_timestep(v_i, conductance_i, b, polytropic),
+            kernel.stable_timestep(v_o, conductance_o, b, polytropic))
 
 
 def largest_stable_dt(params: Params) -> tuple[float, str]:
@@ -121,7 +124,8 @@ def largest_stable_dt(params: Params) -> tuple[float, str]:
     pn, b = params.pneumatics, params.braid
     limits = stable_timesteps(BraidGeometry.from_params(b), params.muscle.axial_area,
                               b.outer_bag_length, b.outer_bag_diameter, pn.tube_volume,
-                              pn.inner_conductance, pn.outer_conductance, pn.critical_ratio)
+                              pn.inner_conductance, pn.outer_conductance, pn.critical_ratio,
+                              pn.polytropic_index)
     return min(zip(limits, ("pneumatics.inner_conductance", "pneumatics.outer_conductance")))
 
 

@@ -90,7 +90,7 @@ def _stable_timestep(chamber: int) -> Callable[[Getter], float]:
             _geometry(get), get("muscle.axial_area"), get("braid.outer_bag_length"),
             get("braid.outer_bag_diameter"), get("pneumatics.tube_volume"),
             get("pneumatics.inner_conductance"), get("pneumatics.outer_conductance"),
-            get("pneumatics.critical_ratio"))[chamber]
+            get("pneumatics.critical_ratio"), get("pneumatics.polytropic_index"))[chamber]
     return compute
 
 
@@ -99,7 +99,7 @@ _BRAID = ("braid.natural_length", "braid.braid_angle", "braid.natural_diameter",
 _CHAMBERS = (*_BRAID, "muscle.axial_area", "braid.outer_bag_length",
              "braid.outer_bag_diameter", "pneumatics.tube_volume",
              "pneumatics.inner_conductance", "pneumatics.outer_conductance",
-             "pneumatics.critical_ratio")
+             "pneumatics.critical_ratio", "pneumatics.polytropic_index")
 DERIVED = {
     "locking_angle": Derived("rad", ("braid.natural_diameter", "braid.max_diameter"),
                              _locking_angle),

@@ -154,9 +154,9 @@ GIVEN_UP = {
         "the PI lags spread 13.2 deg at 0.5 Hz and 12.1 deg at 1 Hz across the loads, for "
         "the same reason as the gains: a load-dependent limit velocity (only a regulator "
         "whose own valve is the bottleneck, a tenth of the ITV2031's, contracts at one "
-        "speed for every load). Of 24 variants of the lines and valves none holds equal "
-        "gains and lags at both 0.5 and 1 Hz, and in 18 of the 20 that do not stall the "
-        "heavier load lags more at both (scripts/limit_velocity.py --sines)."),
+        "speed for every load). Of 26 variants of the lines, valves and chamber air none "
+        "holds equal gains and lags at both 0.5 and 1 Hz, and in 19 of the 22 that do not "
+        "stall the heavier load lags more at both (scripts/limit_velocity.py --sines)."),
     "pid_gain_equals_pi": (
         "at 150 N, 1 Hz, PID's gain is 0.236 against PI's 0.219 (7.7 %): where the loop "
         "runs at the limit velocity, PID's lead moves the command's switching points."),

@@ -343,10 +343,10 @@ class PythonMuscle:
                                     k.critical_ratio)
         p_i = h[_P_I] = kernel.chamber_step(h[_P_I], m_i,
                                             kernel.inner_volume(vol, k.tube_volume), area, v,
-                                            k.dt)
+                                            k.polytropic, k.dt)
         p_o = h[_P_O] = kernel.outer_chamber_step(self.outer_chamber, h[_P_O], m_o, vol, x,
                                                   area, axial, k.bag_volume, k.tube_volume, v,
-                                                  k.dt, k.atmosphere)
+                                                  k.polytropic, k.dt, k.atmosphere)
         if not (p_i > 0.0 and p_o > 0.0 and math.isfinite(p_i) and math.isfinite(p_o)):
             _set_status(h, plugin.STATUS_PRESSURE)
         block[:] = h

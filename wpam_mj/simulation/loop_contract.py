@@ -46,6 +46,7 @@ class RunConstants:
     supply_valve: float  # the regulators' valve conductances [m^3/(s Pa)]
     exhaust_valve: float
     tube_volume: float
+    polytropic: float  # the chambers' polytropic index
     bag_volume: float
     start_at_rest: int = 0  # 1: regulators and chambers start settled at the first commands
 
@@ -63,7 +64,7 @@ class RunConstants:
             critical_ratio=p.critical_ratio,
             supply_abs=p.supply_pressure + p.atmosphere,
             supply_valve=p.supply_valve_conductance, exhaust_valve=p.exhaust_valve_conductance,
-            tube_volume=p.tube_volume,
+            tube_volume=p.tube_volume, polytropic=p.polytropic_index,
             bag_volume=kernel.outer_bag_volume(params.braid.outer_bag_length,
                                                params.braid.outer_bag_diameter),
             start_at_rest=int(start_at_rest))

@@ -130,14 +130,15 @@ static void derive_geometry(Instance* k) {
 /* pneumatics.stable_timesteps: the longest stable step of each chamber's update [s]. */
 static void stable_timesteps(const Instance* k, double* dt_i, double* dt_o) {
   double b = k->p[P_PNEUMATICS_CRITICAL_RATIO], tube = k->p[P_PNEUMATICS_TUBE_VOLUME];
+  double n = k->p[P_PNEUMATICS_POLYTROPIC_INDEX];
   double bag = kernel_outer_bag_volume(k->p[P_BRAID_OUTER_BAG_LENGTH],
                                        k->p[P_BRAID_OUTER_BAG_DIAMETER]);
   double x_max = k->max_contraction;
   double v_i = kernel_inner_volume(volume_at(k, 0.0), tube);
   double v_o = kernel_outer_volume(volume_at(k, x_max), x_max, k->p[P_MUSCLE_AXIAL_AREA], bag,
                                    tube);
-  *dt_i = kernel_stable_timestep(v_i, k->p[P_PNEUMATICS_INNER_CONDUCTANCE], b);
-  *dt_o = kernel_stable_timestep(v_o, k->p[P_PNEUMATICS_OUTER_CONDUCTANCE], b);
+  *dt_i = kernel_stable_timestep(v_i, k->p[P_PNEUMATICS_INNER_CONDUCTANCE], b, n);
+  *dt_o = kernel_stable_timestep(v_o, k->p[P_PNEUMATICS_OUTER_CONDUCTANCE], b, n);
 }
 
 /* The derived quantities of the rules (rules.DERIVED), into q; k's geometry derived. */

@@ -358,11 +358,12 @@ static void wpam_advance(const mjModel* m, mjData* d, int instance) {
   m_o = regulator_flow(k, set_o, s[S_P_O], k->p[P_PNEUMATICS_OUTER_CONDUCTANCE]);
   s[S_P_I] = kernel_chamber_step(s[S_P_I], m_i,
                                  kernel_inner_volume(vol, k->p[P_PNEUMATICS_TUBE_VOLUME]),
-                                 area, v, k->dt);
+                                 area, v, k->p[P_PNEUMATICS_POLYTROPIC_INDEX], k->dt);
   /* no outer bag (rlam, mckibben): the atmosphere, exactly */
   s[S_P_O] = kernel_outer_chamber_step(k->outer_chamber, s[S_P_O], m_o, vol, x, area,
                                        k->p[P_MUSCLE_AXIAL_AREA], k->bag_volume,
-                                       k->p[P_PNEUMATICS_TUBE_VOLUME], v, k->dt, atmosphere);
+                                       k->p[P_PNEUMATICS_TUBE_VOLUME], v,
+                                       k->p[P_PNEUMATICS_POLYTROPIC_INDEX], k->dt, atmosphere);
   if (!(s[S_P_I] > 0.0 && s[S_P_O] > 0.0 && isfinite(s[S_P_I]) && isfinite(s[S_P_O])))
     set_status(s, WPAM_STATUS_PRESSURE);
 }

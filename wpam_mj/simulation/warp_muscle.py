@@ -79,7 +79,7 @@ WORLD_FIELDS = (
     "natural_diameter", "rubber_stiffness", "output_coeff", "axial_area", "friction_coeff",
     "friction_const", "guided", "atmosphere", "p_min", "p_max", "lag_alpha",
     "delay_steps", "critical_ratio", "inner_conductance", "outer_conductance",
-    "supply_abs", "supply_valve", "exhaust_valve", "tube_volume", "bag_volume",
+    "supply_abs", "supply_valve", "exhaust_valve", "tube_volume", "polytropic", "bag_volume",
     "outer_chamber", "kp", "ki", "kd", "derivative_filter",
     "pa_per_unit", "po_cap", "integral0", "feedforward_friction", "po_feedforward",
     "feedforward_load", "contraction0", "length0", "feedback", "nchannel", "start_at_rest",
@@ -111,6 +111,7 @@ def world_values(config, length0: float, dt: float, nchannel: int) -> dict[str, 
         "supply_abs": pn.supply_pressure + pn.atmosphere,
         "supply_valve": pn.supply_valve_conductance,
         "exhaust_valve": pn.exhaust_valve_conductance, "tube_volume": pn.tube_volume,
+        "polytropic": pn.polytropic_index,
         "bag_volume": k.outer_bag_volume(br.outer_bag_length, br.outer_bag_diameter),
         "outer_chamber": float(p.outer_chamber),
         "kp": c.kp, "ki": c.ki, "kd": c.kd if config.control == "pid" else 0.0,
@@ -303,10 +304,10 @@ def kernels() -> types.SimpleNamespace:
                                 p.outer_conductance[w], p.supply_valve[w], p.exhaust_valve[w],
                                 p.critical_ratio[w])
         p_i = kf.chamber_step(s[w, S_P_I], m_i, kf.inner_volume(vol, p.tube_volume[w]), area,
-                              v, p.dt[w])
+                              v, p.polytropic[w], p.dt[w])
         p_o = kf.outer_chamber_step(p.outer_chamber[w] != 0.0, s[w, S_P_O], m_o, vol, x, area,
                                     p.axial_area[w], p.bag_volume[w], p.tube_volume[w], v,
-                                    p.dt[w], atmosphere)
+                                    p.polytropic[w], p.dt[w], atmosphere)
         s[w, S_P_I] = p_i
         s[w, S_P_O] = p_o
         if not (p_i > 0.0 and p_o > 0.0 and wp.isfinite(p_i) and wp.isfinite(p_o)):
