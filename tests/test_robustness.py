@@ -161,6 +161,20 @@ def test_the_sensitivity_recovers_which_deviation_decides_a_finding():
     assert sens[name].describe() == "friction_coeff +2.00, braid_angle -0.50 (R² 1.00)"
 
 
+def test_the_steps_decided_at_landing_are_counted_among_the_plants_that_miss_them():
+    def plant(holds: bool, landed: bool | None, error: str = ""):
+        check = Check("steps_settle", "steps", holds, "", (Margin(1.0 if holds else -1.0, 0.0,
+                                                                  1, 1.0),))
+        return robustness.PlantOutcome((), (check,), {}, error,
+                                       steps_decided_at_landing=landed)
+
+    result = robustness.Robustness((plant(True, False), plant(False, True), plant(False, True),
+                                    plant(False, False), plant(False, None, "diverged")),
+                                   0.05, 0)
+    assert result.decided_at_landing() == (2, 3)
+    assert "PI steps: in 2 of the 3 plants that miss them" in result.markdown()
+
+
 def test_the_sensitivity_reads_a_measured_value_at_its_own_range():
     """With the braid angle measured to +-1 %, its slope is the margin's change at +1 %;
     known exactly, it is left out of the plane."""
@@ -210,6 +224,7 @@ def test_one_sampled_plant_runs_every_study_and_writes_its_files(tmp_path):
     (outcome,) = result.outcomes
     assert outcome.error == "" and {c.name for c in outcome.checks} == set(findings.FINDINGS)
     assert set(outcome.cells) == set(robustness.CELLS)
+    assert isinstance(outcome.steps_decided_at_landing, bool)
     written = robustness.write_robustness(tmp_path, result)
     assert sorted(p.name for p in written) == ["robustness.csv", "robustness.json",
                                                "robustness.md", "robustness.png"]

@@ -35,6 +35,7 @@ from wpam_mj.physics.params import Params, fitted_parameters
 from wpam_mj.errors import ParameterError, check_int, check_range
 from wpam_mj.reproduction import authority, findings
 from wpam_mj.reproduction.margins import Check
+from wpam_mj.reproduction.table2_findings import decided_at_landing
 from wpam_mj.simulation.execution import Batch, Failed, execute
 
 # Unmeasured plant parameters: the fitted ones, the line's ISO 6358 critical ratio and the
@@ -116,6 +117,9 @@ class PlantOutcome:
     # own contracting branch (`wpam_mj.reproduction.authority`); nan where not computed
     feedforward_share: float = math.nan
     needed_share: float = math.nan
+    # whether a PI plateau lands beyond what the PI's zero can remove before the settle
+    # window at some load (`table2_findings.decided_at_landing`); None where not run
+    steps_decided_at_landing: bool | None = None
 
     def holds(self, name: str) -> bool | None:
         """This plant's verdict on finding `name` (False where the plant failed to run)."""
@@ -181,6 +185,12 @@ class Robustness:
             v = [o.cells[cell] for o in self.outcomes if cell in o.cells]
             out[cell] = tuple(np.percentile(v, [5, 50, 95])) if v else (math.nan,) * 3
         return out
+
+    def decided_at_landing(self) -> tuple[int, int]:
+        """(plants whose PI steps miss and land beyond what the PI's zero can remove,
+        plants whose PI steps miss)."""
+        missed = [o for o in self.outcomes if not o.error and o.holds("steps_settle") is False]
+        return sum(bool(o.steps_decided_at_landing) for o in missed), len(missed)
 
     def needed_share_quantiles(self) -> dict[float, float]:
         """The nominal φ that would over-contract half, HOLD_TARGET and all of the plants
@@ -259,6 +269,12 @@ class Robustness:
                       "The nominal friction share φ that would over-contract "
                       + ", ".join(f"{q:.0%} of them is {phi:.2f}" for q, phi in needed.items())
                       + "."]
+        landed, missed = self.decided_at_landing()
+        if missed:
+            lines += ["", f"PI steps: in {landed} of the {missed} plants that miss them, a "
+                      "plateau lands beyond what the PI's own zero (exp(-t Ki/Kp)) can remove "
+                      "before the settle window, so no friction law would settle it "
+                      "(`StepRun.landing_floor`)."]
         lines += ["", "Table 2 cells over the plants (5th percentile / median / 95th "
                   "percentile) beside the paper's:", "",
                   "| cell | 5 % | median | 95 % | paper |", "|---|---|---|---|---|"]
@@ -282,7 +298,8 @@ def _outcome(plant: Params, t2, open_step, sw) -> PlantOutcome:
     checks = findings.all_checks(t2, open_step, sw)
     cells = {**{("open_po", k): v for k, v in t2.open_po.items()},
              **{("feedback", k): v for k, v in t2.feedback.items()}}
-    return PlantOutcome(plant.plant_deviation, tuple(checks), cells)
+    return PlantOutcome(plant.plant_deviation, tuple(checks), cells,
+                        steps_decided_at_landing=decided_at_landing(t2))
 
 
 def robustness(nominal: Params, n: int = 32, *, seed: int = 0, rel: float = DEFAULT_REL,
@@ -317,6 +334,7 @@ def write_robustness(out: Path, result: Robustness) -> list[Path]:
         row = {"plant": i, **{f"dev_{name}": d for name, d in o.deviation},
                **{f"{r}_{load:g}N": o.cells.get((r, load), math.nan) for r, load in CELLS},
                "feedforward_share": o.feedforward_share, "needed_share": o.needed_share,
+               "steps_decided_at_landing": o.steps_decided_at_landing,
                "error": o.error}
         for c in o.checks:
             row[f"{c.name}_holds"] = c.passed
@@ -334,6 +352,8 @@ def write_robustness(out: Path, result: Robustness) -> list[Path]:
                "hold_target": HOLD_TARGET,
                "held_fraction": result.held_fraction(),
                "over_contracted": len(result.over_contracted()[0]),
+               "steps_decided_at_landing": dict(zip(("landed", "missed"),
+                                                    result.decided_at_landing())),
                "needed_share_quantiles": {f"{q:g}": phi for q, phi
                                           in result.needed_share_quantiles().items()},
                "sensitivity": {name: {"r2": s.r2, "margin_change_at_plus_rel": dict(s.slopes)}

@@ -95,18 +95,30 @@ def _steps_settle(t2):
 
 def _steps_settle_detail(t2, margins):
     err, pp = margins[0::2], margins[1::2]  # per run: its error, then its peak-to-peak
-    floors = [_landing_floor(run) for run in t2.feedback_runs]
+    floors = landing_floors(t2)
     return ("worst settled error " + "/".join(f"{m.value / MM:.2f}" for m in err)
             + " mm against " + "/".join(f"{m.limit / MM:.2f}" for m in err)
             + " mm (Table 2's cells); p-p " + "/".join(f"{m.value / MM:.2f}" for m in pp)
             + f" mm (<= {STEP_PP_MM:g} mm); from where the plateaus landed, no quasi-static "
-            "plant (any friction law) gets below " + "/".join(floors) + " mm (the PI's zero)")
+            "plant (any friction law) gets below "
+            + "/".join("-" if math.isnan(v) else f"{v / MM:.2f}" for v in floors.values())
+            + " mm (the PI's zero)")
 
 
-def _landing_floor(run) -> str:
-    """The largest `StepRun.landing_floor` of a run [mm], as text ("-" if none)."""
-    floor = run.landing_floor(PLATEAU_SETTLE_S)
-    return f"{np.nanmax(floor) / MM:.2f}" if np.isfinite(floor).any() else "-"
+def landing_floors(t2) -> dict[float, float]:
+    """Per load [N], the largest `StepRun.landing_floor` of its PI staircase [m]: the least
+    worst settled error its landings leave any quasi-static plant (nan if none landed)."""
+    out = {}
+    for run in t2.feedback_runs:
+        floor = run.landing_floor(PLATEAU_SETTLE_S)
+        out[run.load] = float(np.nanmax(floor)) if np.isfinite(floor).any() else math.nan
+    return out
+
+
+def decided_at_landing(t2) -> bool:
+    """Whether some load's landings alone leave more than `plateau_error_limit` allows."""
+    limits = plateau_error_limit(t2)
+    return any(floor > limits[load] for load, floor in landing_floors(t2).items())
 
 
 def _plateau_pressures(t2) -> tuple[list[float], list[float]]:
