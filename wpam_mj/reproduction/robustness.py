@@ -155,7 +155,7 @@ class Robustness:
     measured: tuple[tuple[str, float], ...] = ()  # (name, its own half-width) pairs
 
     def box(self) -> str:
-        """The sampled box in words: "+-5 %" or "+-5 %, braid_angle +-1 %"."""
+        """The sampled box in words: "+-5%" or "+-5%, braid_angle +-1%"."""
         return ", ".join([f"+-{self.rel:.0%}"] + [f"{name.partition('.')[2]} +-{r:.0%}"
                                                   for name, r in self.measured])
 
