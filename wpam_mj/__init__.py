@@ -45,6 +45,10 @@ def _check_mujoco() -> None:
 
 with _termination.importing("wpam_mj"):
     _check_mujoco()
+    # MuJoCo's pybind11 modules swallow, or print, an exception raised inside their
+    # initialisation: a signal during their import is acted on once it is done
+    with _termination.deferred():
+        import mujoco  # noqa: F401
 
     import importlib.util as _importlib_util
 

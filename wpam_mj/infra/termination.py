@@ -182,6 +182,10 @@ def importing(package: str) -> Iterator[None]:
     previous = {sig: signal.signal(sig, _on_signal) for sig in mine}
     try:
         yield
+        if mine and _state.pending is not None:
+            # raised inside an extension module's initialisation, which swallowed it
+            # (measured: MuJoCo's pybind11 modules), so the import went on
+            raise _state.pending()
     except BaseException as error:
         stop = error
         if mine and _state.pending is not None and not isinstance(error, Interrupted):
