@@ -75,7 +75,7 @@ def sines(params, out: Path, dt: float) -> None:
               + f"  {'-' if stall else 'yes' if order else 'no'}")
     print(f"{alike} of {len(variants)} variants hold both sentences (gains within 5 % and "
           f"lags within 5 deg across loads at {' and '.join(map(str, SINE_FREQS))} Hz); "
-          f"{stalled} stall at 1 Hz; in {heavier} of the others the lag grows with load at "
+          f"{stalled} stall; in {heavier} of the others the lag grows with load at "
           f"both; wrote {out / 'sines.csv'}")
 
 

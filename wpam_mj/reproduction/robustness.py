@@ -154,6 +154,10 @@ class Robustness:
     seed: int
     measured: tuple[tuple[str, float], ...] = ()  # (name, its own half-width) pairs
 
+    def half_widths(self, names: Sequence[str] = UNMEASURED) -> np.ndarray:
+        """Each of `names`' relative half-width in this sample (`half_widths`)."""
+        return half_widths(self.rel, dict(self.measured), names)
+
     def box(self) -> str:
         """The sampled box in words: "+-5%" or "+-5%, braid_angle +-1%"."""
         return ", ".join([f"+-{self.rel:.0%}"] + [f"{name.partition('.')[2]} +-{r:.0%}"
@@ -210,7 +214,7 @@ class Robustness:
         if not ran:
             return {}
         names = [n for n, _ in ran[0].deviation]
-        width = half_widths(self.rel, dict(self.measured), names)
+        width = self.half_widths(names)
         names = [n for n, w in zip(names, width) if w > 0.0]
         if len(ran) <= len(names) + 1:
             return {}
@@ -307,7 +311,8 @@ def robustness(nominal: Params, n: int = 32, *, seed: int = 0, rel: float = DEFA
                progress: bool = False, protocol: Protocol = SHIPPED) -> Robustness:
     """Run every study of `wpam reproduce` on `n` plants sampled around `nominal`, every
     unmeasured value within +-rel of it but those `measured` gives their own half-width."""
-    plants = sampled_plants(nominal, sample_deviations(n, seed, rel, measured=measured))
+    measured = check_measured(measured or {})
+    plants = sampled_plants(nominal, sample_deviations(n, seed, rel, measured=dict(measured)))
     jobs_ = [b for p in plants for b in _plant_batches(p, protocol, dt)]
     results = execute(jobs_, jobs, failed=Failed, progress=progress, desc="robustness")
     outcomes = []
@@ -322,7 +327,7 @@ def robustness(nominal: Params, n: int = 32, *, seed: int = 0, rel: float = DEFA
             first = str(failed.error).splitlines()[0] if str(failed.error) else \
                 type(failed.error).__name__
             outcomes.append(PlantOutcome(plant.plant_deviation, (), {}, first, **shares))
-    return Robustness(tuple(outcomes), rel, seed, check_measured(measured or {}))
+    return Robustness(tuple(outcomes), rel, seed, measured)
 
 
 def write_robustness(out: Path, result: Robustness) -> list[Path]:
@@ -347,8 +352,7 @@ def write_robustness(out: Path, result: Robustness) -> list[Path]:
     writer.writerows(rows)
     summary = {"plants": len(result.outcomes), "rel": result.rel, "seed": result.seed,
                "parameters": list(UNMEASURED),
-               "uncertainty": dict(zip(UNMEASURED, half_widths(result.rel,
-                                                               dict(result.measured)))),
+               "uncertainty": dict(zip(UNMEASURED, result.half_widths())),
                "hold_target": HOLD_TARGET,
                "held_fraction": result.held_fraction(),
                "over_contracted": len(result.over_contracted()[0]),
