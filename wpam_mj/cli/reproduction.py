@@ -31,16 +31,18 @@ def add_parsers(add) -> None:
                         "uncertainty of every unmeasured value (Latin hypercube; "
                         "robustness.csv/json/png and a report.md section; default: 0)")
     robustness_options(p)
+    feedforward_model_option(p)
 
     p = add("robustness", "the paper's findings over plants sampled within the uncertainty "
-            "of every unmeasured plant value, the controller keeping its nominal model: the "
-            "fraction of plants holding each finding (split by whether the nominal Pi "
-            "over-contracts the plant), the deviations that decide it, and the spread of "
-            "Table 2's cells",
+            "of every unmeasured plant value, the controller's model fitted to each plant's "
+            "own open-loop loops (or nominal): the fraction of plants holding each finding "
+            "(split by whether the feedforward's Pi over-contracts the plant), the "
+            "deviations that decide it, and the spread of Table 2's cells",
             _cmd_robustness)
     p.add_argument("--samples", type=int, default=32, metavar="N",
                    help="plants to sample (default: 32)")
     robustness_options(p)
+    feedforward_model_option(p)
     ramp_time_option(p)
     protocol_options(p)
     out_dir_option(p, "robustness")
@@ -127,6 +129,22 @@ def robustness_options(p) -> None:
                         "0: known exactly); the others keep --robustness-rel")
 
 
+def feedforward_model_option(p) -> None:
+    from wpam_mj.reproduction.feedforward_fit import FEEDFORWARD_MODELS  # noqa: PLC0415
+    p.add_argument("--feedforward-model", choices=FEEDFORWARD_MODELS, default="calibrated",
+                   help="the controller's equilibrium model (the Pi feedforward): calibrated, "
+                        "fitted to the plant's own open-loop loops (Figs. 8-9, each sampled "
+                        "plant's own) as the paper's experimenter fits it; or nominal, the "
+                        "parameters' own values, a controller that knows the nominal plant "
+                        "exactly (default: calibrated)")
+
+
+def robustness_sample(args: argparse.Namespace, n: int) -> dict:
+    """The keywords of `robustness.robustness` that the robustness options give."""
+    return dict(n=n, seed=args.robustness_seed, rel=args.robustness_rel,
+                measured=measured_of(args), feedforward=args.feedforward_model)
+
+
 def measured_of(args: argparse.Namespace) -> dict[str, float]:
     """--uncertainty NAME=R items as {name: R} (checked where the sample is drawn)."""
     out = {}
@@ -147,10 +165,8 @@ def _cmd_robustness(args: argparse.Namespace) -> int:
     params, protocol = protocol_of(args, run.params)
     out = out_dir_of(args)
     start = time.perf_counter()
-    result = robustness(params, args.samples, seed=args.robustness_seed,
-                        rel=args.robustness_rel, measured=measured_of(args), dt=run.dt,
-                        jobs=run.jobs,
-                        progress=run.progress, protocol=protocol)
+    result = robustness(params, **robustness_sample(args, args.samples), dt=run.dt,
+                        jobs=run.jobs, progress=run.progress, protocol=protocol)
     written = write_robustness(out, result)
     print(result.markdown())
     print(f"wrote {', '.join(str(p) for p in written)} ({time.perf_counter() - start:.1f} s)")
@@ -165,14 +181,14 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     compare = [params if n == args.preset else params_of(args, n) for n in COMPARED_TYPES]
     liftable_loads(paper.LOADS_N, [params], "reproduce load")
     out = out_dir_of(args)
-    settings = {"compare_presets": COMPARED_TYPES, "dt_s": run.dt, **protocol_settings(protocol)}
+    settings = {"compare_presets": COMPARED_TYPES, "dt_s": run.dt,
+                "feedforward_model": args.feedforward_model, **protocol_settings(protocol)}
     rid = run_id_of(args, params, settings)
     start = time.perf_counter()
     rep = reproduce(out, params, dt=run.dt, jobs=run.jobs, progress=run.progress,
                     compare=compare, run_id=rid, protocol=protocol,
-                    robustness_samples=args.robustness, robustness_seed=args.robustness_seed,
-                    robustness_rel=args.robustness_rel,
-                    robustness_measured=measured_of(args))
+                    feedforward=args.feedforward_model,
+                    robustness_sample=robustness_sample(args, args.robustness))
     manifest = write_run_manifest(args, out, rid, params, settings, rep.files)
     print(tables.table2_text(rep.table2))
     print(findings.checks_text(rep.checks))

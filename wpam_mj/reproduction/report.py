@@ -18,8 +18,10 @@ from wpam_mj.reproduction.margins import Check, checks_markdown, score
 
 def report_markdown(t2: Table2Result, sw: SweepResult, open_step: StepRun,
                     preset_loops: Sequence[StaticLoop], checks: Sequence[Check],
-                    protocol: Protocol = SHIPPED) -> str:
-    """report.md of `wpam reproduce`; the parameters and dt are those Table 2 ran with."""
+                    protocol: Protocol = SHIPPED, controller_model: str = "") -> str:
+    """report.md of `wpam reproduce`; the parameters and dt are those Table 2 ran with
+    (the plant's); `controller_model`: how the feedforward's model differs from it
+    (markdown; empty: the controller reads the plant's own values)."""
     params, dt = t2.context.params, t2.context.dt
     ref = t2.paper()
     calib = (f"`{CALIBRATION_FILE.name}` present" if CALIBRATION_FILE.exists() else
@@ -120,7 +122,9 @@ def report_markdown(t2: Table2Result, sw: SweepResult, open_step: StepRun,
         "",
         "## Parameters",
         "",
-        params_markdown(params),
+        params_markdown(params.plant),
+        "",
+        controller_model or "The controller's equilibrium model reads these values.",
         "",
     ]
     return "\n".join(md)

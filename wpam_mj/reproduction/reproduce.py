@@ -10,11 +10,11 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Any, Mapping, Sequence
 
 from wpam_mj import paper
 from wpam_mj.experiments import figures
-from wpam_mj.reproduction import findings, robustness
+from wpam_mj.reproduction import feedforward_fit, findings, robustness
 from wpam_mj.reproduction.findings import Check
 from wpam_mj.physics.muscle_types import COMPARED_TYPES
 from wpam_mj.physics.params import Params, preset
@@ -24,7 +24,7 @@ from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
 from wpam_mj.experiments.paper_studies import StaticTask, StepTask, figure_run_key, sweep_batch
 from wpam_mj.experiments.responses import SweepResult, Table2Result
-from wpam_mj.simulation.execution import Batch, execute
+from wpam_mj.simulation.execution import Batch, Failed, execute
 from wpam_mj.experiments.writers import (run_metadata, sine_csv_name, static_csv_name,
                                          step_csv_name, write_sweep, write_table2)
 
@@ -71,9 +71,8 @@ class Reproduction:
 def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: int = 1,
               progress: bool = False, compare: Sequence[Params] | None = None,
               run_id: str | None = None, protocol: Protocol = SHIPPED,
-              robustness_samples: int = 0, robustness_seed: int = 0,
-              robustness_rel: float = robustness.DEFAULT_REL,
-              robustness_measured: Mapping[str, float] | None = None) -> Reproduction:
+              feedforward: str = "calibrated",
+              robustness_sample: Mapping[str, Any] | None = None) -> Reproduction:
     """Run every experiment and write CSV/PNG/JSON and `report.md` into `out_dir`.
 
     Args:
@@ -83,17 +82,17 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
       dt: physics step [s]; jobs: process-pool size.
       run_id: the run's id (`wpam_mj.infra.manifest.run_id`), recorded in every figure.
       protocol: the static ramps' readings (`wpam_mj.experiments.protocol`) for Figs. 8-9, Table 2.
-      robustness_samples: N > 0 adds the findings over N plants sampled within
-        +-`robustness_rel` of every unmeasured value, or the half-width
-        `robustness_measured` gives it (`wpam_mj.reproduction.robustness`, seeded by
-        `robustness_seed`), to report.md and its files.
+      feedforward: the controller's equilibrium model (`feedforward_fit`): "calibrated",
+        fitted to the plant's own open-loop loops first; "nominal", `params`' own values.
+      robustness_sample: the keywords of `wpam_mj.reproduction.robustness.robustness`
+        (n plants, seed, rel, measured, feedforward): adds the findings over those
+        plants to report.md and its files (None or n = 0: none).
     """
     out = Path(out_dir)
     data = out / "data"
+    feedforward_fit.check_feedforward_model(feedforward)
     compare = list(compare) if compare is not None else [
         params if name == params.preset else preset(name) for name in COMPARED_TYPES]
-    extra = ([StepTask(params, 100.0, "open", dt)]
-             + [StaticTask(p, PRESET_COMPARE_LOAD_N, 0.0, dt) for p in compare if p != params])
 
     files: dict[Path, dict] = {}
 
@@ -111,6 +110,17 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
     # Table 2's and the comparisons' runs; then the sweep's runs here while their CSVs and
     # figures are drawn on the pool; then the sweep's.
     with open_workers(jobs) as workers:
+        plant, controller_model = params, ""
+        if feedforward == "calibrated":
+            (fit,) = feedforward_fit.calibrate([plant], protocol, dt, workers)
+            if isinstance(fit, Failed):
+                raise fit.error
+            params, fit_rms = fit
+            compare = [params if p == plant else p for p in compare]
+            controller_model = feedforward_fit.model_markdown(params, fit_rms)
+        extra = ([StepTask(params, 100.0, "open", dt)]
+                 + [StaticTask(p, PRESET_COMPARE_LOAD_N, 0.0, dt) for p in compare
+                    if p != params])
         t2, (open_step, *preset_runs) = execute(
             [table2_batch(params, protocol, dt=dt), Batch(extra, list)], workers,
             progress=progress, desc="reproduce")
@@ -154,11 +164,11 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
         checks = findings.all_checks(t2, open_step, sw)
         files[write_checks(out, checks)] = {}
         execute(outputs, workers, progress=progress, desc="files")
-    text = report_markdown(t2, sw, open_step, preset_loops, checks, protocol)
-    if robustness_samples:
-        rob = robustness.robustness(params, robustness_samples, seed=robustness_seed,
-                                    rel=robustness_rel, measured=robustness_measured, dt=dt,
-                                    jobs=jobs, progress=progress, protocol=protocol)
+    text = report_markdown(t2, sw, open_step, preset_loops, checks, protocol,
+                           controller_model)
+    if robustness_sample and robustness_sample.get("n"):
+        rob = robustness.robustness(plant, **robustness_sample, dt=dt, jobs=jobs,
+                                    progress=progress, protocol=protocol)
         files.update(dict.fromkeys(robustness.write_robustness(out, rob), {}))
         text += ("\n## Robustness: the findings across the plant's uncertainty\n\n"
                  + rob.markdown() + "\n\n![Robustness](robustness.png)\n")

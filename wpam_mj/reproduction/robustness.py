@@ -9,8 +9,10 @@ known to perhaps +-5 %.
 (scipy.stats.qmc.LatinHypercube: every parameter's range cut into N strata, each used
 once), runs every study of `wpam reproduce` on each, and reports per finding the fraction
 of plants that hold it and the spread of each Table 2 cell. The controller's feedforward
-keeps the nominal values throughout (`Params.plant_deviation`): it is an experimenter's
-model of the plant, not the plant.
+is an experimenter's model of the plant, not the plant (`Params.plant_deviation`): by
+default it keeps the nominal values throughout; with feedforward="calibrated" it is
+fitted to each plant's own open-loop loops (Figs. 8-9) as the paper's experimenter fits
+the mechanical equilibrium model (`wpam_mj.reproduction.feedforward_fit`).
 """
 
 from __future__ import annotations
@@ -33,10 +35,12 @@ from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.physics.params import Params, fitted_parameters
 from wpam_mj.errors import ParameterError, check_int, check_range
-from wpam_mj.reproduction import authority, findings
+from wpam_mj.infra.pool import open_workers
+from wpam_mj.reproduction import authority, feedforward_fit, findings
 from wpam_mj.reproduction.margins import Check
 from wpam_mj.reproduction.table2_findings import decided_at_landing
 from wpam_mj.simulation.execution import Batch, Failed, execute
+from wpam_mj.units import MM
 
 # Unmeasured plant parameters: the fitted ones, the line's ISO 6358 critical ratio and the
 # tube volume (estimates), the supply the paper does not state and the exhaust valve the
@@ -112,14 +116,20 @@ class PlantOutcome:
     checks: tuple[Check, ...]
     cells: dict[tuple[str, float], float]
     error: str = ""
-    # the branch the nominal feedforward puts this plant on (>= 1: over-contracted, so
-    # the Po loop can reach every target) and the nominal φ that would put it on its
-    # own contracting branch (`wpam_mj.reproduction.authority`); nan where not computed
+    # the branch the controller's feedforward puts this plant on (>= 1: over-contracted,
+    # so the Po loop can reach every target) and the φ of its model that would put the
+    # plant on its own contracting branch (`wpam_mj.reproduction.authority`); nan where
+    # not computed
     feedforward_share: float = math.nan
     needed_share: float = math.nan
     # whether a PI plateau lands beyond what the PI's zero can remove before the settle
     # window at some load (`table2_findings.decided_at_landing`); None where not run
     steps_decided_at_landing: bool | None = None
+    # the controller's equilibrium model against this plant: (name, model / plant - 1)
+    # for each value it reads (`feedforward_fit.FEEDFORWARD_MODEL`), and, where it was
+    # fitted to the plant's loops, the fit's rms x residual [m] (nan: nominal values)
+    model_error: tuple[tuple[str, float], ...] = ()
+    fit_rms: float = math.nan
 
     def holds(self, name: str) -> bool | None:
         """This plant's verdict on finding `name` (False where the plant failed to run)."""
@@ -153,6 +163,7 @@ class Robustness:
     rel: float
     seed: int
     measured: tuple[tuple[str, float], ...] = ()  # (name, its own half-width) pairs
+    feedforward: str = "nominal"  # the controller's model (feedforward_fit.FEEDFORWARD_MODELS)
 
     def half_widths(self, names: Sequence[str] = UNMEASURED) -> np.ndarray:
         """Each of `names`' relative half-width in this sample (`half_widths`)."""
@@ -162,6 +173,23 @@ class Robustness:
         """The sampled box in words: "+-5%" or "+-5%, braid_angle +-1%"."""
         return ", ".join([f"+-{self.rel:.0%}"] + [f"{name.partition('.')[2]} +-{r:.0%}"
                                                   for name, r in self.measured])
+
+    def describe_feedforward(self) -> str:
+        """The controller's equilibrium model in words, with how far it sits from the
+        plants (median |model / plant - 1| of each value it reads)."""
+        if self.feedforward == "nominal":
+            return "the controller's feedforward keeps the nominal values."
+        errors = self.model_errors()
+        return ("the controller's equilibrium model is fitted to each plant's own open-loop "
+                "loops (Figs. 8-9, the gauges at 1 kPa; `feedforward_fit`), median |model / "
+                "plant - 1|: " + ", ".join(f"{n.partition('.')[2]} {e:.1%}"
+                                           for n, e in errors.items()) + ".")
+
+    def model_errors(self) -> dict[str, float]:
+        """Per value the controller's model reads, the median |model / plant - 1|."""
+        rows = [dict(o.model_error) for o in self.outcomes if o.model_error]
+        return {n: float(np.median([abs(r[n]) for r in rows]))
+                for n in feedforward_fit.FEEDFORWARD_MODEL} if rows else {}
 
     def held_fraction(self) -> dict[str, float]:
         """Per finding, the fraction of plants that hold it (a plant that failed to run
@@ -177,7 +205,7 @@ class Robustness:
         return out
 
     def over_contracted(self) -> tuple[list[PlantOutcome], list[PlantOutcome]]:
-        """The plants the nominal feedforward over-contracts (share >= 1) and the rest."""
+        """The plants the controller's feedforward over-contracts (share >= 1) and the rest."""
         shares = [o for o in self.outcomes if math.isfinite(o.feedforward_share)]
         return ([o for o in shares if o.feedforward_share >= 1.0],
                 [o for o in shares if o.feedforward_share < 1.0])
@@ -197,8 +225,9 @@ class Robustness:
         return sum(bool(o.steps_decided_at_landing) for o in missed), len(missed)
 
     def needed_share_quantiles(self) -> dict[float, float]:
-        """The nominal φ that would over-contract half, HOLD_TARGET and all of the plants
-        (quantiles of their needed shares; empty where none was computed)."""
+        """The φ of the controller's model that would over-contract half, HOLD_TARGET and
+        all of the plants (quantiles of their needed shares; empty where none was
+        computed)."""
         needed = [o.needed_share for o in self.outcomes if math.isfinite(o.needed_share)]
         return {q: float(np.quantile(needed, q)) for q in (0.5, HOLD_TARGET, 1.0)} \
             if needed else {}
@@ -238,8 +267,8 @@ class Robustness:
         held = self.held_fraction()
         n = len(self.outcomes)
         lines = [f"{n} plants, every unmeasured parameter within {self.box()} of its "
-                 f"nominal value (Latin hypercube, seed {self.seed}); the controller's "
-                 "feedforward keeps the nominal values. A finding holds across the plant's "
+                 f"nominal value (Latin hypercube, seed {self.seed}); "
+                 f"{self.describe_feedforward()} A finding holds across the plant's "
                  f"uncertainty where at least {HOLD_TARGET:.0%} of the plants hold it.", "",
                  "Decided by: the two deviations that move the finding's worst margin "
                  "most, each as the change at the top of its range (the check's scale; it "
@@ -269,8 +298,8 @@ class Robustness:
                          f"{share(held_over[name], len(over))} | "
                          f"{share(held_short[name], len(short))} |")
         if needed := self.needed_share_quantiles():
-            lines += ["", f"The nominal feedforward over-contracts {len(over)} of {n} plants. "
-                      "The nominal friction share φ that would over-contract "
+            lines += ["", f"The feedforward over-contracts {len(over)} of {n} plants. "
+                      "The friction share φ of its model that would over-contract "
                       + ", ".join(f"{q:.0%} of them is {phi:.2f}" for q, phi in needed.items())
                       + "."]
         landed, missed = self.decided_at_landing()
@@ -298,36 +327,62 @@ def _plant_batches(plant: Params, protocol: Protocol, dt: float) -> list[Batch]:
             sweep_batch(plant, dt=dt, keep=())]
 
 
-def _outcome(plant: Params, t2, open_step, sw) -> PlantOutcome:
-    checks = findings.all_checks(t2, open_step, sw)
-    cells = {**{("open_po", k): v for k, v in t2.open_po.items()},
-             **{("feedback", k): v for k, v in t2.feedback.items()}}
-    return PlantOutcome(plant.plant_deviation, tuple(checks), cells,
-                        steps_decided_at_landing=decided_at_landing(t2))
+def _model_error(plant: Params) -> tuple[tuple[str, float], ...]:
+    truth = plant.plant
+    return tuple((n, float(plant.value(n) / truth.value(n) - 1.0))
+                 for n in feedforward_fit.FEEDFORWARD_MODEL)
+
+
+def _failure(results) -> str | None:
+    failed = next((r for r in results if isinstance(r, Failed)), None)
+    if failed is None:
+        return None
+    return str(failed.error).splitlines()[0] if str(failed.error) else \
+        type(failed.error).__name__
 
 
 def robustness(nominal: Params, n: int = 32, *, seed: int = 0, rel: float = DEFAULT_REL,
                measured: Mapping[str, float] | None = None, dt: float = 1e-3, jobs: int = 1,
-               progress: bool = False, protocol: Protocol = SHIPPED) -> Robustness:
+               progress: bool = False, protocol: Protocol = SHIPPED,
+               feedforward: str = "calibrated") -> Robustness:
     """Run every study of `wpam reproduce` on `n` plants sampled around `nominal`, every
-    unmeasured value within +-rel of it but those `measured` gives their own half-width."""
+    unmeasured value within +-rel of it but those `measured` gives their own half-width;
+    the controller's equilibrium model `feedforward`: "calibrated" (fitted to each plant's
+    own open-loop loops, `feedforward_fit.calibrate`) or "nominal" (the nominal values)."""
     measured = check_measured(measured or {})
+    feedforward_fit.check_feedforward_model(feedforward)
     plants = sampled_plants(nominal, sample_deviations(n, seed, rel, measured=dict(measured)))
-    jobs_ = [b for p in plants for b in _plant_batches(p, protocol, dt)]
-    results = execute(jobs_, jobs, failed=Failed, progress=progress, desc="robustness")
-    outcomes = []
-    for i, plant in enumerate(plants):
-        t2, open_step, sw = results[3 * i:3 * i + 3]
-        failed = next((r for r in (t2, open_step, sw) if isinstance(r, Failed)), None)
-        shares = dict(feedforward_share=authority.plant_share(plant),
-                      needed_share=authority.needed_share(plant))
-        if failed is None:
-            outcomes.append(dataclasses.replace(_outcome(plant, t2, open_step, sw), **shares))
+    deviations = [p.plant_deviation for p in plants]
+    with open_workers(jobs) as workers:
+        if feedforward == "calibrated":
+            fits = feedforward_fit.calibrate(plants, protocol, dt, workers, progress)
+            plants = [f if isinstance(f, Failed) else f[0] for f in fits]
+            rms = [math.nan if isinstance(f, Failed) else f[1] for f in fits]
         else:
-            first = str(failed.error).splitlines()[0] if str(failed.error) else \
-                type(failed.error).__name__
-            outcomes.append(PlantOutcome(plant.plant_deviation, (), {}, first, **shares))
-    return Robustness(tuple(outcomes), rel, seed, measured)
+            rms = [math.nan] * len(plants)
+        runnable = [p for p in plants if not isinstance(p, Failed)]
+        results = iter(execute([b for p in runnable for b in _plant_batches(p, protocol, dt)],
+                               workers, failed=Failed, progress=progress, desc="robustness"))
+    outcomes = []
+    for plant, deviation, fit_rms in zip(plants, deviations, rms):
+        if isinstance(plant, Failed):
+            outcomes.append(PlantOutcome(deviation, (), {}, _failure([plant]), fit_rms=fit_rms))
+            continue
+        t2, open_step, sw = (next(results) for _ in range(3))
+        known = dict(feedforward_share=authority.plant_share(plant),
+                     needed_share=authority.needed_share(plant),
+                     model_error=_model_error(plant), fit_rms=fit_rms)
+        error = _failure((t2, open_step, sw))
+        if error is None:
+            checks = findings.all_checks(t2, open_step, sw)
+            cells = {**{("open_po", k): v for k, v in t2.open_po.items()},
+                     **{("feedback", k): v for k, v in t2.feedback.items()}}
+            outcomes.append(PlantOutcome(deviation, tuple(checks), cells,
+                                         steps_decided_at_landing=decided_at_landing(t2),
+                                         **known))
+        else:
+            outcomes.append(PlantOutcome(deviation, (), {}, error, **known))
+    return Robustness(tuple(outcomes), rel, seed, measured, feedforward)
 
 
 def write_robustness(out: Path, result: Robustness) -> list[Path]:
@@ -340,7 +395,8 @@ def write_robustness(out: Path, result: Robustness) -> list[Path]:
                **{f"{r}_{load:g}N": o.cells.get((r, load), math.nan) for r, load in CELLS},
                "feedforward_share": o.feedforward_share, "needed_share": o.needed_share,
                "steps_decided_at_landing": o.steps_decided_at_landing,
-               "error": o.error}
+               **{f"model_error_{name}": e for name, e in o.model_error},
+               "fit_rms_mm": o.fit_rms / MM, "error": o.error}
         for c in o.checks:
             row[f"{c.name}_holds"] = c.passed
             row[f"{c.name}_margin"] = c.worst_margin
@@ -353,6 +409,8 @@ def write_robustness(out: Path, result: Robustness) -> list[Path]:
     summary = {"plants": len(result.outcomes), "rel": result.rel, "seed": result.seed,
                "parameters": list(UNMEASURED),
                "uncertainty": dict(zip(UNMEASURED, result.half_widths())),
+               "feedforward": result.feedforward,
+               "model_error_median": result.model_errors(),
                "hold_target": HOLD_TARGET,
                "held_fraction": result.held_fraction(),
                "over_contracted": len(result.over_contracted()[0]),

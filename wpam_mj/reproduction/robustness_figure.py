@@ -17,7 +17,7 @@ from wpam_mj.reproduction import findings  # noqa: E402
 
 def robustness_figure(result) -> Figure:
     """Left: fraction of plants holding each finding (the 80 % target dashed), split into
-    the plants the nominal feedforward over-contracts (solid) and the others (pale); right:
+    the plants the controller's feedforward over-contracts (solid) and the others (pale); right:
     Table 2's cells of every plant (dots) and the paper's (black bars), log scale."""
     from wpam_mj.reproduction.robustness import CELLS, HOLD_TARGET  # noqa: PLC0415
 
@@ -32,7 +32,7 @@ def robustness_figure(result) -> Figure:
         pale = [100 * sum(bool(o.holds(n)) for o in short) / total for n in names]
         ax1.barh(range(len(names)), solid, color=colours)
         ax1.barh(range(len(names)), pale, left=solid, color=colours, alpha=0.4)
-        for alpha, label in ((1.0, f"over-contracted by the nominal Pi ({len(over)} plants)"),
+        for alpha, label in ((1.0, f"over-contracted by the feedforward's Pi ({len(over)} plants)"),
                              (0.4, f"the others ({len(short)} plants)")):
             ax1.barh([0], [0], color="0.35", alpha=alpha, label=label)  # legend key only
     else:

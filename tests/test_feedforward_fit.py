@@ -1,0 +1,104 @@
+"""The controller's equilibrium model fitted to the plant's own open-loop loops (Figs. 8-9),
+as the paper's experimenter has it: the fit recovers a known model, keeps the plant the
+plant, and puts the feedforward on the plant's own contracting branch where the nominal
+values miss it."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from wpam_mj import paper
+from wpam_mj.experiments.protocol import SHIPPED, ProtocolStaticTask
+from wpam_mj.physics.muscle import MuscleModel
+from wpam_mj.physics.params import preset
+from wpam_mj.physics.quasistatic import ramp_contraction
+from wpam_mj.reproduction import authority, feedforward_fit, robustness
+from wpam_mj.errors import ParameterError
+from wpam_mj.simulation.execution import execute
+from wpam_mj.units import MPA
+
+# a plant 5 % off the nominal model in the values the feedforward reads: the nominal
+# feedforward leaves it short of its contracting branch (plant_share < 1)
+OFF = (("braid.braid_angle", 0.04), ("muscle.output_coeff", -0.03),
+       ("muscle.friction_coeff", 0.02), ("muscle.friction_const", -0.05),
+       ("muscle.axial_area", 0.03))
+
+
+def _quasi_static_loops(params):
+    """The loops of slow ramps, straight from the equilibrium model (no dynamics)."""
+    model = MuscleModel.from_params(params)
+    top, p_min, n = SHIPPED.top(params, 50.0), params.pneumatics.p_min, 150
+    pi = np.concatenate([np.linspace(p_min, top, n), np.linspace(top, p_min, n)[1:]])
+    out = []
+    for load in paper.LOADS_N:
+        for po_down in (0.0, paper.PO_DOWN_STATIC_MPA * MPA):
+            po = np.where(np.arange(pi.size) >= n, po_down, 0.0)
+            out.append(feedforward_fit.MeasuredLoop(load, pi, po,
+                                                    ramp_contraction(model, pi, po, load)))
+    return out
+
+
+def test_the_fit_recovers_a_known_equilibrium_model_from_its_own_loops():
+    """Recovery through the model: loops drawn from a model 2-5 % off the start give
+    that model back (every value the feedforward reads, to 0.1 %)."""
+    start = preset("wpam")
+    truth = start.with_values({n: start.value(n) * (1 + d) for n, d in OFF})
+    fit = feedforward_fit.fit_feedforward(start, _quasi_static_loops(truth))
+    assert fit.rms < 1e-6
+    for name in feedforward_fit.FEEDFORWARD_MODEL:
+        assert fit.values[name] == pytest.approx(truth.value(name), rel=1e-3), name
+
+
+def test_the_calibrated_controller_keeps_the_plant_and_reads_the_fit():
+    params = dataclasses.replace(preset("wpam"), plant_deviation=OFF)
+    fit = feedforward_fit.FeedforwardFit({"muscle.output_coeff": 0.47,
+                                          "muscle.friction_const": 11.0}, 0.0)
+    controller = fit.controller_of(params)
+    assert controller.value("muscle.output_coeff") == 0.47
+    assert controller.value("muscle.friction_const") == 11.0
+    for name, _ in OFF:  # the simulated plant is the same muscle
+        assert controller.plant.value(name) == pytest.approx(params.plant.value(name),
+                                                             rel=1e-12)
+
+
+@pytest.fixture(scope="module")
+def simulated_loops():
+    """The off plant's six open-loop ramps (60 s each way), simulated as the rig runs them."""
+    params = dataclasses.replace(preset("wpam"), plant_deviation=OFF)
+    tasks = [ProtocolStaticTask(params, load, po, 1e-3, SHIPPED) for load in paper.LOADS_N
+             for po in (0.0, paper.PO_DOWN_STATIC_MPA * MPA)]
+    return params, execute(tasks, 2)
+
+
+def test_the_log_reads_the_gauges_at_their_resolution(simulated_loops):
+    _, loops = simulated_loops
+    logged = feedforward_fit.measured_loop(loops[0])
+    step = np.diff(loops[0].result.time[:2])[0]
+    assert logged.x.size == pytest.approx(loops[0].result.x.size * step
+                                          / feedforward_fit.RECORD_EVERY_S, abs=1)
+    for p in (logged.pi, logged.po):
+        assert np.allclose(p / feedforward_fit.GAUGE_RESOLUTION,
+                           np.round(p / feedforward_fit.GAUGE_RESOLUTION))
+
+
+def test_the_plants_own_loops_put_the_feedforward_on_its_branch(simulated_loops):
+    """§4.1's scheme needs Pi beyond the plant's contracting branch (an excessive
+    contraction that Po holds back). The nominal values leave this plant short of it;
+    the model fitted to the plant's own Fig. 8-9 loops, dynamics and gauge resolution
+    included, puts it within 1 % of the friction band of the shipped share φ, though the
+    fitted values themselves are not the plant's (the friction constant absorbs the
+    ramps' dynamics)."""
+    params, loops = simulated_loops
+    phi = params.controller.feedforward_friction
+    assert authority.plant_share(params) < 1.0
+    fit = feedforward_fit.fit_feedforward(
+        params, [feedforward_fit.measured_loop(lp) for lp in loops])
+    controller = fit.controller_of(params)
+    assert authority.plant_share(controller) == pytest.approx(phi, abs=0.01)
+    assert fit.rms < 1e-3  # the loops' x within a millimetre rms of the play operator's
+
+
+def test_an_unknown_feedforward_model_is_refused():
+    with pytest.raises(ParameterError, match="feedforward model 'exact'"):
+        robustness.robustness(preset("wpam"), 1, feedforward="exact")
