@@ -102,3 +102,12 @@ def test_the_plants_own_loops_put_the_feedforward_on_its_branch(simulated_loops)
 def test_an_unknown_feedforward_model_is_refused():
     with pytest.raises(ParameterError, match="feedforward model 'exact'"):
         robustness.robustness(preset("wpam"), 1, feedforward="exact")
+
+
+def test_the_report_names_every_value_the_controller_reads_beside_the_plants():
+    params = dataclasses.replace(preset("wpam"), plant_deviation=OFF)
+    text = feedforward_fit.model_markdown(params, 6e-4)
+    assert "0.60 mm rms" in text
+    for name, delta in OFF:
+        row = next(line for line in text.splitlines() if f"`{name}`" in line)
+        assert f"{-delta / (1 + delta):+.1%}" in row  # the model is the nominal value

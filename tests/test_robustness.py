@@ -14,7 +14,7 @@ from wpam_mj.experiments.limit_velocity import limit_velocity, sine_at_the_limit
 from wpam_mj.physics import kernel
 from wpam_mj.physics.params import preset
 from wpam_mj.errors import ParameterError
-from wpam_mj.reproduction import findings, robustness
+from wpam_mj.reproduction import feedforward_fit, findings, robustness
 from wpam_mj.reproduction.margins import Check, Margin
 
 
@@ -225,6 +225,10 @@ def test_one_sampled_plant_runs_every_study_and_writes_its_files(tmp_path):
     assert outcome.error == "" and {c.name for c in outcome.checks} == set(findings.FINDINGS)
     assert set(outcome.cells) == set(robustness.CELLS)
     assert isinstance(outcome.steps_decided_at_landing, bool)
+    # the controller's model was fitted to this plant's own loops (the default)
+    assert result.feedforward == "calibrated" and 0.0 < outcome.fit_rms < 2e-3
+    assert [n for n, _ in outcome.model_error] == list(feedforward_fit.FEEDFORWARD_MODEL)
+    assert outcome.feedforward_share >= 1.0  # it puts the plant past its own branch
     written = robustness.write_robustness(tmp_path, result)
     assert sorted(p.name for p in written) == ["robustness.csv", "robustness.json",
                                                "robustness.md", "robustness.png"]

@@ -130,46 +130,44 @@ def report_markdown(t2: Table2Result, sw: SweepResult, open_step: StepRun,
     return "\n".join(md)
 
 
-# Why the shipped parameters give up a finding, by the finding's name: what was measured
-# on the shipped plant (`wpam reproduce`; `python scripts/limit_velocity.py`), written in
-# docs/physics.md ("What the shipped plant gives up, and why").
+# Why the shipped parameters give up a finding, by the finding's name: the mechanism,
+# measured on the shipped plant (`wpam reproduce`; `python scripts/limit_velocity.py`;
+# docs/physics.md, "The shipped plant" and "What sets the limit velocity"). The figures of
+# this run are in the check's own line.
 GIVEN_UP = {
     "steps_settle": (
-        "the plateaus settle 0.30/0.40/0.71 mm off target at 50/100/150 N, beyond the "
-        "0.11/0.13/0.61 mm the paper's own feedback cells imply, and the 150 N plateaus "
-        "move 0.21 mm p-p: φ 1.02 holds the muscle 2 % of the friction band over-contracted "
-        "and Po takes it back only as far as the friction band lets it land. They miss at "
-        "their landings: once the muscle and both chambers are still, the PI's own zero lets "
-        "an error fall no faster than exp(-t Ki/Kp), Kp/Ki = 12.5 s, under any friction law "
-        "(stiction, pre-sliding, creep), and from where they landed that leaves at least "
-        "0.21/0.28/0.71 mm (StepRun.landing_floor)."),
+        "φ holds the muscle a few per cent of its friction band past its contracting branch "
+        "(§4.1's excessive contraction) and Po takes it back only as far as the friction "
+        "band lets it land. The plateaus miss at their landings: once the muscle and both "
+        "chambers are still, the PI's own zero lets an error fall no faster than "
+        "exp(-t Ki/Kp), Kp/Ki = 12.5 s, under any friction law (stiction, pre-sliding, "
+        "creep); the floor that leaves is in the check's line (StepRun.landing_floor)."),
     "gain_spread": (
-        "the PI gains of the loads part by 8.8/7.2/6.7 % at 0.25/0.5/1 Hz: the limit "
-        "velocity depends on load (fastest contraction 32-37 mm/s, extension 118-68 mm/s "
-        "from 50 to 150 N under a saturated Po command, set by the lines: the ITV2031's "
-        "valve passes 5-14 times more, and the regulators' lag moves it a few per cent; "
-        "scripts/limit_velocity.py)."),
+        "the limit velocity depends on load (on the shipped plant, fastest contraction "
+        "32-37 mm/s, extension 118-68 mm/s from 50 to 150 N under a saturated Po command, "
+        "set by the lines: the ITV2031's valve passes 5-14 times more, and the regulators' "
+        "lag moves it a few per cent; scripts/limit_velocity.py)."),
     "lag_order_low_freq": (
-        "at 0.1 and 0.2 Hz the 50 N lag is 0.4 and 0.2 deg above the 100 N one, with Po "
-        "resting on the regulator's floor: the feedforward's Po 1 kPa above it restores "
-        "the order at every friction share from 0.99 to 1.02, and costs Po rising with "
-        "load or settled plateaus (docs/physics.md, 'The shipped plant')."),
+        "with Po resting on the regulator's floor at the light load, the feedback cannot "
+        "lower it to lead the light load's contraction: the order needs the light load held "
+        "further past its branch, so that Po rests above the floor (docs/physics.md, 'The "
+        "feedforward's Po decides the low-frequency lag order'; the controller model "
+        "fitted to the plant's own loops does that)."),
     "lag_same_high_freq": (
-        "the PI lags spread 13.2 deg at 0.5 Hz and 12.1 deg at 1 Hz across the loads, for "
-        "the same reason as the gains: a load-dependent limit velocity (only a regulator "
-        "whose own valve is the bottleneck, a tenth of the ITV2031's, contracts at one "
-        "speed for every load). Of 26 variants of the lines, valves and chamber air none "
-        "holds equal gains and lags at both 0.5 and 1 Hz, and in 19 of the 22 that do not "
-        "stall the heavier load lags more at both (scripts/limit_velocity.py --sines)."),
+        "a load-dependent limit velocity, as for the gains: only a regulator whose own "
+        "valve is the bottleneck, a tenth of the ITV2031's, contracts at one speed for "
+        "every load. Of 26 variants of the lines, valves and chamber air none holds equal "
+        "gains and lags at both 0.5 and 1 Hz, and in 19 of the 22 that do not stall the "
+        "heavier load lags more at both (scripts/limit_velocity.py --sines)."),
     "pid_gain_equals_pi": (
-        "at 150 N, 1 Hz, PID's gain is 0.236 against PI's 0.219 (7.7 %): where the loop "
-        "runs at the limit velocity, PID's lead moves the command's switching points."),
+        "where the loop runs at the limit velocity (1 Hz), PID's lead moves the command's "
+        "switching points, and with them the amplitude the limit allows."),
     "pid_leads_pi": (
-        "PID leads PI by 0.10/0.35/0.94 deg at 0.1/0.2/0.25 Hz, below the 1 deg a figure "
-        "resolves: the D term's phase advance atan(Kd w / Kp) is 1.4 deg at 0.1 Hz in a "
-        "linear loop, but the Po command sits at p_min or the cap 35-68 % of each cycle, "
-        "where D only moves the switching instants, and friction takes most of the rest "
-        "(without it 0.51/1.66/1.66 deg; docs/physics.md)."),
+        "below 0.5 Hz the D term's phase advance atan(Kd w / Kp) is 1.4 deg at 0.1 Hz in a "
+        "linear loop, but the Po command sits at p_min or the cap 35-68 % of each cycle "
+        "(150 N), where D only moves the switching instants, and friction takes most of the "
+        "rest (without friction PID leads by 0.51/1.66/1.66 deg at 0.1/0.2/0.25 Hz; "
+        "docs/physics.md)."),
 }
 
 

@@ -45,8 +45,10 @@ def robustness_figure(result) -> Figure:
     ax1.axvline(100 * HOLD_TARGET, color="k", ls="--", lw=1, label=f"{HOLD_TARGET:.0%} target")
     ax1.set_xlim(0, 100)
     ax1.set_xlabel("plants holding the finding [%]")
+    model = ("controller's model fitted to each" if result.feedforward == "calibrated"
+             else "controller's model nominal")
     ax1.set_title(f"{len(result.outcomes)} plants, unmeasured values within "
-                  f"{result.box()}")
+                  f"{result.box()}; {model}", fontsize=10)
     ax1.legend(loc="upper right", fontsize=8)
     for i, (row, load) in enumerate(CELLS):
         v = [o.cells[(row, load)] for o in result.outcomes if (row, load) in o.cells]
