@@ -10,7 +10,9 @@ from wpam_mj.cli.runs import protocol_of
 from wpam_mj.physics.params import preset
 from wpam_mj.errors import ParameterError
 from wpam_mj.units import MPA
-from wpam_mj.experiments.protocol import SHIPPED, Protocol, ProtocolStaticTask, static_drive
+from wpam_mj.experiments.protocol import (SHIPPED, Protocol, ProtocolStaticTask,
+                                          open_loop_tasks, static_drive, table2_batch)
+from wpam_mj.simulation.execution import execute
 from wpam_mj.experiments.paper_studies import StaticTask
 
 
@@ -59,3 +61,15 @@ def test_every_reading_is_a_command_option():
     assert protocol_of(default, preset("wpam")) == (preset("wpam"), SHIPPED)
     per_load = cli.build_parser().parse_args(["reproduce", "--ramp-top", "per-load"])
     assert protocol_of(per_load, preset("wpam"))[1].ramp_top == 0.0
+
+
+def test_table2_from_open_loops_already_run_is_table2():
+    """The open loop does not use the controller, so Table 2 from ramps run before (the
+    controller model's calibration runs them) is the Table 2 that runs them itself."""
+    params, loads = preset("wpam"), (100.0,)
+    ramps = execute(open_loop_tasks(params, SHIPPED, loads, dt=2e-3), 2)
+    given, ran = execute([table2_batch(params, SHIPPED, loads=loads, dt=2e-3, open_loops=ramps),
+                          table2_batch(params, SHIPPED, loads=loads, dt=2e-3)], 2)
+    assert given.open_po == ran.open_po and given.feedback == ran.feedback
+    with pytest.raises(ParameterError, match="1 open loops given; Table 2 needs 2"):
+        table2_batch(params, SHIPPED, loads=loads, open_loops=ramps[:1])

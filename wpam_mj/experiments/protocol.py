@@ -25,7 +25,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Iterable
+from typing import Iterable, Sequence
 
 import numpy as np
 
@@ -176,21 +176,38 @@ class ProtocolStaticTask(SimulationTask):
                           result=r)
 
 
+def open_loop_tasks(params: Params, protocol: Protocol = SHIPPED,
+                    loads: Iterable[float] = LOADS_N,
+                    po_down: float = PO_DOWN_STATIC_MPA * MPA,
+                    dt: float = 1e-3) -> list[ProtocolStaticTask]:
+    """Table 2's open-loop ramps under `protocol`: Po = 0 at each load [N], then Po =
+    `po_down` [Pa] on the way down at each (Figs. 8 and 9)."""
+    return [ProtocolStaticTask(params, load, po, dt, protocol) for po in (0.0, po_down)
+            for load in loads]
+
+
 def table2_batch(params: Params, protocol: Protocol = SHIPPED, *,
                  loads: Iterable[float] = LOADS_N,
-                 po_down: float = PO_DOWN_STATIC_MPA * MPA, dt: float = 1e-3) -> Batch:
+                 po_down: float = PO_DOWN_STATIC_MPA * MPA, dt: float = 1e-3,
+                 open_loops: Sequence[StaticLoop] = ()) -> Batch:
     """`paper_studies.table2_batch` under `protocol`: the open-loop ramps with and without Po
-    and the PI staircase at each load [N]. `Protocol()` runs the same ramps as it."""
+    and the PI staircase at each load [N]. `Protocol()` runs the same ramps as it.
+    open_loops: those ramps already run on this plant (`open_loop_tasks`' order); the
+    open loop does not use the controller, so only the staircases run then."""
     loads = tuple(check_load(v) for v in loads)
     if not loads:
         raise ParameterError("no loads given")
     context = StudyContext(params, dt)  # dt checked here, once for the study
     dt, po_down = context.dt, check_po("po_down", po_down, params)
-    tasks = ([ProtocolStaticTask(params, load, 0.0, dt, protocol) for load in loads]
-             + [ProtocolStaticTask(params, load, po_down, dt, protocol) for load in loads]
-             + [StepTask(params, load, "pi", dt) for load in loads])
+    ramps = open_loop_tasks(params, protocol, loads, po_down, dt)
+    if open_loops and len(open_loops) != len(ramps):
+        raise ParameterError(f"{len(open_loops)} open loops given; Table 2 needs "
+                             f"{len(ramps)} (Po = 0, then Po = po_down, at each load)")
+    steps = [StepTask(params, load, "pi", dt) for load in loads]
+    tasks = steps if open_loops else ramps + steps
 
     def assemble(res: list) -> Table2Result:
+        res = [*open_loops, *res]
         n = len(loads)
         for o in res[:n]:
             if not o.area > 0.0:

@@ -26,15 +26,14 @@ from typing import Sequence
 import numpy as np
 from scipy.optimize import least_squares
 
-from wpam_mj import paper
-from wpam_mj.experiments.protocol import Protocol, ProtocolStaticTask
+from wpam_mj.experiments.protocol import Protocol, open_loop_tasks
 from wpam_mj.errors import ParameterError
 from wpam_mj.experiments.responses import StaticLoop
 from wpam_mj.physics.muscle import MuscleModel
 from wpam_mj.physics.params import Params
 from wpam_mj.physics.quasistatic import ramp_contraction
 from wpam_mj.simulation.execution import Failed, execute
-from wpam_mj.units import MM, MPA
+from wpam_mj.units import MM
 
 # The values the feedforward's equilibrium model reads (`controllers.pi_feedforward`):
 # eqs. 5-6's Kf, mu and friction constant, the axial area Po presses on, and the braid
@@ -126,26 +125,34 @@ def fit_feedforward(start: Params, loops: Sequence[MeasuredLoop]) -> Feedforward
                           float(np.sqrt(np.mean(best.fun ** 2))) * MM)
 
 
+@dataclass(frozen=True)
+class Calibration:
+    """A plant with its controller's model fitted to its own loops: `params` (the plant
+    kept as `plant_deviation`), the fit's rms x residual [m], and the `loops` it was
+    fitted to (Table 2's open-loop ramps, `protocol.open_loop_tasks`' order)."""
+
+    params: Params
+    rms: float
+    loops: tuple[StaticLoop, ...]
+
+
 def calibrate(plants: Sequence[Params], protocol: Protocol, dt: float, workers,
-              progress: bool = False) -> list[tuple[Params, float] | Failed]:
-    """Each plant as (its parameters with the controller's equilibrium model fitted to the
-    plant's own open-loop loops, the fit's rms x residual [m]), or the `Failed` of a plant
-    whose ramps failed. The loops: Fig. 8 (Po = 0) and Fig. 9 (Po = 0.04 MPa on the way
-    down) at the paper's loads, under `protocol`, run where `workers` says (`execute`)."""
-    po = (0.0, paper.PO_DOWN_STATIC_MPA * MPA)
-    per_plant = len(paper.LOADS_N) * len(po)
-    loops = execute([ProtocolStaticTask(p, load, v, dt, protocol) for p in plants
-                     for load in paper.LOADS_N for v in po], workers, failed=Failed,
-                    progress=progress, desc="open-loop loops")
-    out: list[tuple[Params, float] | Failed] = []
-    for i, plant in enumerate(plants):
-        mine = loops[i * per_plant:(i + 1) * per_plant]
+              progress: bool = False) -> list[Calibration | Failed]:
+    """Each plant's `Calibration`, or the `Failed` of a plant whose ramps failed. The
+    loops: Fig. 8 (Po = 0) and Fig. 9 (Po = 0.04 MPa on the way down) at the paper's loads,
+    under `protocol`, run where `workers` says (`execute`)."""
+    tasks = [open_loop_tasks(p, protocol, dt=dt) for p in plants]
+    loops = iter(execute([t for ts in tasks for t in ts], workers, failed=Failed,
+                         progress=progress, desc="open-loop loops"))
+    out: list[Calibration | Failed] = []
+    for plant, ts in zip(plants, tasks):
+        mine = tuple(next(loops) for _ in ts)
         failed = next((r for r in mine if isinstance(r, Failed)), None)
         if failed is not None:
             out.append(failed)
             continue
         fit = fit_feedforward(plant, [measured_loop(lp) for lp in mine])
-        out.append((fit.controller_of(plant), fit.rms))
+        out.append(Calibration(fit.controller_of(plant), fit.rms, mine))
     return out
 
 

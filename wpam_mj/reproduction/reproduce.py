@@ -110,19 +110,20 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
     # Table 2's and the comparisons' runs; then the sweep's runs here while their CSVs and
     # figures are drawn on the pool; then the sweep's.
     with open_workers(jobs) as workers:
-        plant, controller_model = params, ""
+        plant, controller_model, open_loops = params, "", ()
         if feedforward == "calibrated":
             (fit,) = feedforward_fit.calibrate([plant], protocol, dt, workers)
             if isinstance(fit, Failed):
                 raise fit.error
-            params, fit_rms = fit
+            params, open_loops = fit.params, fit.loops
             compare = [params if p == plant else p for p in compare]
-            controller_model = feedforward_fit.model_markdown(params, fit_rms)
+            controller_model = feedforward_fit.model_markdown(params, fit.rms)
         extra = ([StepTask(params, 100.0, "open", dt)]
                  + [StaticTask(p, PRESET_COMPARE_LOAD_N, 0.0, dt) for p in compare
                     if p != params])
         t2, (open_step, *preset_runs) = execute(
-            [table2_batch(params, protocol, dt=dt), Batch(extra, list)], workers,
+            [table2_batch(params, protocol, dt=dt, open_loops=open_loops),
+             Batch(extra, list)], workers,
             progress=progress, desc="reproduce")
         outputs = (
             csv_tasks((*t2.open_loops, *t2.po_loops), static_csv_name)

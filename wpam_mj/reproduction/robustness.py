@@ -321,8 +321,10 @@ class Robustness:
         return "\n".join(lines)
 
 
-def _plant_batches(plant: Params, protocol: Protocol, dt: float) -> list[Batch]:
-    return [table2_batch(plant, protocol, dt=dt),
+def _plant_batches(fit: feedforward_fit.Calibration, protocol: Protocol,
+                   dt: float) -> list[Batch]:
+    plant = fit.params
+    return [table2_batch(plant, protocol, dt=dt, open_loops=fit.loops),
             Batch([StepTask(plant, 100.0, "open", dt)], lambda r: r[0]),
             sweep_batch(plant, dt=dt, keep=())]
 
@@ -354,20 +356,18 @@ def robustness(nominal: Params, n: int = 32, *, seed: int = 0, rel: float = DEFA
     plants = sampled_plants(nominal, sample_deviations(n, seed, rel, measured=dict(measured)))
     deviations = [p.plant_deviation for p in plants]
     with open_workers(jobs) as workers:
-        if feedforward == "calibrated":
-            fits = feedforward_fit.calibrate(plants, protocol, dt, workers, progress)
-            plants = [f if isinstance(f, Failed) else f[0] for f in fits]
-            rms = [math.nan if isinstance(f, Failed) else f[1] for f in fits]
-        else:
-            rms = [math.nan] * len(plants)
-        runnable = [p for p in plants if not isinstance(p, Failed)]
-        results = iter(execute([b for p in runnable for b in _plant_batches(p, protocol, dt)],
+        fits = (feedforward_fit.calibrate(plants, protocol, dt, workers, progress)
+                if feedforward == "calibrated" else
+                [feedforward_fit.Calibration(p, math.nan, ()) for p in plants])
+        results = iter(execute([b for f in fits if not isinstance(f, Failed)
+                                for b in _plant_batches(f, protocol, dt)],
                                workers, failed=Failed, progress=progress, desc="robustness"))
     outcomes = []
-    for plant, deviation, fit_rms in zip(plants, deviations, rms):
-        if isinstance(plant, Failed):
-            outcomes.append(PlantOutcome(deviation, (), {}, _failure([plant]), fit_rms=fit_rms))
+    for fit, deviation in zip(fits, deviations):
+        if isinstance(fit, Failed):
+            outcomes.append(PlantOutcome(deviation, (), {}, _failure([fit])))
             continue
+        plant, fit_rms = fit.params, fit.rms
         t2, open_step, sw = (next(results) for _ in range(3))
         known = dict(feedforward_share=authority.plant_share(plant),
                      needed_share=authority.needed_share(plant),
