@@ -150,3 +150,13 @@ def protocol_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--gain-reading", choices=tuple(GAIN_READINGS), default=None,
                    help="unit of the paper's unitless gains: " + ", ".join(
                        f"{k} ({v:g} MPa/u)" for k, v in GAIN_READINGS.items()))
+
+
+def feedforward_model_option(p: argparse.ArgumentParser, default: str) -> None:
+    from wpam_mj.reproduction.feedforward_fit import FEEDFORWARD_MODELS  # noqa: PLC0415
+    p.add_argument("--feedforward-model", choices=FEEDFORWARD_MODELS, default=default,
+                   help="the controller's equilibrium model (the Pi feedforward): calibrated, "
+                        "fitted to the plant's own open-loop loops (Figs. 8-9; a sampled "
+                        "plant's own) as the paper's experimenter fits it; or nominal, the "
+                        "parameters' own values, a controller that knows the plant exactly "
+                        f"(default: {default})")

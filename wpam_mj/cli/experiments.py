@@ -6,11 +6,13 @@ import argparse
 import dataclasses
 
 from wpam_mj import paper
-from wpam_mj.cli.arguments import (float_list, json_option, loop_area_option, name_list,
-                                   out_dir_option, ramp_time_option)
-from wpam_mj.cli.runs import (amplitude_m, note_still_loads, flag_unsettled, liftable_loads,
-                              out_dir_of, output_modules, params_of, print_json, run_id_of,
-                              run_options, settled, write_run_manifest, wrote)
+from wpam_mj.cli.arguments import (feedforward_model_option, float_list, json_option,
+                                   loop_area_option, name_list, out_dir_option,
+                                   ramp_time_option)
+from wpam_mj.cli.runs import (amplitude_m, controller_model_of, note_still_loads,
+                              flag_unsettled, liftable_loads, out_dir_of, output_modules,
+                              params_of, print_json, run_id_of, run_options, settled,
+                              write_run_manifest, wrote)
 from wpam_mj.control.controllers import CONTROLS, check_control
 from wpam_mj.experiments import paper_studies
 from wpam_mj.experiments.drives import SINE_AMPLITUDE_MM, SINE_MEAN_MM, SineSpec, check_po
@@ -49,6 +51,7 @@ def add_parsers(add) -> None:
     json_option(p, "one JSON object: the run's settings, load_moved, plateaus_settled (x "
               "moved < 1 mm peak to peak where the means average) and its plateau means "
               "(target_mm, x_mm, error_mm, pi_mpa, po_mpa: chamber pressures)")
+    feedforward_model_option(p, "nominal")
     out_dir_option(p, "step")
 
     p = add("table2", "hysteresis-loop areas of the paper's Table 2 (open loop with and "
@@ -58,6 +61,7 @@ def add_parsers(add) -> None:
                    help="print one JSON object (normalized areas, unit-free) on stdout")
     ramp_time_option(p)
     loop_area_option(p)
+    feedforward_model_option(p, "nominal")
     out_dir_option(p, "table2")
 
     p = add("sweep", "frequency response to a sinusoid about 25 mm, 25 mm amplitude unless "
@@ -76,6 +80,7 @@ def add_parsers(add) -> None:
     p.add_argument("--json", action="store_true",
                    help="print a JSON list of {load_n [N], freq_hz [Hz], controller, gain [1],"
                         " phase_lag_deg [deg], po_max_mpa [MPa]} on stdout")
+    feedforward_model_option(p, "nominal")
     out_dir_option(p, "sweep")
 
 
@@ -120,9 +125,11 @@ def _cmd_step(args: argparse.Namespace) -> int:
     (load,) = liftable_loads((args.load,), [run.params])
     control = check_control(args.control)
     out = out_dir_of(args)
-    (res,) = paper_studies.step_study(run.params, [(load, control)], dt=run.dt, jobs=1,
-                                progress=run.progress)
-    settings = {"load_n": load, "control": control, "dt_s": run.dt}
+    params, _ = controller_model_of(args, run) if control != "open" else (run.params, ())
+    (res,) = paper_studies.step_study(params, [(load, control)], dt=run.dt, jobs=1,
+                                      progress=run.progress)
+    settings = {"load_n": load, "control": control, "dt_s": run.dt,
+                "feedforward_model": args.feedforward_model}
     rid = run_id_of(args, run.params, settings)
     written = writers.write_step_outputs(out, res, run_id=rid)
     manifest = write_run_manifest(args, out, rid, run.params, settings, written)
@@ -153,10 +160,12 @@ def _cmd_table2(args: argparse.Namespace) -> int:
     out = out_dir_of(args)
     loop_area = args.loop_area or SHIPPED.loop_method
     protocol = dataclasses.replace(SHIPPED, ramp_time=ramp_time, loop_method=loop_area)
-    (t2,) = execute([table2_batch(run.params, protocol, dt=run.dt)],
+    params, open_loops = controller_model_of(args, run, protocol)
+    (t2,) = execute([table2_batch(params, protocol, dt=run.dt, open_loops=open_loops)],
                     run.jobs_for(3 * len(paper.LOADS_N)), progress=run.progress, desc="table 2")
     settings = {"ramp_time_s": ramp_time, "ramp_top_mpa": protocol.ramp_top / MPA,
-                "dt_s": run.dt, "loop_area": loop_area}
+                "dt_s": run.dt, "loop_area": loop_area,
+                "feedforward_model": args.feedforward_model}
     rid = run_id_of(args, run.params, settings)
     written = writers.write_table2_outputs(out, t2, run_id=rid)
     still = [(f"table2 open loop {lp.load:g} N, Po = {lp.po_down / MPA:g} MPa while Pi falls",
@@ -189,11 +198,13 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
                              + ", ".join(CONTROLS))
     out = out_dir_of(args)
     key = paper_studies.figure_run_key(loads, freqs, controllers)
-    sw = paper_studies.sweep(run.params, loads, freqs, controllers, keep=[key], dt=run.dt,
+    params, _ = controller_model_of(args, run)
+    sw = paper_studies.sweep(params, loads, freqs, controllers, keep=[key], dt=run.dt,
                        jobs=run.jobs_for(len(loads) * len(freqs) * len(controllers)),
                        progress=run.progress, amplitude=amplitude)
     settings = {"loads_n": loads, "freqs_hz": freqs, "controllers": controllers,
-                "amplitude_mm": amplitude / MM, "dt_s": run.dt}
+                "amplitude_mm": amplitude / MM, "dt_s": run.dt,
+                "feedforward_model": args.feedforward_model}
     rid = run_id_of(args, run.params, settings)
     written = writers.write_sweep_outputs(out, sw, key, run_id=rid)
     manifest = write_run_manifest(args, out, rid, run.params, settings, written)

@@ -7,8 +7,9 @@ import time
 from pathlib import Path
 
 from wpam_mj import paper
-from wpam_mj.cli.arguments import (name_list, out_dir_option, out_path, protocol_options,
-                                   ramp_time_option, scheduler_option)
+from wpam_mj.cli.arguments import (feedforward_model_option, name_list, out_dir_option,
+                                   out_path, protocol_options, ramp_time_option,
+                                   scheduler_option)
 from wpam_mj.cli.runs import (liftable_loads, out_dir_of, out_file, output_modules, params_of,
                               protocol_of, protocol_settings, run_id_of, run_options, writable_dir,
                               write_run_manifest)
@@ -31,7 +32,7 @@ def add_parsers(add) -> None:
                         "uncertainty of every unmeasured value (Latin hypercube; "
                         "robustness.csv/json/png and a report.md section; default: 0)")
     robustness_options(p)
-    feedforward_model_option(p)
+    feedforward_model_option(p, "calibrated")
 
     p = add("robustness", "the paper's findings over plants sampled within the uncertainty "
             "of every unmeasured plant value, the controller's model fitted to each plant's "
@@ -42,7 +43,7 @@ def add_parsers(add) -> None:
     p.add_argument("--samples", type=int, default=32, metavar="N",
                    help="plants to sample (default: 32)")
     robustness_options(p)
-    feedforward_model_option(p)
+    feedforward_model_option(p, "calibrated")
     ramp_time_option(p)
     protocol_options(p)
     out_dir_option(p, "robustness")
@@ -127,16 +128,6 @@ def robustness_options(p) -> None:
                    help="the values you measured, each with its own relative half-width "
                         "(e.g. braid.braid_angle=0.01 for a braid angle known to +-1 %%; "
                         "0: known exactly); the others keep --robustness-rel")
-
-
-def feedforward_model_option(p) -> None:
-    from wpam_mj.reproduction.feedforward_fit import FEEDFORWARD_MODELS  # noqa: PLC0415
-    p.add_argument("--feedforward-model", choices=FEEDFORWARD_MODELS, default="calibrated",
-                   help="the controller's equilibrium model (the Pi feedforward): calibrated, "
-                        "fitted to the plant's own open-loop loops (Figs. 8-9, each sampled "
-                        "plant's own) as the paper's experimenter fits it; or nominal, the "
-                        "parameters' own values, a controller that knows the nominal plant "
-                        "exactly (default: calibrated)")
 
 
 def robustness_sample(args: argparse.Namespace, n: int) -> dict:

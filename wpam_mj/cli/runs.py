@@ -20,6 +20,7 @@ from wpam_mj.physics.params import Params, apply_overrides, preset
 from wpam_mj.errors import ParameterError, check_range, load_toml
 from wpam_mj.units import MM, MPA
 from wpam_mj.simulation.context import check_dt, check_load
+from wpam_mj.simulation.execution import Failed
 
 RECORD_DT_S = 0.01  # the period every run records at (`wpam_mj.simulation.simulate.simulate`)
 
@@ -70,6 +71,19 @@ def run_options(args: argparse.Namespace) -> RunOptions:
     jobs = jobs_option(args.jobs)
     progress = sys.stderr.isatty() if args.progress is None else args.progress
     return RunOptions(params, dt, jobs, progress)
+
+
+def controller_model_of(args: argparse.Namespace, run: RunOptions,
+                        protocol: Protocol = SHIPPED) -> tuple[Params, tuple]:
+    """`run.params` with the controller's equilibrium model --feedforward-model asks for,
+    and the open-loop ramps a calibration ran on the plant (none for "nominal")."""
+    if args.feedforward_model == "nominal":
+        return run.params, ()
+    from wpam_mj.reproduction.feedforward_fit import calibrate  # noqa: PLC0415
+    (fit,) = calibrate([run.params], protocol, run.dt, run.jobs_for(6), run.progress)
+    if isinstance(fit, Failed):
+        raise fit.error
+    return fit.params, fit.loops
 
 
 def protocol_of(args: argparse.Namespace, params: Params) -> tuple[Params, Protocol]:

@@ -24,7 +24,6 @@ from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from wpam_mj.experiments.protocol import Protocol, open_loop_tasks
 from wpam_mj.errors import ParameterError
@@ -108,6 +107,8 @@ class FeedforwardFit:
 def fit_feedforward(start: Params, loops: Sequence[MeasuredLoop]) -> FeedforwardFit:
     """FEEDFORWARD_MODEL fitted to `loops` from `start`'s nominal values: bounded least
     squares of the model's x against the logged x [mm], each value within +-FIT_SPAN."""
+    from scipy.optimize import least_squares  # noqa: PLC0415 (scipy: slow import)
+
     x_logged = np.concatenate([lp.x for lp in loops])
     first = {n: float(start.value(n)) for n in FEEDFORWARD_MODEL}
 
