@@ -12,8 +12,6 @@ SI inside (m, N, Hz as in `SineSpec`); mm, dB and deg only in `rows`, JSON and t
 
 from __future__ import annotations
 
-import csv
-import io
 import math
 from dataclasses import dataclass
 from typing import Iterable, Mapping, Sequence
@@ -22,6 +20,7 @@ import numpy as np
 
 from wpam_mj import paper
 from wpam_mj.design import linear
+from wpam_mj.infra import files
 from wpam_mj.experiments import paper_studies
 from wpam_mj.experiments.drives import SINE_AMPLITUDE_MM, SINE_MEAN_MM
 from wpam_mj.experiments.feasibility import MOVE_MIN_MM
@@ -124,11 +123,7 @@ class LinearComparison:
 
     def csv_text(self) -> str:
         """`rows` as CSV, one header line."""
-        buf = io.StringIO()
-        writer = csv.DictWriter(buf, fieldnames=list(self.rows()[0]), lineterminator="\n")
-        writer.writeheader()
-        writer.writerows(self.rows())
-        return buf.getvalue()
+        return files.csv_text(self.rows())
 
     def text(self) -> str:
         """Operating point, poles, margins, DC gains, and the comparison table."""

@@ -23,11 +23,10 @@ from wpam_mj.design.sampling import sample
 from wpam_mj.design.study_spec import (FLAGS, METRICS, PO_DOWN_DEFAULT, RUN_INPUTS,
                                        STATIC_DURATION_S, STEP_DURATION_S, StudySpec,
                                        input_column)
-from wpam_mj.design.study_table import (column_kinds, csv_text, finished_rows, start_parts,
-                                        write_tables)
+from wpam_mj.design.study_table import column_kinds, finished_rows, start_parts, write_tables
 from wpam_mj.experiments.drives import SineSpec
 from wpam_mj.infra.pool import Workers
-from wpam_mj.infra.files import write_text_atomic
+from wpam_mj.infra.files import csv_text, write_text_atomic
 from wpam_mj.physics.params import Params, preset
 from wpam_mj.errors import ParameterError
 from wpam_mj.simulation.execution import Batch, Failed, execute
@@ -140,7 +139,7 @@ def run_study(spec: StudySpec, out: str | Path, workers: Workers, *, resume: boo
         def finish(batch: RunBatch, rows: list[dict[str, Any]]) -> None:
             first, last = batch.runs[0][0], batch.runs[-1][0]
             write_text_atomic(parts / f"runs_{first:07d}-{last:07d}.csv",
-                              csv_text(columns, rows))
+                              csv_text(rows, columns))
             bar.update(len(rows))
 
         execute([Batch(b.tasks(), b.rows) for b in batches], workers, failed=Failed,

@@ -4,32 +4,16 @@ resumes), and the table assembled from them in run order (CSV, and Parquet with 
 from __future__ import annotations
 
 import csv
-import io
 import json
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import Any, Mapping
 
 from wpam_mj.design.study_spec import FLAGS, StudySpec, input_column
-from wpam_mj.infra.files import write_atomic, write_text_atomic
+from wpam_mj.infra.files import csv_text, write_atomic, write_text_atomic
 from wpam_mj.errors import ParameterError
 
 PARTS = "parts"  # folder of finished batches in the output folder
 TABLE = "study"  # study.csv, study.parquet
-
-
-def _format(value: Any) -> str:
-    """CSV text that reads back to the same value (repr of a float is exact)."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    return repr(value) if isinstance(value, float) else str(value)
-
-
-def csv_text(columns: Sequence[str], rows: Iterable[Mapping[str, Any]]) -> str:
-    buf = io.StringIO()
-    writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(columns)
-    writer.writerows([_format(row[c]) for c in columns] for row in rows)
-    return buf.getvalue()
 
 
 def column_kinds(spec: StudySpec) -> dict[str, type]:
@@ -70,7 +54,7 @@ def finished_rows(parts: Path, kinds: Mapping[str, type]) -> dict[int, dict[str,
 
 def write_tables(out: Path, spec: StudySpec, rows: list[dict[str, Any]]) -> list[Path]:
     columns = spec.columns
-    written = [write_text_atomic(out / f"{TABLE}.csv", csv_text(columns, rows))]
+    written = [write_text_atomic(out / f"{TABLE}.csv", csv_text(rows, columns))]
     try:
         import pyarrow as pa  # noqa: PLC0415 (optional: pip install ".[parquet]")
         import pyarrow.parquet as pq  # noqa: PLC0415

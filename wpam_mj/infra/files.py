@@ -7,12 +7,14 @@ renames over it.
 
 from __future__ import annotations
 
+import csv
 import glob
+import io
 import os
 import re
 import tempfile
 from pathlib import Path
-from typing import Callable
+from typing import Any, Callable, Iterable, Mapping, Sequence
 
 
 def write_atomic(path: str | Path, write: Callable[[Path], None]) -> Path:
@@ -65,3 +67,24 @@ def _process_exists(pid: int) -> bool:
 
 def write_text_atomic(path: str | Path, text: str) -> Path:
     return write_atomic(path, lambda p: p.write_text(text))
+
+
+def exact_cell(value: Any) -> str:
+    """CSV text that reads back to the same value (repr of a float is exact)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+def csv_text(rows: Iterable[Mapping[str, Any]], columns: Sequence[str] | None = None,
+             cell: Callable[[Any], Any] = exact_cell) -> str:
+    """`rows` as CSV under one header line: `columns`, or every key of the rows in the
+    order first seen (a key a row lacks: an empty cell)."""
+    rows = list(rows)
+    columns = list(columns or dict.fromkeys(k for r in rows for k in r))
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(columns)
+    writer.writerows([cell(row[c]) if c in row else "" for c in columns] for row in rows)
+    return buf.getvalue()
+

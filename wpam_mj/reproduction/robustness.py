@@ -17,9 +17,7 @@ the mechanical equilibrium model (`wpam_mj.reproduction.feedforward_fit`).
 
 from __future__ import annotations
 
-import csv
 import dataclasses
-import io
 import json
 import math
 from dataclasses import dataclass
@@ -32,7 +30,7 @@ from scipy.stats import qmc
 from wpam_mj import paper
 from wpam_mj.experiments.paper_studies import StepTask, sweep_batch
 from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
-from wpam_mj.infra.files import write_text_atomic
+from wpam_mj.infra.files import csv_text, write_text_atomic
 from wpam_mj.physics.params import Params, fitted_parameters
 from wpam_mj.errors import ParameterError, check_int, check_range
 from wpam_mj.infra.pool import open_workers
@@ -401,11 +399,6 @@ def write_robustness(out: Path, result: Robustness) -> list[Path]:
             row[f"{c.name}_holds"] = c.passed
             row[f"{c.name}_margin"] = c.worst_margin
         rows.append(row)
-    buf = io.StringIO()
-    fields = list(dict.fromkeys(k for r in rows for k in r))
-    writer = csv.DictWriter(buf, fieldnames=fields)
-    writer.writeheader()
-    writer.writerows(rows)
     summary = {"plants": len(result.outcomes), "rel": result.rel, "seed": result.seed,
                "parameters": list(UNMEASURED),
                "uncertainty": dict(zip(UNMEASURED, result.half_widths())),
@@ -425,7 +418,7 @@ def write_robustness(out: Path, result: Robustness) -> list[Path]:
                                 for (r, load), (lo, mid, hi) in result.cell_spread().items()}}
     from wpam_mj.reproduction.robustness_figure import robustness_figure  # noqa: PLC0415
     from wpam_mj.experiments.figures import save_figure  # noqa: PLC0415
-    return [write_text_atomic(out / "robustness.csv", buf.getvalue()),
+    return [write_text_atomic(out / "robustness.csv", csv_text(rows)),
             write_text_atomic(out / "robustness.json", json.dumps(summary, indent=2) + "\n"),
             write_text_atomic(out / "robustness.md", "# Robustness\n\n" + result.markdown()
                               + "\n"),
