@@ -5,7 +5,9 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any, Callable, Sequence
 
+from wpam_mj.errors import ParameterError
 from wpam_mj.experiments.drives import STATIC_RAMP_S
 from wpam_mj.experiments.protocol import LOOP_METHODS, SHIPPED
 from wpam_mj.infra import pool
@@ -54,6 +56,20 @@ def float_list(text: str) -> tuple[float, ...]:
 
 def name_list(text: str) -> tuple[str, ...]:
     return _once(text, tuple(v.strip() for v in text.split(",") if v.strip()))
+
+
+def named_values(items: Sequence[str], option: str, expected: str,
+                 parse: Callable[[str], Any] = float) -> dict[str, Any]:
+    """NAME=VALUE items as {name: parse(VALUE)}; an item that does not parse is refused
+    in one line: "`option` 'item': expected `expected`"."""
+    out = {}
+    for item in items:
+        name, _, text = item.partition("=")
+        try:
+            out[name.strip()] = parse(text)
+        except ValueError:
+            raise ParameterError(f"{option} {item!r}: expected {expected}") from None
+    return out
 
 
 def _once(text: str, values: tuple) -> tuple:

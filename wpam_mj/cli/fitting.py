@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Sequence
 
 from wpam_mj import paper
-from wpam_mj.cli.arguments import float_list, name_list, out_path
+from wpam_mj.cli.arguments import float_list, name_list, named_values, out_path
 from wpam_mj.cli.runs import liftable_loads, out_file, print_json, run_options, writable_dir, wrote
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.physics.params import describe, preset
@@ -75,18 +75,17 @@ def _free_names(text: str) -> tuple[str, ...]:
 
 def _bounds(items: Sequence[str], params) -> dict[str, tuple[float, float]]:
     """--bounds NAME=LO:HI items, each bound inside the parameter's allowed range."""
-    out = {}
+    def lo_hi(text: str) -> tuple[float, float]:
+        lo, _, hi = text.partition(":")
+        return float(lo), float(hi)
+
+    out = named_values(items, "--bounds", "NAME=LO:HI, e.g. muscle.friction_coeff=0.05:0.4",
+                       lo_hi)
     for item in items:
-        name, _, rng = item.partition("=")
-        lo, _, hi = rng.partition(":")
-        try:
-            bounds = out[name.strip()] = (float(lo), float(hi))
-        except ValueError:
-            raise ParameterError(f"--bounds {item!r}: expected NAME=LO:HI, e.g. "
-                                 "muscle.friction_coeff=0.05:0.4") from None
-        for bound in bounds:
+        name = item.partition("=")[0].strip()
+        for bound in out[name]:
             try:
-                params.with_values({name.strip(): bound})
+                params.with_values({name: bound})
             except ParameterError as err:
                 raise ParameterError(f"--bounds {item}: {err}") from None
     return out

@@ -7,9 +7,9 @@ import time
 from pathlib import Path
 
 from wpam_mj import paper
-from wpam_mj.cli.arguments import (feedforward_model_option, name_list, out_dir_option,
-                                   out_path, protocol_options, ramp_time_option,
-                                   scheduler_option)
+from wpam_mj.cli.arguments import (feedforward_model_option, name_list, named_values,
+                                   out_dir_option, out_path, protocol_options,
+                                   ramp_time_option, scheduler_option)
 from wpam_mj.cli.runs import (liftable_loads, out_dir_of, out_file, output_modules, params_of,
                               protocol_of, protocol_settings, run_id_of, run_options, writable_dir,
                               write_run_manifest)
@@ -138,15 +138,8 @@ def robustness_sample(args: argparse.Namespace, n: int) -> dict:
 
 def measured_of(args: argparse.Namespace) -> dict[str, float]:
     """--uncertainty NAME=R items as {name: R} (checked where the sample is drawn)."""
-    out = {}
-    for item in args.uncertainty:
-        name, _, value = item.partition("=")
-        try:
-            out[name.strip()] = float(value)
-        except ValueError:
-            raise ParameterError(f"--uncertainty {item!r}: expected NAME=R, e.g. "
-                                 "braid.braid_angle=0.01") from None
-    return out
+    return named_values(args.uncertainty, "--uncertainty",
+                        "NAME=R, e.g. braid.braid_angle=0.01")
 
 
 def _cmd_robustness(args: argparse.Namespace) -> int:
