@@ -111,3 +111,13 @@ def test_the_report_names_every_value_the_controller_reads_beside_the_plants():
     for name, delta in OFF:
         row = next(line for line in text.splitlines() if f"`{name}`" in line)
         assert f"{-delta / (1 + delta):+.1%}" in row  # the model is the nominal value
+
+
+def test_a_nominal_controller_is_as_far_from_the_plant_as_the_plant_deviates():
+    """robustness.csv's model error with the nominal values: model / plant - 1 =
+    1 / (1 + delta) - 1 for each value the controller reads."""
+    params = dataclasses.replace(preset("wpam"), plant_deviation=OFF)
+    errors = dict(robustness._model_error(params))
+    assert list(errors) == list(feedforward_fit.FEEDFORWARD_MODEL)
+    for name, delta in OFF:
+        assert errors[name] == pytest.approx(1 / (1 + delta) - 1, rel=1e-12)
