@@ -121,3 +121,15 @@ def test_a_nominal_controller_is_as_far_from_the_plant_as_the_plant_deviates():
     assert list(errors) == list(feedforward_fit.FEEDFORWARD_MODEL)
     for name, delta in OFF:
         assert errors[name] == pytest.approx(1 / (1 + delta) - 1, rel=1e-12)
+
+
+def test_calibration_ramps_other_than_table2s_are_not_kept_for_it():
+    """Table 2 reuses the calibration's ramps only where they are its own (same protocol);
+    a model fitted to other ramps leaves Table 2 to run its own."""
+    params = preset("wpam")
+    own, other = (feedforward_fit.calibrate([params], SHIPPED, 2e-3, 2, ramp_time=t)[0]
+                  for t in (None, 20.0))
+    assert len(own.loops) == 2 * len(paper.LOADS_N) and other.loops == ()
+    assert own.loops[0].result.time[-1] > 2 * SHIPPED.ramp_time > 20.0 * 2
+    with pytest.raises(ParameterError, match="ramp_time"):
+        feedforward_fit.calibrate([params], SHIPPED, 2e-3, 2, ramp_time=0.0)

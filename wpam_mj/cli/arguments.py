@@ -176,3 +176,7 @@ def feedforward_model_option(p: argparse.ArgumentParser, default: str) -> None:
                         "plant's own) as the paper's experimenter fits it; or nominal, the "
                         "parameters' own values, a controller that knows the plant exactly "
                         f"(default: {default})")
+    p.add_argument("--calibration-ramp-time", type=float, default=None, metavar="S",
+                   help="duration of each open-loop ramp the calibrated model is fitted to "
+                        "[s] (default: the static ramps' own, --ramp-time where the command "
+                        "takes it)")

@@ -133,7 +133,8 @@ def robustness_options(p) -> None:
 def robustness_sample(args: argparse.Namespace, n: int) -> dict:
     """The keywords of `robustness.robustness` that the robustness options give."""
     return dict(n=n, seed=args.robustness_seed, rel=args.robustness_rel,
-                measured=measured_of(args), feedforward=args.feedforward_model)
+                measured=measured_of(args), feedforward=args.feedforward_model,
+                calibration_ramp_time=args.calibration_ramp_time)
 
 
 def measured_of(args: argparse.Namespace) -> dict[str, float]:
@@ -166,12 +167,15 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     liftable_loads(paper.LOADS_N, [params], "reproduce load")
     out = out_dir_of(args)
     settings = {"compare_presets": COMPARED_TYPES, "dt_s": run.dt,
-                "feedforward_model": args.feedforward_model, **protocol_settings(protocol)}
+                "feedforward_model": args.feedforward_model,
+                "calibration_ramp_time_s": args.calibration_ramp_time,
+                **protocol_settings(protocol)}
     rid = run_id_of(args, params, settings)
     start = time.perf_counter()
     rep = reproduce(out, params, dt=run.dt, jobs=run.jobs, progress=run.progress,
                     compare=compare, run_id=rid, protocol=protocol,
                     feedforward=args.feedforward_model,
+                    calibration_ramp_time=args.calibration_ramp_time,
                     robustness_sample=robustness_sample(args, args.robustness))
     manifest = write_run_manifest(args, out, rid, params, settings, rep.files)
     print(tables.table2_text(rep.table2))

@@ -80,7 +80,8 @@ def controller_model_of(args: argparse.Namespace, run: RunOptions,
     if args.feedforward_model == "nominal":
         return run.params, ()
     from wpam_mj.reproduction.feedforward_fit import calibrate  # noqa: PLC0415
-    (fit,) = calibrate([run.params], protocol, run.dt, run.jobs_for(6), run.progress)
+    (fit,) = calibrate([run.params], protocol, run.dt, run.jobs_for(6), run.progress,
+                       args.calibration_ramp_time)
     if isinstance(fit, Failed):
         raise fit.error
     return fit.params, fit.loops

@@ -25,6 +25,7 @@ from typing import Sequence
 
 import numpy as np
 
+from wpam_mj.experiments.paper_studies import check_ramp_time
 from wpam_mj.experiments.protocol import Protocol, open_loop_tasks
 from wpam_mj.errors import ParameterError
 from wpam_mj.experiments.responses import StaticLoop
@@ -138,11 +139,16 @@ class Calibration:
 
 
 def calibrate(plants: Sequence[Params], protocol: Protocol, dt: float, workers,
-              progress: bool = False) -> list[Calibration | Failed]:
+              progress: bool = False,
+              ramp_time: float | None = None) -> list[Calibration | Failed]:
     """Each plant's `Calibration`, or the `Failed` of a plant whose ramps failed. The
     loops: Fig. 8 (Po = 0) and Fig. 9 (Po = 0.04 MPa on the way down) at the paper's loads,
-    under `protocol`, run where `workers` says (`execute`)."""
-    tasks = [open_loop_tasks(p, protocol, dt=dt) for p in plants]
+    under `protocol`, run where `workers` says (`execute`). ramp_time: each calibration
+    ramp's duration [s] (default: the protocol's); ramps other than the protocol's are not
+    Table 2's, so a `Calibration` keeps no loops then."""
+    ramps = protocol if ramp_time is None else dataclasses.replace(
+        protocol, ramp_time=check_ramp_time(ramp_time))
+    tasks = [open_loop_tasks(p, ramps, dt=dt) for p in plants]
     loops = iter(execute([t for ts in tasks for t in ts], workers, failed=Failed,
                          progress=progress, desc="open-loop loops"))
     out: list[Calibration | Failed] = []
@@ -153,7 +159,8 @@ def calibrate(plants: Sequence[Params], protocol: Protocol, dt: float, workers,
             out.append(failed)
             continue
         fit = fit_feedforward(plant, [measured_loop(lp) for lp in mine])
-        out.append(Calibration(fit.controller_of(plant), fit.rms, mine))
+        out.append(Calibration(fit.controller_of(plant), fit.rms,
+                               mine if ramps == protocol else ()))
     return out
 
 

@@ -71,7 +71,7 @@ class Reproduction:
 def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: int = 1,
               progress: bool = False, compare: Sequence[Params] | None = None,
               run_id: str | None = None, protocol: Protocol = SHIPPED,
-              feedforward: str = "calibrated",
+              feedforward: str = "calibrated", calibration_ramp_time: float | None = None,
               robustness_sample: Mapping[str, Any] | None = None) -> Reproduction:
     """Run every experiment and write CSV/PNG/JSON and `report.md` into `out_dir`.
 
@@ -83,7 +83,8 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
       run_id: the run's id (`wpam_mj.infra.manifest.run_id`), recorded in every figure.
       protocol: the static ramps' readings (`wpam_mj.experiments.protocol`) for Figs. 8-9, Table 2.
       feedforward: the controller's equilibrium model (`feedforward_fit`): "calibrated",
-        fitted to the plant's own open-loop loops first; "nominal", `params`' own values.
+        fitted to the plant's own open-loop loops first (ramps of `calibration_ramp_time`
+        [s], default the protocol's); "nominal", `params`' own values.
       robustness_sample: the keywords of `wpam_mj.reproduction.robustness.robustness`
         (n plants, seed, rel, measured, feedforward): adds the findings over those
         plants to report.md and its files (None or n = 0: none).
@@ -112,7 +113,8 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
     with open_workers(jobs) as workers:
         plant, controller_model, open_loops = params, "", ()
         if feedforward == "calibrated":
-            (fit,) = feedforward_fit.calibrate([plant], protocol, dt, workers)
+            (fit,) = feedforward_fit.calibrate([plant], protocol, dt, workers,
+                                               ramp_time=calibration_ramp_time)
             if isinstance(fit, Failed):
                 raise fit.error
             params, open_loops = fit.params, fit.loops

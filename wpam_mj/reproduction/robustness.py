@@ -344,17 +344,20 @@ def _failure(results) -> str | None:
 def robustness(nominal: Params, n: int = 32, *, seed: int = 0, rel: float = DEFAULT_REL,
                measured: Mapping[str, float] | None = None, dt: float = 1e-3, jobs: int = 1,
                progress: bool = False, protocol: Protocol = SHIPPED,
-               feedforward: str = "calibrated") -> Robustness:
+               feedforward: str = "calibrated",
+               calibration_ramp_time: float | None = None) -> Robustness:
     """Run every study of `wpam reproduce` on `n` plants sampled around `nominal`, every
     unmeasured value within +-rel of it but those `measured` gives their own half-width;
     the controller's equilibrium model `feedforward`: "calibrated" (fitted to each plant's
-    own open-loop loops, `feedforward_fit.calibrate`) or "nominal" (the nominal values)."""
+    own open-loop loops, `feedforward_fit.calibrate`, on ramps of `calibration_ramp_time`
+    [s], default the protocol's) or "nominal" (the nominal values)."""
     measured = check_measured(measured or {})
     feedforward_fit.check_feedforward_model(feedforward)
     plants = sampled_plants(nominal, sample_deviations(n, seed, rel, measured=dict(measured)))
     deviations = [p.plant_deviation for p in plants]
     with open_workers(jobs) as workers:
-        fits = (feedforward_fit.calibrate(plants, protocol, dt, workers, progress)
+        fits = (feedforward_fit.calibrate(plants, protocol, dt, workers, progress,
+                                          calibration_ramp_time)
                 if feedforward == "calibrated" else
                 [feedforward_fit.Calibration(p, math.nan, ()) for p in plants])
         results = iter(execute([b for f in fits if not isinstance(f, Failed)
