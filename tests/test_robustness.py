@@ -2,6 +2,7 @@
 the controller keeps while the plant deviates, the summary of held findings, and the
 limit-velocity experiment."""
 
+import json
 import math
 import subprocess
 import sys
@@ -232,6 +233,9 @@ def test_one_sampled_plant_runs_every_study_and_writes_its_files(tmp_path):
     written = robustness.write_robustness(tmp_path, result)
     assert sorted(p.name for p in written) == ["robustness.csv", "robustness.json",
                                                "robustness.md", "robustness.png"]
+    summary = json.loads((tmp_path / "robustness.json").read_text())
+    assert summary["feedforward"] == "calibrated" and summary["calibration_ramp_time_s"] is None
+    assert set(summary["model_error_median"]) == set(feedforward_fit.FEEDFORWARD_MODEL)
     assert not list(tmp_path.glob(".*"))
 
 

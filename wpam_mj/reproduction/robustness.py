@@ -162,6 +162,7 @@ class Robustness:
     seed: int
     measured: tuple[tuple[str, float], ...] = ()  # (name, its own half-width) pairs
     feedforward: str = "nominal"  # the controller's model (feedforward_fit.FEEDFORWARD_MODELS)
+    calibration_ramp_time: float | None = None  # s; None: the protocol's ramps
 
     def half_widths(self, names: Sequence[str] = UNMEASURED) -> np.ndarray:
         """Each of `names`' relative half-width in this sample (`half_widths`)."""
@@ -178,10 +179,12 @@ class Robustness:
         if self.feedforward == "nominal":
             return "the controller's feedforward keeps the nominal values."
         errors = self.model_errors()
+        ramps = ("" if self.calibration_ramp_time is None
+                 else f", ramps of {self.calibration_ramp_time:g} s")
         return ("the controller's equilibrium model is fitted to each plant's own open-loop "
-                "loops (Figs. 8-9, the gauges at 1 kPa; `feedforward_fit`), median |model / "
-                "plant - 1|: " + ", ".join(f"{n.partition('.')[2]} {e:.1%}"
-                                           for n, e in errors.items()) + ".")
+                f"loops (Figs. 8-9{ramps}, the gauges at 1 kPa; `feedforward_fit`), "
+                "median |model / plant - 1|: "
+                + ", ".join(f"{n.partition('.')[2]} {e:.1%}" for n, e in errors.items()) + ".")
 
     def model_errors(self) -> dict[str, float]:
         """Per value the controller's model reads, the median |model / plant - 1|."""
@@ -383,7 +386,8 @@ def robustness(nominal: Params, n: int = 32, *, seed: int = 0, rel: float = DEFA
                                          **known))
         else:
             outcomes.append(PlantOutcome(deviation, (), {}, error, **known))
-    return Robustness(tuple(outcomes), rel, seed, measured, feedforward)
+    return Robustness(tuple(outcomes), rel, seed, measured, feedforward,
+                      calibration_ramp_time if feedforward == "calibrated" else None)
 
 
 def write_robustness(out: Path, result: Robustness) -> list[Path]:
@@ -406,6 +410,7 @@ def write_robustness(out: Path, result: Robustness) -> list[Path]:
                "parameters": list(UNMEASURED),
                "uncertainty": dict(zip(UNMEASURED, result.half_widths())),
                "feedforward": result.feedforward,
+               "calibration_ramp_time_s": result.calibration_ramp_time,
                "model_error_median": result.model_errors(),
                "hold_target": HOLD_TARGET,
                "held_fraction": result.held_fraction(),
