@@ -200,9 +200,15 @@ def quick_loss(monkeypatch):
     monkeypatch.setattr(execution, "LOST_POLL_S", 0.2)
 
 
-def _bare_scheduler():
+def _bare_scheduler(attempts: int = 3):
     distributed = pytest.importorskip("distributed")
-    return distributed.LocalCluster(n_workers=0, processes=False, dashboard_address=None)
+    for attempt in range(attempts):
+        try:
+            return distributed.LocalCluster(n_workers=0, processes=False,
+                                            dashboard_address=None)
+        except AssertionError:  # distributed's in-process IO loop missed its fixed 10 s
+            if attempt == attempts - 1:  # start (seen late in this file's run; a race of
+                raise  # the harness, not of the code under test)
 
 
 def test_a_cluster_without_workers_ends_the_job_in_one_line(quick_loss, capfd):
