@@ -117,7 +117,7 @@ def test_a_nominal_controller_is_as_far_from_the_plant_as_the_plant_deviates():
     """robustness.csv's model error with the nominal values: model / plant - 1 =
     1 / (1 + delta) - 1 for each value the controller reads."""
     params = dataclasses.replace(preset("wpam"), plant_deviation=OFF)
-    errors = dict(robustness._model_error(params))
+    errors = dict(feedforward_fit.model_error(params))
     assert list(errors) == list(feedforward_fit.FEEDFORWARD_MODEL)
     for name, delta in OFF:
         assert errors[name] == pytest.approx(1 / (1 + delta) - 1, rel=1e-12)

@@ -9,10 +9,10 @@ from wpam_mj import paper
 from wpam_mj.cli.arguments import (feedforward_model_option, float_list, json_option,
                                    loop_area_option, name_list, out_dir_option,
                                    ramp_time_option)
-from wpam_mj.cli.runs import (amplitude_m, controller_model_of, note_still_loads,
-                              flag_unsettled, liftable_loads, out_dir_of, output_modules,
-                              params_of, print_json, run_id_of, run_options, settled,
-                              write_run_manifest, wrote)
+from wpam_mj.cli.runs import (amplitude_m, controller_model_of, controller_model_settings,
+                              note_still_loads, flag_unsettled, liftable_loads, out_dir_of,
+                              output_modules, params_of, print_json, run_id_of, run_options,
+                              settled, write_run_manifest, wrote)
 from wpam_mj.control.controllers import CONTROLS, check_control
 from wpam_mj.experiments import paper_studies
 from wpam_mj.experiments.drives import SINE_AMPLITUDE_MM, SINE_MEAN_MM, SineSpec, check_po
@@ -129,8 +129,7 @@ def _cmd_step(args: argparse.Namespace) -> int:
     (res,) = paper_studies.step_study(params, [(load, control)], dt=run.dt, jobs=1,
                                       progress=run.progress)
     settings = {"load_n": load, "control": control, "dt_s": run.dt,
-                "feedforward_model": args.feedforward_model,
-                "calibration_ramp_time_s": args.calibration_ramp_time}
+                **controller_model_settings(args)}
     rid = run_id_of(args, run.params, settings)
     written = writers.write_step_outputs(out, res, run_id=rid)
     manifest = write_run_manifest(args, out, rid, run.params, settings, written)
@@ -166,8 +165,7 @@ def _cmd_table2(args: argparse.Namespace) -> int:
                     run.jobs_for(3 * len(paper.LOADS_N)), progress=run.progress, desc="table 2")
     settings = {"ramp_time_s": ramp_time, "ramp_top_mpa": protocol.ramp_top / MPA,
                 "dt_s": run.dt, "loop_area": loop_area,
-                "feedforward_model": args.feedforward_model,
-                "calibration_ramp_time_s": args.calibration_ramp_time}
+                **controller_model_settings(args)}
     rid = run_id_of(args, run.params, settings)
     written = writers.write_table2_outputs(out, t2, run_id=rid)
     still = [(f"table2 open loop {lp.load:g} N, Po = {lp.po_down / MPA:g} MPa while Pi falls",
@@ -206,8 +204,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
                        progress=run.progress, amplitude=amplitude)
     settings = {"loads_n": loads, "freqs_hz": freqs, "controllers": controllers,
                 "amplitude_mm": amplitude / MM, "dt_s": run.dt,
-                "feedforward_model": args.feedforward_model,
-                "calibration_ramp_time_s": args.calibration_ramp_time}
+                **controller_model_settings(args)}
     rid = run_id_of(args, run.params, settings)
     written = writers.write_sweep_outputs(out, sw, key, run_id=rid)
     manifest = write_run_manifest(args, out, rid, run.params, settings, written)

@@ -10,8 +10,9 @@ from wpam_mj import paper
 from wpam_mj.cli.arguments import (feedforward_model_option, name_list, named_values,
                                    out_dir_option, out_path, protocol_options,
                                    ramp_time_option, scheduler_option)
-from wpam_mj.cli.runs import (liftable_loads, out_dir_of, out_file, output_modules, params_of,
-                              protocol_of, protocol_settings, run_id_of, run_options, writable_dir,
+from wpam_mj.cli.runs import (controller_model_settings, liftable_loads, out_dir_of,
+                              out_file, output_modules, params_of, protocol_of,
+                              protocol_settings, run_id_of, run_options, writable_dir,
                               write_run_manifest)
 from wpam_mj.experiments.protocol import SHIPPED
 from wpam_mj.infra.pool import Cluster
@@ -167,9 +168,7 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
     liftable_loads(paper.LOADS_N, [params], "reproduce load")
     out = out_dir_of(args)
     settings = {"compare_presets": COMPARED_TYPES, "dt_s": run.dt,
-                "feedforward_model": args.feedforward_model,
-                "calibration_ramp_time_s": args.calibration_ramp_time,
-                **protocol_settings(protocol)}
+                **controller_model_settings(args), **protocol_settings(protocol)}
     rid = run_id_of(args, params, settings)
     start = time.perf_counter()
     rep = reproduce(out, params, dt=run.dt, jobs=run.jobs, progress=run.progress,

@@ -20,7 +20,6 @@ from wpam_mj.physics.params import Params, apply_overrides, preset
 from wpam_mj.errors import ParameterError, check_range, load_toml
 from wpam_mj.units import MM, MPA
 from wpam_mj.simulation.context import check_dt, check_load
-from wpam_mj.simulation.execution import Failed
 
 RECORD_DT_S = 0.01  # the period every run records at (`wpam_mj.simulation.simulate.simulate`)
 
@@ -79,12 +78,16 @@ def controller_model_of(args: argparse.Namespace, run: RunOptions,
     and the open-loop ramps a calibration ran on the plant (none for "nominal")."""
     if args.feedforward_model == "nominal":
         return run.params, ()
-    from wpam_mj.reproduction.feedforward_fit import calibrate  # noqa: PLC0415
-    (fit,) = calibrate([run.params], protocol, run.dt, run.jobs_for(6), run.progress,
-                       args.calibration_ramp_time)
-    if isinstance(fit, Failed):
-        raise fit.error
+    from wpam_mj.reproduction.feedforward_fit import calibrate_one  # noqa: PLC0415
+    fit = calibrate_one(run.params, protocol, run.dt, run.jobs_for(6), run.progress,
+                        args.calibration_ramp_time)
     return fit.params, fit.loops
+
+
+def controller_model_settings(args: argparse.Namespace) -> dict:
+    """The manifest settings of --feedforward-model and --calibration-ramp-time."""
+    return {"feedforward_model": args.feedforward_model,
+            "calibration_ramp_time_s": args.calibration_ramp_time}
 
 
 def protocol_of(args: argparse.Namespace, params: Params) -> tuple[Params, Protocol]:

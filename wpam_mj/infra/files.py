@@ -87,4 +87,3 @@ def csv_text(rows: Iterable[Mapping[str, Any]], columns: Sequence[str] | None = 
     writer.writerow(columns)
     writer.writerows([cell(row[c]) if c in row else "" for c in columns] for row in rows)
     return buf.getvalue()
-

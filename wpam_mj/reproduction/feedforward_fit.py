@@ -164,6 +164,22 @@ def calibrate(plants: Sequence[Params], protocol: Protocol, dt: float, workers,
     return out
 
 
+def calibrate_one(plant: Params, protocol: Protocol, dt: float, workers,
+                  progress: bool = False, ramp_time: float | None = None) -> Calibration:
+    """`calibrate` of one plant; a failed ramp raises its error."""
+    (fit,) = calibrate([plant], protocol, dt, workers, progress, ramp_time)
+    if isinstance(fit, Failed):
+        raise fit.error
+    return fit
+
+
+def model_error(params: Params) -> tuple[tuple[str, float], ...]:
+    """(name, model / plant - 1) for each value the controller's model reads."""
+    plant = params.plant
+    return tuple((n, float(params.value(n) / plant.value(n) - 1.0))
+                 for n in FEEDFORWARD_MODEL)
+
+
 def model_markdown(params: Params, rms: float) -> str:
     """The controller's equilibrium model beside the plant: each value it reads, and how
     well the model's play operator follows the loops it was fitted to (`rms` [m])."""
@@ -172,7 +188,7 @@ def model_markdown(params: Params, rms: float) -> str:
              f"(Figs. 8-9, the gauges at {GAUGE_RESOLUTION / 1e3:g} kPa, logged every "
              f"{RECORD_EVERY_S:g} s; x residual {rms / MM:.2f} mm rms):", "",
              "| value | plant | controller's model | model / plant - 1 |", "|---|---|---|---|"]
-    for name in FEEDFORWARD_MODEL:
+    for name, error in model_error(params):
         lines.append(f"| `{name}` | {plant.value(name):.6g} | {params.value(name):.6g} | "
-                     f"{params.value(name) / plant.value(name) - 1:+.1%} |")
+                     f"{error:+.1%} |")
     return "\n".join(lines)

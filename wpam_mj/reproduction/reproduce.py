@@ -24,7 +24,7 @@ from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
 from wpam_mj.experiments.paper_studies import StaticTask, StepTask, figure_run_key, sweep_batch
 from wpam_mj.experiments.responses import SweepResult, Table2Result
-from wpam_mj.simulation.execution import Batch, Failed, execute
+from wpam_mj.simulation.execution import Batch, execute
 from wpam_mj.experiments.writers import (run_metadata, sine_csv_name, static_csv_name,
                                          step_csv_name, write_sweep, write_table2)
 
@@ -113,10 +113,8 @@ def reproduce(out_dir: str | Path, params: Params, *, dt: float = 1e-3, jobs: in
     with open_workers(jobs) as workers:
         plant, controller_model, open_loops = params, "", ()
         if feedforward == "calibrated":
-            (fit,) = feedforward_fit.calibrate([plant], protocol, dt, workers,
-                                               ramp_time=calibration_ramp_time)
-            if isinstance(fit, Failed):
-                raise fit.error
+            fit = feedforward_fit.calibrate_one(plant, protocol, dt, workers,
+                                                ramp_time=calibration_ramp_time)
             params, open_loops = fit.params, fit.loops
             compare = [params if p == plant else p for p in compare]
             controller_model = feedforward_fit.model_markdown(params, fit.rms)

@@ -10,9 +10,9 @@ known to perhaps +-5 %.
 once), runs every study of `wpam reproduce` on each, and reports per finding the fraction
 of plants that hold it and the spread of each Table 2 cell. The controller's feedforward
 is an experimenter's model of the plant, not the plant (`Params.plant_deviation`): by
-default it keeps the nominal values throughout; with feedforward="calibrated" it is
-fitted to each plant's own open-loop loops (Figs. 8-9) as the paper's experimenter fits
-the mechanical equilibrium model (`wpam_mj.reproduction.feedforward_fit`).
+default it is fitted to each plant's own open-loop loops (Figs. 8-9) as the paper's
+experimenter fits the mechanical equilibrium model (`wpam_mj.reproduction.feedforward_fit`);
+with feedforward="nominal" it keeps the nominal values throughout.
 """
 
 from __future__ import annotations
@@ -330,12 +330,6 @@ def _plant_batches(fit: feedforward_fit.Calibration, protocol: Protocol,
             sweep_batch(plant, dt=dt, keep=())]
 
 
-def _model_error(plant: Params) -> tuple[tuple[str, float], ...]:
-    truth = plant.plant
-    return tuple((n, float(plant.value(n) / truth.value(n) - 1.0))
-                 for n in feedforward_fit.FEEDFORWARD_MODEL)
-
-
 def _failure(results) -> str | None:
     failed = next((r for r in results if isinstance(r, Failed)), None)
     if failed is None:
@@ -375,7 +369,7 @@ def robustness(nominal: Params, n: int = 32, *, seed: int = 0, rel: float = DEFA
         t2, open_step, sw = (next(results) for _ in range(3))
         known = dict(feedforward_share=authority.plant_share(plant),
                      needed_share=authority.needed_share(plant),
-                     model_error=_model_error(plant), fit_rms=fit_rms)
+                     model_error=feedforward_fit.model_error(plant), fit_rms=fit_rms)
         error = _failure((t2, open_step, sw))
         if error is None:
             checks = findings.all_checks(t2, open_step, sw)
