@@ -71,7 +71,10 @@ REFUSED = {  # argv: text the one line must contain
                                   ["60", "[1, 50]"]),
     "dt not dividing the record period": (["step", "--dt", "0.003"], ["--dt", "0.003",
                                                                      "0.01"]),
-    "ramp time too short": (["static", "--ramp-time", "0.5"], ["0.5", "[1, 3600]"]),
+    "ramp time too short": (["static", "--ramp-time", "0.5"], ["--ramp-time", "0.5",
+                                                                "[1, 3600]"]),
+    "calibration ramp time": (["robustness", "--calibration-ramp-time", "0"],
+                              ["--calibration-ramp-time", "0 s", "[1, 3600]"]),
     "ramp time not finite": (["table2", "--ramp-time", "nan"], ["nan", "[1, 3600]"]),
 }
 

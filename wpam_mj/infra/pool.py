@@ -16,6 +16,7 @@ them (docs/cluster.md).
 from __future__ import annotations
 
 import ctypes
+import gc
 import logging
 import os
 import signal
@@ -218,15 +219,21 @@ def _dask_executor(address: str) -> Iterator[Workers]:
         raise ParameterError(f"Dask scheduler {address}: Dask distributed is not installed; "
                              'pip install ".[cluster]"') from None
     with _quiet_dask():
+        failure = None
         try:
             client = Client(address, timeout=CONNECT_TIMEOUT_S)
         except (OSError, ValueError) as err:  # TimeoutError is an OSError
-            raise ParameterError(f"Dask scheduler {address}: cannot connect "
-                                 f"({_reason(err)})") from None
+            failure = f"cannot connect ({_reason(err)})"
         except Exception:  # noqa: BLE001 (what Dask makes of another service's answer:
             # a frame length of exabytes, MemoryError)
-            raise ParameterError(f"Dask scheduler {address}: the service there does not "
-                                 "answer as a Dask scheduler") from None
+            failure = "the service there does not answer as a Dask scheduler"
+        if failure is not None:
+            # The half-made Client closes itself in __del__, which waits for its IO loop:
+            # collected later inside a new IO loop's start, it stalls that start past
+            # distributed's fixed 10 s. Raised outside the except (no traceback keeps it)
+            # and collected here, it closes now, in this thread.
+            gc.collect()
+            raise ParameterError(f"Dask scheduler {address}: {failure}")
         try:
             slots = sum(client.nthreads().values())  # threads of the workers connected now
             executor = client.get_executor()
