@@ -162,7 +162,7 @@ GIVEN_UP = {
     "pid_gain_equals_pi": (
         "where the loop runs at the limit velocity (1 Hz), PID's lead moves the command's "
         "switching points, and with them the amplitude the limit allows."),
-    "pid_leads_pi": (
+    "pid_leads_pi_everywhere": (
         "below 0.5 Hz the D term's phase advance atan(Kd w / Kp) is 1.4 deg at 0.1 Hz in a "
         "linear loop, but the Po command sits at p_min or the cap 35-68 % of each cycle "
         "(150 N), where D only moves the switching instants, and friction takes most of the "
