@@ -173,9 +173,8 @@ def _pid_leads_pi(sw):
     return [*behind, max(leads, key=lambda m: m.value)]
 
 
-def _lead_text(margins) -> str:
-    return "PI - PID lag " + ", ".join(f"{m.freq:g} Hz {m.value:+.2f}"
-                                       for m in margins if m.limit == PID_LEAD_MIN_DEG)
+def _lead_text(leads) -> str:
+    return "PI - PID lag " + ", ".join(f"{m.freq:g} Hz {m.value:+.2f}" for m in leads)
 
 
 def _pid_leads_pi_detail(sw, margins):
