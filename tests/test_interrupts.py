@@ -294,6 +294,28 @@ def test_deferred_signals_are_raised_when_the_block_ends():
         assert reached and termination.stopping()
 
 
+def test_a_signal_during_a_wait_is_raised_between_its_polls(monkeypatch):
+    """Raised inside `concurrent.futures.wait` (a Condition's wait), the handler's
+    exception once left the Condition's lock released twice: "release unlocked lock"
+    replaced a HungUp and `wpam synth` ended with status 1 (a .ci/run, pool-at-start
+    SIGHUP). `termination.wait` takes it between polls instead."""
+    inside = []
+
+    def poll(futures, timeout, return_when):  # concurrent.futures.wait, with the signal
+        try:
+            os.kill(os.getpid(), signal.SIGHUP)
+            time.sleep(0.05)  # the handler runs here
+        except BaseException as error:
+            inside.append(error)
+            raise
+        return set(), set(futures)
+
+    monkeypatch.setattr(concurrent.futures, "wait", poll)
+    with termination.handle_signals(), pytest.raises(termination.HungUp):
+        termination.wait([concurrent.futures.Future()])
+    assert inside == []
+
+
 def test_check_raises_a_pending_signal_once_and_later_signals_only_record():
     with termination.handle_signals():
         with pytest.raises(termination.HungUp):

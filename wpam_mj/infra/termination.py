@@ -109,7 +109,11 @@ def wait(futures: Iterable[concurrent.futures.Future],
     docstring; unbounded, a busy machine saw SIGHUP acted on 2.7-4.3 s late)."""
     futures = list(futures)
     while True:
-        done, not_done = concurrent.futures.wait(futures, SIGNAL_POLL_S, return_when)
+        # deferred: the handler's exception raised inside a Condition's wait can leave its
+        # lock released twice (seen once: "release unlocked lock" replaced a HungUp, and
+        # the command ended with status 1); raised between polls it is at most one late
+        with deferred():
+            done, not_done = concurrent.futures.wait(futures, SIGNAL_POLL_S, return_when)
         if not not_done or (return_when == concurrent.futures.FIRST_COMPLETED and done) or (
                 return_when == concurrent.futures.FIRST_EXCEPTION and any(
                     not f.cancelled() and f.exception() is not None for f in done)):
