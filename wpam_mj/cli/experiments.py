@@ -91,7 +91,7 @@ def _cmd_static(args: argparse.Namespace) -> int:
     plist = [run.params if n == args.preset else params_of(args, n) for n in names]
     loads = liftable_loads(paper.LOADS_N if args.load is None else (args.load,), plist)
     po_down = check_po("--po-down", args.po_down * MPA, run.params)
-    ramp_time = args.ramp_time  # ranged by its parser type
+    ramp_time = args.ramp_time  # ranged in run_options
     out = out_dir_of(args)
     loops = paper_studies.compare_presets(plist, loads, po_down, dt=run.dt,
                                     jobs=run.jobs_for(len(plist) * len(loads)),
@@ -156,7 +156,7 @@ def _cmd_table2(args: argparse.Namespace) -> int:
     tables, writers = output_modules()
     run = run_options(args)
     liftable_loads(paper.LOADS_N, [run.params], "Table 2 load")
-    ramp_time = args.ramp_time  # ranged by its parser type
+    ramp_time = args.ramp_time  # ranged in run_options
     out = out_dir_of(args)
     loop_area = args.loop_area or SHIPPED.loop_method
     protocol = dataclasses.replace(SHIPPED, ramp_time=ramp_time, loop_method=loop_area)

@@ -14,6 +14,7 @@ from typing import Sequence
 from wpam_mj.cli.arguments import GAIN_READINGS, JOBS_PER_CPU
 from wpam_mj.experiments.drives import SINE_MEAN_MM
 from wpam_mj.experiments.feasibility import check_liftable
+from wpam_mj.experiments.paper_studies import RAMP_TIME_RANGE_S
 from wpam_mj.experiments.protocol import SHIPPED, Protocol
 from wpam_mj.infra import outputs, pool
 from wpam_mj.physics.params import Params, apply_overrides, preset
@@ -67,6 +68,10 @@ def jobs_option(jobs: int) -> int:
 def run_options(args: argparse.Namespace) -> RunOptions:
     params = params_of(args)
     dt = check_dt(args.dt, divides=RECORD_DT_S, name="--dt")
+    for option in ("ramp_time", "calibration_ramp_time"):  # where the command takes them
+        if getattr(args, option, None) is not None:
+            check_range("--" + option.replace("_", "-"), getattr(args, option),
+                        *RAMP_TIME_RANGE_S, "s")
     jobs = jobs_option(args.jobs)
     progress = sys.stderr.isatty() if args.progress is None else args.progress
     return RunOptions(params, dt, jobs, progress)
