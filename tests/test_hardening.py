@@ -314,6 +314,15 @@ def test_csv_loads_with_plain_genfromtxt_and_pandas(tmp_path) -> None:
     assert frame["x_ref_mm"].isna().sum() == 10
 
 
+def test_csv_cells_of_numpy_scalars_read_back_as_numbers() -> None:
+    # robustness.csv once wrote a margin as 'np.float64(0.15)': numpy 2's repr
+    from wpam_mj.infra.files import csv_text
+    text = csv_text([{"a": np.float64(0.1), "b": np.float32(2.5), "c": np.bool_(True),
+                      "d": 0.1, "e": 3}])
+    assert text.splitlines()[1] == "0.1,2.5,true,0.1,3"
+    assert float(text.splitlines()[1].split(",")[0]) == 0.1
+
+
 def _figure_png(path: Path, run: str) -> Path:
     from matplotlib.figure import Figure
 

@@ -16,6 +16,8 @@ import tempfile
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
+import numpy as np
+
 
 def write_atomic(path: str | Path, write: Callable[[Path], None]) -> Path:
     """Write a file whole or not at all: `write(tmp)` then rename over `path`.
@@ -70,10 +72,11 @@ def write_text_atomic(path: str | Path, text: str) -> Path:
 
 
 def exact_cell(value: Any) -> str:
-    """CSV text that reads back to the same value (repr of a float is exact)."""
-    if isinstance(value, bool):
+    """CSV text that reads back to the same value (repr of a float is exact; numpy's
+    scalars are written as the Python values they hold, not as 'np.float64(...)')."""
+    if isinstance(value, (bool, np.bool_)):
         return "true" if value else "false"
-    return repr(value) if isinstance(value, float) else str(value)
+    return repr(float(value)) if isinstance(value, (float, np.floating)) else str(value)
 
 
 def csv_text(rows: Iterable[Mapping[str, Any]], columns: Sequence[str] | None = None,
