@@ -45,6 +45,12 @@ class _Targets:
     def tasks(self, params):
         return [_Task(params.muscle.output_coeff), _Task(params.muscle.friction_coeff)]
 
+    def calibration_tasks(self, params):
+        return []  # the controller's model: the nominal values
+
+    def calibrated(self, params, results):
+        return params, self
+
     def score(self, params, results):
         kf, mu = results
         margins = dict.fromkeys(scoring.FINDINGS, 0.2 - mu)
@@ -301,6 +307,58 @@ def test_a_robust_search_keeps_each_findings_worst_margin_over_sampled_plants(tm
     assert first_r.margins["table2_po_row"] < first_n.margins["table2_po_row"]
     with pytest.raises(ParameterError, match="robust"):  # a journal of another search
         _search(tmp_path / "r", targets=_PlantTargets, robust=5, resume=True)
+
+
+class _FailedRun:
+    cost = 1.0
+
+    def run(self):
+        raise ParameterError("the calibration ramp failed")
+
+
+class _CalibratedTargets(_PlantTargets):
+    """The stand-in with its controller's model fitted first: one calibration run reads
+    the plant's Kf, the model takes it, and "pid_leads_pi" is the model's error."""
+
+    model_kf = None
+
+    def calibration_tasks(self, params):
+        kf = params.plant.muscle.output_coeff
+        return [_FailedRun() if kf > 0.95 else _Task(kf)]
+
+    def calibrated(self, params, results):
+        fitted = _CalibratedTargets(self.protocol)
+        fitted.model_kf = results[0]
+        return params, fitted
+
+    def score(self, params, results):
+        r, margins, figures = super().score(params, results)
+        model = params.muscle.output_coeff if self.model_kf is None else self.model_kf
+        return r, {**margins, "pid_leads_pi": -abs(model - results[0])}, figures
+
+
+class _NominalTargets(_CalibratedTargets):
+    def calibration_tasks(self, params):
+        return []
+
+    def calibrated(self, params, results):
+        return params, self
+
+
+def test_each_plant_of_a_search_is_scored_with_the_model_fitted_to_its_own_runs(tmp_path):
+    """The calibrated reading fits every plant's controller model to that plant's own
+    runs before its closed-loop runs (here: exactly), a robust search's sampled plants
+    too; with the nominal model the sampled plants' Kf is not the model's. A failed
+    calibration run fails the point, as a failed closed-loop run does."""
+    _Task.runs = 0
+    fitted = _search(tmp_path / "c", targets=_CalibratedTargets, robust=3)
+    nominal = _search(tmp_path / "n", targets=_NominalTargets, robust=3)
+    ran = [r for r in _simulated(fitted.records) if r.margins is not None]
+    assert ran and all(r.margins["pid_leads_pi"] == 0.0 for r in ran)
+    assert all(r.margins["pid_leads_pi"] < 0.0 for r in _simulated(nominal.records)
+               if r.margins is not None)
+    failed = [r for r in _simulated(fitted.records) if r.margins is None]
+    assert failed and all(r.cost == scoring.FAILED_COST for r in failed)
 
 
 def test_worst_of_fails_a_point_when_one_plant_fails():

@@ -168,7 +168,10 @@ def protocol_options(p: argparse.ArgumentParser) -> None:
                        f"{k} ({v:g} MPa/u)" for k, v in GAIN_READINGS.items()))
 
 
-def feedforward_model_option(p: argparse.ArgumentParser, default: str) -> None:
+def feedforward_model_option(p: argparse.ArgumentParser, default: str,
+                             ramp_time: bool = True) -> None:
+    """--feedforward-model, and --calibration-ramp-time where the command runs ramps of
+    its own to fit it to (`ramp_time`; the search fits it to Table 2's own loops)."""
     from wpam_mj.reproduction.feedforward_fit import FEEDFORWARD_MODELS  # noqa: PLC0415
     p.add_argument("--feedforward-model", choices=FEEDFORWARD_MODELS, default=default,
                    help="the controller's equilibrium model (the Pi feedforward): calibrated, "
@@ -176,6 +179,8 @@ def feedforward_model_option(p: argparse.ArgumentParser, default: str) -> None:
                         "plant's own) as the paper's experimenter fits it; or nominal, the "
                         "parameters' own values, a controller that knows the plant exactly "
                         f"(default: {default})")
+    if not ramp_time:
+        return
     p.add_argument("--calibration-ramp-time", type=float, default=None, metavar="S",
                    help="duration of each open-loop ramp the calibrated model is fitted to "
                         "[s] (default: the static ramps' own, --ramp-time where the command "

@@ -81,16 +81,19 @@ def add_parsers(add) -> None:
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted search in --out: journaled points are "
                         "replayed, not run again (a finished search replays in seconds); "
-                        "the same --seed, --popsize, --free, --radius and --config as the "
-                        "journal's (more --maxiter extends it)")
+                        "the same --seed, --popsize, --free, --radius, --robust, "
+                        "--feedforward-model and --config as the journal's (more --maxiter "
+                        "extends it)")
     p.add_argument("--robust", type=int, default=0, metavar="K",
                    help="score each point as the worst over itself and K plants sampled "
-                        "within +-5 %% of its unmeasured values (the controller keeping its "
-                        "nominal model), so the search optimises what survives the plant's "
+                        "within +-5 %% of its unmeasured values (each with the controller's "
+                        "model --feedforward-model says), so the search optimises what "
+                        "survives the plant's "
                         "uncertainty; K times the runs (default: 0)")
     p.add_argument("--map-only", action="store_true",
                    help="run nothing: the best point and the feasibility map of the points "
                         "journaled in --out so far (e.g. while the search still runs)")
+    feedforward_model_option(p, "calibrated", ramp_time=False)
     scheduler_option(p)
 
     p = add("calibrate", "fit the parameters the paper does not give (braid angle, Kf, "
@@ -224,7 +227,7 @@ def _cmd_search(args: argparse.Namespace) -> int:
                                               resume=args.resume, progress=run.progress,
                                               objective=args.objective, free=free,
                                               radius=args.radius, robust=args.robust,
-                                              **sizes)
+                                              feedforward=args.feedforward_model, **sizes)
     for path in written:
         print(f"wrote {path}")
     return 0

@@ -139,9 +139,12 @@ class PaperTargets:
 
     dt: float = 1e-3
     protocol: Protocol = SHIPPED
+    # Table 2's open-loop ramps already run on this plant (`open_loop_tasks`' order):
+    # then only the closed-loop runs are tasks
+    open_loops: tuple = ()
 
     def _batches(self, params: Params):
-        return (table2_batch(params, self.protocol, dt=self.dt),
+        return (table2_batch(params, self.protocol, dt=self.dt, open_loops=self.open_loops),
                 sweep_batch(params, keep=(), dt=self.dt))
 
     def tasks(self, params: Params) -> list:

@@ -45,7 +45,7 @@ from wpam_mj.paper import TABLE2_PO_RTOL
 from wpam_mj.fitting import estimation
 from wpam_mj.infra.pool import Workers, open_workers
 from wpam_mj.reproduction.calibrate import FREE
-from wpam_mj.reproduction import robustness
+from wpam_mj.reproduction import feedforward_fit, robustness
 from wpam_mj.reproduction.search_scoring import OBJECTIVES, Record, Targets, score, worst_of
 from wpam_mj.physics.params import Params, parameter_fields, preset
 from wpam_mj.errors import ParameterError, check_range
@@ -198,7 +198,7 @@ class Evaluator:
     def __init__(self, base: Params, journal: PointJournal, executor: Workers,
                  targets=None, progress: bool = False, planned: int = 0,
                  region: Region = GLOBAL, objective: str = "cost",
-                 robust: int = 0) -> None:
+                 robust: int = 0, feedforward: str = "calibrated") -> None:
         self.base, self.journal, self.executor = base, journal, executor
         # robust = K: each point is scored on itself and K plants about it, every
         # unmeasured value within +-5 % (the same Latin hypercube for every point, so
@@ -209,7 +209,8 @@ class Evaluator:
         self.region = region
         self.objective = OBJECTIVES[objective]  # Record -> the value DE minimises
         # targets(protocol) -> `Targets`-like (a cheap stand-in in the smoke test)
-        self.targets = targets or (lambda protocol: Targets(SEARCH_DT, protocol))
+        self.targets = targets or (lambda protocol: Targets(SEARCH_DT, protocol,
+                                                            feedforward))
         self.progress, self.planned = progress, planned
         # points run together: enough runs to keep every worker busy, few enough that
         # an interruption loses little
@@ -245,32 +246,50 @@ class Evaluator:
 
     def _run(self, us: list) -> list[Record]:
         points = self._points(us)
-        members = [self._plants(p.params) if p is not None else [] for p in points]
-        groups = [[t for m in plants for t in self.targets(p.protocol).tasks(m)]
-                  if p is not None and p.static_error <= TABLE2_PO_RTOL else []
-                  for p, plants in zip(points, members)]
-        flat = sorted(((g, i, t) for g, ts in enumerate(groups) for i, t in enumerate(ts)),
-                      key=lambda x: -x[2].cost)
-        from wpam_mj.simulation.execution import execute  # noqa: PLC0415 (the one layer)
-        done = dict(zip([(g, i) for g, i, _ in flat],
-                        execute([t for _, _, t in flat], self.executor, failed=None)))
+        members = self._calibrated(
+            [[(m, self.targets(p.protocol)) for m in self._plants(p.params)]
+             if p is not None and p.static_error <= TABLE2_PO_RTOL else [] for p in points])
+        runs = self._execute([[tg.tasks(m) for m, tg in plants or ()] for plants in members])
         out = []
-        for g, (u, p) in enumerate(zip(us, points)):
-            res = [done[g, i] for i in range(len(groups[g]))]
-            if p is not None and not groups[g]:  # screened out: never simulated
-                out.append(Record(tuple(float(x) for x in u),
-                                  STATIC_MISS_COST * (1.0 + p.static_error), None,
+        for u, p, plants, res in zip(us, points, members, runs):
+            u = tuple(float(x) for x in u)
+            if p is not None and p.static_error > TABLE2_PO_RTOL:  # never simulated
+                out.append(Record(u, STATIC_MISS_COST * (1.0 + p.static_error), None,
                                   {"static_error": p.static_error}))
-                continue
-            ok = p is not None and all(r is not None for r in res)
-            if not ok:
-                out.append(Record(tuple(float(x) for x in u), *score(None, None, None)))
-                continue
-            per = len(res) // len(members[g])
-            scored = [score(self.targets(p.protocol), m, res[j * per:(j + 1) * per])
-                      for j, m in enumerate(members[g])]
-            out.append(Record(tuple(float(x) for x in u), *worst_of(scored)))
+            elif p is None or plants is None or any(None in r for r in res):
+                out.append(Record(u, *score(None, None, None)))
+            else:
+                out.append(Record(u, *worst_of([score(tg, m, r)
+                                                for (m, tg), r in zip(plants, res)])))
         return out
+
+    def _calibrated(self, members: list) -> list:
+        """Each point's (plant, targets) with the controller's model fitted to the plant's
+        own runs first where its targets ask for it (`Targets.calibration_tasks`), every
+        point's runs together; None for a point one of whose runs or fits failed."""
+        runs = self._execute([[tg.calibration_tasks(m) for m, tg in plants]
+                              for plants in members])
+        out = []
+        for plants, res in zip(members, runs):
+            try:
+                if any(None in r for r in res):
+                    raise ArithmeticError("a calibration run failed")
+                out.append([tg.calibrated(m, r) for (m, tg), r in zip(plants, res)])
+            except (ParameterError, ArithmeticError):
+                out.append(None)
+        return out
+
+    def _execute(self, groups: list[list[list]]) -> list[list[list]]:
+        """The results of each point's task lists (None for a failed run), in their
+        shape; every point's runs together on the workers, longest first."""
+        flat = sorted(((g, j, i, t) for g, lists in enumerate(groups)
+                       for j, ts in enumerate(lists) for i, t in enumerate(ts)),
+                      key=lambda x: -x[3].cost)
+        from wpam_mj.simulation.execution import execute  # noqa: PLC0415 (the one layer)
+        done = dict(zip([k[:3] for k in flat],
+                        execute([k[3] for k in flat], self.executor, failed=None)))
+        return [[[done[g, j, i] for i in range(len(ts))] for j, ts in enumerate(lists)]
+                for g, lists in enumerate(groups)]
 
     def _points(self, us: list) -> list[Point | None]:
         """Each coordinate's point with its static fit, the fits run on the workers."""
@@ -343,30 +362,34 @@ RADIUS = 0.25  # a local search's default half-width, of each range
 
 def search_settings(base: Params, free: Sequence[str] | None = None,
                     radius: float | None = None, seed: int | None = None,
-                    popsize: int | None = None, robust: int = 0) -> dict:
+                    popsize: int | None = None, robust: int = 0,
+                    feedforward: str = "calibrated") -> dict:
     """What makes a search the one its journal holds (a resumed search must repeat them;
     the generations and the objective may change: they extend or re-rank the same
     points): seed, popsize, the local search's names and radius, the plants a robust
-    search scores each point on, and the base point."""
+    search scores each point on, the controller's model, and the base point."""
     return {"seed": seed, "popsize": popsize, "free": None if free is None else list(free),
-            "radius": radius, "robust": robust,
+            "radius": radius, "robust": robust, "feedforward": feedforward,
             "base": {k: base.value(k) for k, _ in parameter_fields()}}
 
 
 _SETTING_FLAGS = {"seed": "--seed", "popsize": "--popsize", "free": "--free",
-                  "radius": "--radius", "robust": "--robust"}
+                  "radius": "--radius", "robust": "--robust",
+                  "feedforward": "--feedforward-model"}
+# what a journal written before a setting existed searched with
+_SETTING_BEFORE = {"robust": 0, "feedforward": "nominal"}
 
 
 def check_same_search(journal: PointJournal, ours: dict, what: str,
                       keys: Sequence[str] = ("seed", "popsize", "free", "radius", "robust",
-                                             "base")) -> None:
+                                             "feedforward", "base")) -> None:
     """ParameterError naming the first setting of `keys` in which the search asked for
     differs from the one `journal` holds (a journal without settings is not checked)."""
     theirs = journal.settings
     if theirs is None:
         return
     for key in keys:
-        a, b = theirs.get(key, 0 if key == "robust" else None), ours[key]
+        a, b = theirs.get(key, _SETTING_BEFORE.get(key)), ours[key]
         if a == b:
             continue
         if key == "base":
@@ -405,7 +428,8 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
            popsize: int = POPSIZE, maxiter: int = MAXITER, jobs: int = 2,
            resume: bool = False, progress: bool = True, targets=None,
            fit=None, objective: str = "cost", free: Sequence[str] | None = None,
-           radius: float | None = None, robust: int = 0) -> SearchResult:
+           radius: float | None = None, robust: int = 0,
+           feedforward: str = "calibrated") -> SearchResult:
     """Run DE over SPACE, every coordinate drawn from its whole range (a Latin hypercube,
     not started from any known point): `base` (default: the wpam preset) gives only the
     parameters that are not searched. Journals to `out`/journal.jsonl (None: in memory).
@@ -419,6 +443,8 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
     of another search (`check_same_search`). robust: score each point as the worst over
     itself and this many plants sampled within +-5 % of its unmeasured values
     (`Evaluator`), so that the search optimises what survives the plant's uncertainty.
+    feedforward: the controller's equilibrium model (`Targets`): "calibrated", fitted to
+    each plant's own open loops first, as `wpam reproduce` runs it; or "nominal".
     """
     if objective not in OBJECTIVES:
         raise ParameterError(f"objective = {objective!r} must be one of "
@@ -434,8 +460,9 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
         x0 = coordinates_of(base, region)
         bounds = [(max(0.0, z - radius), min(1.0, z + radius)) for z in x0]
     check_range("robust", robust, 0, 64)
+    feedforward_fit.check_feedforward_model(feedforward)
     settings = search_settings(base, None if free is None else region.names, radius, seed,
-                               popsize, int(robust))
+                               popsize, int(robust), feedforward)
     path = None if out is None else Path(out) / "journal.jsonl"
     if resume and path is None:
         raise ParameterError("--resume: an in-memory search has no journal to resume")
@@ -446,7 +473,7 @@ def search(out: Path | None, *, base: Params | None = None, seed: int = 20,
     with open_workers(jobs) as ex:
         ev = Evaluator(base, journal, ex, targets, progress,
                        planned_evaluations(popsize, maxiter, len(bounds)), region, objective,
-                       int(robust))
+                       int(robust), feedforward)
         res = differential_evolution(
             cost, bounds, args=(ev,), seed=seed, popsize=popsize, x0=x0,
             maxiter=maxiter, tol=0.0, polish=False, init="latinhypercube",

@@ -11,14 +11,14 @@ replays any journal.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
-from wpam_mj.experiments.protocol import Protocol
+from wpam_mj.experiments.protocol import Protocol, open_loop_tasks
 from wpam_mj.paper import CALIBRATION_HEADROOM
 from wpam_mj.physics.params import Params
 from wpam_mj.errors import ParameterError
-from wpam_mj.reproduction import findings
+from wpam_mj.reproduction import feedforward_fit, findings
 from wpam_mj.reproduction.calibrate import PaperTargets
 
 SHORTFALL_CAP = 3.0  # scale units: one far miss counts as three near ones, no more
@@ -125,17 +125,40 @@ def _figures(scores) -> dict:
 
 @dataclass(frozen=True)
 class Targets:
-    """The paper's targets under one protocol: `tasks` to run, `score` of their results
-    as (residual vector of calibrate's cost, finding margins, figures)."""
+    """The paper's targets under one protocol, as `wpam reproduce` reads them: the
+    controller's model is `feedforward` (`feedforward_fit.FEEDFORWARD_MODELS`): fitted to
+    the plant's own Table 2 open loops first ("calibrated": `calibration_tasks`, then
+    `calibrated`), or the plant's nominal values. Then `tasks` to run and `score` of
+    their results as (residual vector of calibrate's cost, finding margins, figures)."""
 
     dt: float
     protocol: Protocol
+    feedforward: str = "calibrated"
+    open_loops: tuple = ()  # the open loops the controller's model was fitted to
+
+    def calibration_tasks(self, params: Params) -> list:
+        """The runs the controller's model is fitted to (none: it is the nominal one)."""
+        if self.feedforward == "nominal":
+            return []
+        return open_loop_tasks(params, self.protocol, dt=self.dt)
+
+    def calibrated(self, params: Params, results: list) -> tuple[Params, "Targets"]:
+        """`params` with the controller's model fitted to `results` of
+        `calibration_tasks` (the plant kept), and the targets that reuse those runs."""
+        if not results:
+            return params, self
+        fit = feedforward_fit.fit_feedforward(
+            params, [feedforward_fit.measured_loop(lp) for lp in results])
+        return fit.controller_of(params), replace(self, open_loops=tuple(results))
+
+    def _model(self) -> PaperTargets:
+        return PaperTargets(self.dt, self.protocol, self.open_loops)
 
     def tasks(self, params: Params) -> list:
-        return PaperTargets(self.dt, self.protocol).tasks(params)
+        return self._model().tasks(params)
 
     def score(self, params: Params, results: list):
-        model = PaperTargets(self.dt, self.protocol)
+        model = self._model()
         r = model.residuals(params, results)
         scores, table2 = model.scores_and_table2(params, results)
         return r, finding_margins(scores, table2), _figures(scores)
