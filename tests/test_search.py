@@ -241,6 +241,7 @@ def test_the_command_line_states_the_search_defaults():
     ({"seed": 21}, "--seed 20 there, 21 here"),
     ({"free": ("pneumatics.outer_conductance",)},
      "--free not given there, pneumatics.outer_conductance here"),
+    ({"feedforward": "nominal"}, "--feedforward-model calibrated there, nominal here"),
     ({"base": preset("wpam").with_values({"muscle.damping": 55.0})},
      "parameter muscle.damping = ")])
 def test_resume_refuses_the_journal_of_another_search(tmp_path, other, differs):
@@ -255,6 +256,21 @@ def test_resume_refuses_the_journal_of_another_search(tmp_path, other, differs):
     _search(tmp_path, resume=True, maxiter=3)  # more generations extend the same search
     with pytest.raises(ParameterError, match="--popsize 1 there, 2 here"):
         _search(tmp_path, resume=True, popsize=2)
+
+
+def test_a_journal_from_before_the_controllers_model_was_recorded_searched_the_nominal(
+        tmp_path):
+    """Journals written before `wpam search` fitted the controller's model have no
+    "feedforward" setting: their points were scored with the nominal model."""
+    _search(tmp_path, feedforward="nominal")
+    path = tmp_path / "journal.jsonl"
+    first, *rest = path.read_text().splitlines()
+    settings = json.loads(first)
+    del settings["settings"]["feedforward"]
+    path.write_text("\n".join([json.dumps(settings), *rest]) + "\n")
+    _search(tmp_path, resume=True, feedforward="nominal")
+    with pytest.raises(ParameterError, match="--feedforward-model nominal there"):
+        _search(tmp_path, resume=True)
 
 
 def test_radius_without_free_is_refused():

@@ -95,10 +95,20 @@ class StepRun(InContext):
         r = self.result
         return (r.time % STEP_HOLD_S) >= STEP_HOLD_S - settle
 
-    def worst_error(self, settle: float = 3.0) -> float:
-        """Largest |x - x_r| over the last `settle` s of every plateau [m]."""
+    def _late(self, settle: float) -> list[np.ndarray]:
+        """Each plateau's mask of its last `settle` s."""
         r = self.result
-        return float(np.max(np.abs(r.x - r.x_ref)[self._settled(settle)]))
+        plateau = (r.time // STEP_HOLD_S).astype(int)
+        late = self._settled(settle)
+        return [late & (plateau == k) for k in np.unique(plateau)]
+
+    def worst_error(self, settle: float = 3.0) -> float:
+        """Largest steady-state error of any plateau [m]: |mean of x - x_r| over its last
+        `settle` s. Fig. 16 "plots the average of each steady-state response", and Table
+        2's feedback cell is the loop of those averages; how still a plateau stays is
+        `worst_peak_to_peak`'s."""
+        r = self.result
+        return max(abs(float(np.mean((r.x - r.x_ref)[m]))) for m in self._late(settle))
 
     def landings(self, settle: float = 3.0) -> tuple[np.ndarray, np.ndarray]:
         """Per plateau, the time into it [s] from which the muscle has landed before the
@@ -121,29 +131,31 @@ class StepRun(InContext):
         return time, error
 
     def landing_floor(self, settle: float = 3.0) -> np.ndarray:
-        """Per plateau, the least |x - x_r| [m] any quasi-static plant can have when the
-        last `settle` s begin, from where it landed (`landings`), under the PI.
+        """Per plateau, the least steady-state error (`worst_error`'s, the mean |x - x_r|
+        over the last `settle` s) [m] any quasi-static plant can have, from where it
+        landed (`landings`), under the PI.
 
         Landed, x follows Po's history with g = -dx/dPo >= 0 (Po only extends); any friction
         law, stiction, pre-sliding or creep, only sets g. With Po = Kp e + Ki int(e) dt on the
         plateau, de/dt = -g (Kp de/dt + Ki e), so de/dt = -e g Ki / (1 + g Kp): the error
-        falls no faster than exp(-t Ki/Kp), Kp/Ki = 12.5 s with the paper's gains in any
-        unit reading. nan for a plateau not landed, for other controllers and for Kp = 0
-        (a pure integral has no such bound).
+        keeps its sign and falls no faster than exp(-t Ki/Kp), Kp/Ki = 12.5 s with the
+        paper's gains in any unit reading; its mean over the last `settle` s is then at
+        least its value when they begin times (1 - exp(-r settle)) / (r settle), r = Ki/Kp.
+        nan for a plateau not landed, for other controllers and for Kp = 0 (a pure integral
+        has no such bound).
         """
         c = self.context
         if c.control != "pi" or c.params.controller.kp <= 0.0:
             return np.full(len(self.target), math.nan)
         time, error = self.landings(settle)
         rate = c.params.controller.ki / c.params.controller.kp
-        return np.abs(error) * np.exp(-(STEP_HOLD_S - settle - time) * rate)
+        spread = settle * rate
+        mean_share = -math.expm1(-spread) / spread if spread > 0.0 else 1.0
+        return np.abs(error) * np.exp(-(STEP_HOLD_S - settle - time) * rate) * mean_share
 
     def worst_peak_to_peak(self, settle: float = 3.0) -> float:
         """Largest x peak-to-peak over the last `settle` s of any plateau [m]."""
-        r = self.result
-        plateau = (r.time // STEP_HOLD_S).astype(int)
-        late = self._settled(settle)
-        return max(float(np.ptp(r.x[late & (plateau == k)])) for k in np.unique(plateau))
+        return max(float(np.ptp(self.result.x[m])) for m in self._late(settle))
 
     def plot(self):
         """Figure of x, target, Pi and Po against time
