@@ -127,6 +127,14 @@ def fit_feedforward(start: Params, loops: Sequence[MeasuredLoop]) -> Feedforward
                           float(np.sqrt(np.mean(best.fun ** 2))) * MM)
 
 
+def fitted_to(plant: Params, loops: Sequence[StaticLoop]) -> tuple[Params, float]:
+    """`plant` with its controller's model fitted to its open-loop `loops` as the rig
+    logs them (`measured_loop`, `FeedforwardFit.controller_of`), and the fit's rms x
+    residual [m]."""
+    fit = fit_feedforward(plant, [measured_loop(lp) for lp in loops])
+    return fit.controller_of(plant), fit.rms
+
+
 @dataclass(frozen=True)
 class Calibration:
     """A plant with its controller's model fitted to its own loops: `params` (the plant
@@ -158,9 +166,7 @@ def calibrate(plants: Sequence[Params], protocol: Protocol, dt: float, workers,
         if failed is not None:
             out.append(failed)
             continue
-        fit = fit_feedforward(plant, [measured_loop(lp) for lp in mine])
-        out.append(Calibration(fit.controller_of(plant), fit.rms,
-                               mine if ramps == protocol else ()))
+        out.append(Calibration(*fitted_to(plant, mine), mine if ramps == protocol else ()))
     return out
 
 

@@ -147,9 +147,8 @@ class Targets:
         `calibration_tasks` (the plant kept), and the targets that reuse those runs."""
         if not results:
             return params, self
-        fit = feedforward_fit.fit_feedforward(
-            params, [feedforward_fit.measured_loop(lp) for lp in results])
-        return fit.controller_of(params), replace(self, open_loops=tuple(results))
+        model, _ = feedforward_fit.fitted_to(params, results)
+        return model, replace(self, open_loops=tuple(results))
 
     def _model(self) -> PaperTargets:
         return PaperTargets(self.dt, self.protocol, self.open_loops)
