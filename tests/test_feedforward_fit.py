@@ -133,3 +133,22 @@ def test_calibration_ramps_other_than_table2s_are_not_kept_for_it():
     assert own.loops[0].result.time[-1] > 2 * SHIPPED.ramp_time > 20.0 * 2
     with pytest.raises(ParameterError, match="ramp_time"):
         feedforward_fit.calibrate([params], SHIPPED, 2e-3, 2, ramp_time=0.0)
+
+
+def test_the_search_fits_each_points_controller_as_reproduce_does():
+    """`wpam search`'s targets calibrate as `wpam reproduce` does: the same six open
+    loops first, the same fitted model, and those loops reused for Table 2, so only the
+    closed-loop runs remain; with the nominal model nothing is fitted."""
+    from wpam_mj.reproduction.search_scoring import Targets
+
+    params = dataclasses.replace(preset("wpam"), plant_deviation=OFF)
+    cal = feedforward_fit.calibrate_one(params, SHIPPED, 1e-3, 2)
+    targets = Targets(1e-3, SHIPPED)
+    assert [(t.load, t.po_down) for t in targets.calibration_tasks(params)] == \
+        [(lp.load, lp.po_down) for lp in cal.loops]
+    model, fitted = targets.calibrated(params, list(cal.loops))
+    assert model == cal.params
+    assert len(fitted.tasks(model)) == len(targets.tasks(params)) - len(cal.loops)
+    nominal = Targets(1e-3, SHIPPED, "nominal")
+    assert nominal.calibration_tasks(params) == []
+    assert nominal.calibrated(params, []) == (params, nominal)
