@@ -15,7 +15,8 @@ ramp for every load, 60 s each way, every loop lobe counted). Two stages:
     remaining coordinates, each in [0, 1] of its range, Latin-hypercube start (no known
     point given), generations evaluated together ("deferred" updating) on a process pool,
     each point scored on calibrate's one cost with the signed margin of every finding
-    (`wpam_mj.reproduction.search_scoring`), so that the archive is also a measured
+    (`wpam_mj.reproduction.search_scoring`), its controller's model fitted to its own
+    open loops first as `wpam reproduce` runs it, so that the archive is also a measured
     feasibility map (`wpam_mj.reproduction.findings_map`) and `convergence` shows how the
     search got there; `wpam_mj.reproduction.search_outputs` writes what it found.
 
