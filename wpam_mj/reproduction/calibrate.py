@@ -9,8 +9,8 @@ is computed from one batch of runs at the same parameters:
   * the step staircases (Fig. 14), PI at 50/100/150 N as the paper ran them (PID appears
     only in its frequency response): each settled (steady-state mean) plateau error
     beyond the split Table 2's feedback-row limit allows at that load
-    (`findings.plateau_error_limit`) and
-    x peak-to-peak beyond 0.18 mm (target 0.2 mm, a plateau that has converged);
+    (`findings.plateau_error_limit`) and x peak-to-peak beyond 0.18 mm (target 0.2 mm,
+    a plateau that has converged);
   * Table 2's feedback row (Fig. 16) as the margins of its finding,
     `findings.FINDINGS["table2_feedback_row"]`;
   * the frequency response (§4.2, Figs. 17-19; PI and PID, every load and frequency): the
