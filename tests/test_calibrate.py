@@ -46,6 +46,27 @@ def shipped(shipped_runs):
             model.residuals(params, results))
 
 
+def test_calibrated_targets_score_the_model_fitted_to_the_plants_own_loops():
+    """`wpam calibrate`'s default scores each set as `wpam reproduce` does: its six open
+    loops first, the controller's model fitted to them (the model `calibrate_one` fits),
+    then its closed-loop runs; the residuals are PaperTargets' of that model on them."""
+    from wpam_mj.experiments.protocol import SHIPPED
+    from wpam_mj.reproduction import feedforward_fit
+    from wpam_mj.reproduction.calibrate import CalibratedTargets
+
+    params = preset("wpam")
+    targets = CalibratedTargets(PaperTargets())
+    (task,) = targets.tasks(params)
+    model, loops, runs = result = task.run()
+    assert model == feedforward_fit.calibrate_one(params, SHIPPED, 1e-3, 2).params
+    assert model != params  # the controller reads the fit; the plant stays the plant:
+    for name in feedforward_fit.FEEDFORWARD_MODEL:
+        assert model.plant.value(name) == pytest.approx(params.value(name), rel=1e-12)
+    reproduce = PaperTargets(open_loops=loops)
+    assert np.array_equal(targets.residuals(params, [result]), reproduce.residuals(model, runs))
+    assert targets.scores(params, [result]).text() == reproduce.scores(model, runs).text()
+
+
 def test_the_shipped_point_holds_its_findings_and_explains_the_rest(shipped_runs):
     """Golden: the findings `wpam reproduce` passes on the shipped point still pass (both
     Table 2 rows, its shape, the staircases' plateau-mean Pi and Po rising with load, the
@@ -180,15 +201,17 @@ def test_an_interrupted_calibration_resumes_from_its_journal(tmp_path, monkeypat
     out = tmp_path / "fit.toml"
     _Quadratic.runs, _Quadratic.stop_after = 0, 15
     with pytest.raises(KeyboardInterrupt):
-        cal.calibrate(out=out, jobs=1, progress=False, max_nfev=4)
+        cal.calibrate(out=out, jobs=1, progress=False, max_nfev=4, feedforward="nominal")
     assert cal.journal_path(out).exists() and not out.exists()
     journaled = estimation.ResidualJournal(cal.journal_path(out), keep=True).size
     _Quadratic.runs, _Quadratic.stop_after = 0, None
-    resumed = cal.calibrate(out=out, jobs=1, progress=False, max_nfev=4, resume=True)
+    resumed = cal.calibrate(out=out, jobs=1, progress=False, max_nfev=4, resume=True,
+                            feedforward="nominal")
     rerun = _Quadratic.runs
     assert not cal.journal_path(out).exists()  # removed once the fit is written
     _Quadratic.runs = 0
-    whole = cal.calibrate(out=tmp_path / "whole.toml", jobs=1, progress=False, max_nfev=4)
+    whole = cal.calibrate(out=tmp_path / "whole.toml", jobs=1, progress=False, max_nfev=4,
+                          feedforward="nominal")
     assert resumed.fitted == whole.fitted
     assert out.read_text() == (tmp_path / "whole.toml").read_text()
     assert rerun == _Quadratic.runs - journaled  # the journaled sets were not run again

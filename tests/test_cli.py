@@ -209,7 +209,11 @@ def test_calibrate_robust_fits_the_sampled_plants_too(files, capsys, monkeypatch
     code, _, err = _run(capsys, "calibrate", "--out", "fit.toml", "--robust", "2",
                         "--no-progress")
     assert code == 0, err
-    assert seen["robust"] == 2
+    assert seen["robust"] == 2 and "feedforward" not in seen  # the default: calibrated
+    code, _, err = _run(capsys, "calibrate", "--out", "fit.toml", "--no-progress",
+                        "--feedforward-model", "nominal")
+    assert code == 0, err
+    assert seen["feedforward"] == "nominal"
 
 
 def test_calibrate_refuses_other_presets(files, capsys):

@@ -118,6 +118,7 @@ def add_parsers(add) -> None:
                    help="fit each parameter set on itself and K plants sampled within +-5 %% "
                         "of its unmeasured values, their residuals together, so that the fit "
                         "is what survives the plant's uncertainty (default: 0)")
+    feedforward_model_option(p, "calibrated", ramp_time=False)
     scheduler_option(p)
 
 
@@ -197,6 +198,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     options = {} if protocol == SHIPPED else {"protocol": protocol}  # as before: none
     if args.robust:
         options["robust"] = args.robust
+    if args.feedforward_model != "calibrated":
+        options["feedforward"] = args.feedforward_model
     jobs = run.jobs if args.scheduler is None else Cluster(args.scheduler)
     result = calibrate(out=out, jobs=jobs, dt=run.dt, progress=run.progress,
                        start=start, samples=args.samples, seed=args.seed,

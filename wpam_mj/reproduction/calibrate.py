@@ -40,13 +40,13 @@ from __future__ import annotations
 import math
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from wpam_mj import paper
-from wpam_mj.reproduction import findings, robustness
+from wpam_mj.reproduction import feedforward_fit, findings, robustness
 from wpam_mj.fitting import estimation
 from wpam_mj.experiments.drives import STATIC_TOP_MM
 from wpam_mj.physics.muscle import MuscleModel
@@ -54,7 +54,7 @@ from wpam_mj.physics.params import Params, preset
 from wpam_mj.errors import ParameterError, check_int, check_range
 from wpam_mj.units import MM, MPA
 from wpam_mj.infra.pool import Workers, open_workers
-from wpam_mj.experiments.protocol import SHIPPED, Protocol, table2_batch
+from wpam_mj.experiments.protocol import SHIPPED, Protocol, open_loop_tasks, table2_batch
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.simulation.execution import execute
 from wpam_mj.experiments.paper_studies import PLATEAU_SETTLE_S, sweep_batch
@@ -120,7 +120,7 @@ class Scores:
         lines = [f"Table 2 'Po = 0.04' row (50/100/150 N): {errs}",
                  "Table 2 feedback row: " + "/".join(f"{v:.4f}" for v in self.feedback_row)]
         for c in self.step_error_mm:
-            lines.append(f"{c.upper()} steps, worst plateau error (limit) / x p-p [mm]: "
+            lines.append(f"{c.upper()} steps, settled plateau error (limit) / x p-p [mm]: "
                          + ", ".join(f"{e:.2f} ({lim:.2f})/{p:.2f}" for e, lim, p in
                                      zip(self.step_error_mm[c], self.step_limit_mm,
                                          self.step_pp_mm[c])))
@@ -215,13 +215,59 @@ class PaperTargets:
         return np.concatenate(list(self.residual_groups(params, results).values()))
 
 
+@dataclass(frozen=True)
+class _CalibratedRuns:
+    """One parameter set's runs as `wpam reproduce` reads them (a worker task): Table 2's
+    open loops, the controller's model fitted to them (`feedforward_fit.fitted_to`), then
+    the closed-loop runs with that model; (the model's parameters, the loops, the runs)."""
+
+    targets: PaperTargets
+    params: Params
+
+    @property
+    def cost(self) -> float:
+        return sum(t.cost for t in self.targets.tasks(self.params))
+
+    def run(self) -> tuple[Params, tuple, list]:
+        loops = tuple(t.run() for t in open_loop_tasks(self.params, self.targets.protocol,
+                                                       dt=self.targets.dt))
+        model, _ = feedforward_fit.fitted_to(self.params, loops)
+        closed = replace(self.targets, open_loops=loops)
+        return model, loops, [t.run() for t in closed.tasks(model)]
+
+
+@dataclass(frozen=True)
+class CalibratedTargets:
+    """`PaperTargets` with each parameter set's controller model fitted to its own open
+    loops first, as `wpam reproduce` runs it (`--feedforward-model calibrated`): one task
+    a set, its two phases in order on one worker; the residuals are those of the fitted
+    model on the plant's runs."""
+
+    targets: PaperTargets
+
+    def tasks(self, params: Params) -> list:
+        return [_CalibratedRuns(self.targets, params)]
+
+    def _read(self, results: list) -> tuple[PaperTargets, Params, list]:
+        ((model, loops, runs),) = results
+        return replace(self.targets, open_loops=loops), model, runs
+
+    def residuals(self, params: Params, results: list) -> np.ndarray:
+        targets, model, runs = self._read(results)
+        return targets.residuals(model, runs)
+
+    def scores(self, params: Params, results: list) -> Scores:
+        targets, model, runs = self._read(results)
+        return targets.scores(model, runs)
+
+
 @dataclass(frozen=True, eq=False)
 class RobustTargets:
     """`PaperTargets` on a parameter set and on the plants sampled about it within their
     uncertainty (`robustness.sampled_plants`, seeded): their residuals stacked, so that
     least squares fits what survives the plant's uncertainty, not the point alone."""
 
-    targets: PaperTargets
+    targets: PaperTargets | CalibratedTargets
     deviations: np.ndarray  # (plants, len(robustness.UNMEASURED)) relative deviations
 
     def plants(self, params: Params) -> list[Params]:
@@ -284,10 +330,12 @@ class CalibrationResult:
         return "\n".join(out)
 
 
-def journal_path(out: Path, robust: int = 0) -> Path:
+def journal_path(out: Path, robust: int = 0, feedforward: str = "nominal") -> Path:
     """Where `calibrate` journals every evaluation of a fit to `out` (a robust fit's
-    residuals are its plants' too, so it keeps a journal of its own)."""
-    tag = f".robust{robust}" if robust else ""
+    residuals are its plants' too, and a calibrated controller's are its fitted model's,
+    so each keeps a journal of its own)."""
+    tag = (f".robust{robust}" if robust else "") + \
+        ("" if feedforward == "nominal" else f".{feedforward}")
     return out.with_name(f".{out.name}{tag}.journal.json")
 
 
@@ -331,7 +379,8 @@ def _best_start(model: estimation.ResidualModel, candidates: list[Params], ex: W
 def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
               progress: bool = True, start: Params | None = None, samples: int = 0,
               seed: int = 7, max_nfev: int = 6, resume: bool = False,
-              protocol: Protocol = SHIPPED, robust: int = 0) -> CalibrationResult:
+              protocol: Protocol = SHIPPED, robust: int = 0,
+              feedforward: str = "calibrated") -> CalibrationResult:
     """Fit FREE to `PaperTargets` (module docstring) and write the TOML to `out` (None: do
     not write).
 
@@ -347,17 +396,23 @@ def calibrate(*, out: Path | None = None, jobs: int = 2, dt: float = 1e-3,
         measured with.
       robust: fit each parameter set on itself and `robust` plants sampled within +-5 %
         of its unmeasured values (`RobustTargets`; 0: the set alone).
+      feedforward: the controller's equilibrium model each set is scored with:
+        "calibrated", fitted to the set's own open loops first, as `wpam reproduce` runs
+        it (`CalibratedTargets`); "nominal", the set's own values.
     """
     check_range("samples", samples, *SAMPLES_RANGE, "")
     check_range("max_nfev", max_nfev, *NFEV_RANGE, "")
     check_int("seed", seed, 0, 2**32 - 1)
     check_int("robust", robust, 0, 64)
+    feedforward_fit.check_feedforward_model(feedforward)
     params = start if start is not None else preset("wpam")
-    journal_file = None if out is None else journal_path(Path(out), robust)
+    journal_file = None if out is None else journal_path(Path(out), robust, feedforward)
     if resume and (journal_file is None or not journal_file.exists()):
         raise ParameterError(f"--resume: no journal {journal_file} of an interrupted fit")
     journal = estimation.ResidualJournal(journal_file, keep=resume)
     model = PaperTargets(dt, protocol)
+    if feedforward == "calibrated":
+        model = CalibratedTargets(model)
     fitted_model = (RobustTargets(model, robustness.sample_deviations(robust,
                                                                        robustness.ROBUST_SEED))
                     if robust else model)
