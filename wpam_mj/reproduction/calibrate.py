@@ -154,6 +154,18 @@ class PaperTargets:
         t2, sw = self._batches(params)
         return [*t2.tasks, *sw.tasks]
 
+    def calibration_tasks(self, params: Params) -> list:
+        """Table 2's open loops of `params`: what the controller's model is fitted to as
+        `wpam reproduce` fits it (`feedforward_fit`)."""
+        return open_loop_tasks(params, self.protocol, dt=self.dt)
+
+    def calibrated(self, params: Params, loops) -> tuple[Params, "PaperTargets"]:
+        """`params` with the controller's model fitted to `loops`, the results of
+        `calibration_tasks` (the plant kept), and the targets that reuse those loops for
+        Table 2, so that only the closed-loop runs remain tasks."""
+        model, _ = feedforward_fit.fitted_to(params, loops)
+        return model, replace(self, open_loops=tuple(loops))
+
     def _assemble(self, params: Params, results: list):
         t2, sw = self._batches(params)
         n = len(t2.tasks)
@@ -218,7 +230,7 @@ class PaperTargets:
 @dataclass(frozen=True)
 class _CalibratedRuns:
     """One parameter set's runs as `wpam reproduce` reads them (a worker task): Table 2's
-    open loops, the controller's model fitted to them (`feedforward_fit.fitted_to`), then
+    open loops, the controller's model fitted to them (`PaperTargets.calibrated`), then
     the closed-loop runs with that model; (the model's parameters, the loops, the runs)."""
 
     targets: PaperTargets
@@ -229,10 +241,8 @@ class _CalibratedRuns:
         return sum(t.cost for t in self.targets.tasks(self.params))
 
     def run(self) -> tuple[Params, tuple, list]:
-        loops = tuple(t.run() for t in open_loop_tasks(self.params, self.targets.protocol,
-                                                       dt=self.targets.dt))
-        model, _ = feedforward_fit.fitted_to(self.params, loops)
-        closed = replace(self.targets, open_loops=loops)
+        loops = tuple(t.run() for t in self.targets.calibration_tasks(self.params))
+        model, closed = self.targets.calibrated(self.params, loops)
         return model, loops, [t.run() for t in closed.tasks(model)]
 
 

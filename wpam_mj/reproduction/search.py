@@ -272,12 +272,13 @@ class Evaluator:
                               for plants in members])
         out = []
         for plants, res in zip(members, runs):
-            try:
-                if any(None in r for r in res):
-                    raise ArithmeticError("a calibration run failed")
-                out.append([tg.calibrated(m, r) for (m, tg), r in zip(plants, res)])
-            except (ParameterError, ArithmeticError):
-                out.append(None)
+            mine = None
+            if not any(None in r for r in res):  # no calibration run failed
+                try:
+                    mine = [tg.calibrated(m, r) for (m, tg), r in zip(plants, res)]
+                except (ParameterError, ArithmeticError):
+                    pass  # a fit refused: the point fails, as a failed run does
+            out.append(mine)
         return out
 
     def _execute(self, groups: list[list[list]]) -> list[list[list]]:

@@ -14,11 +14,11 @@ import math
 from dataclasses import dataclass, field, replace
 from typing import Sequence
 
-from wpam_mj.experiments.protocol import Protocol, open_loop_tasks
+from wpam_mj.experiments.protocol import Protocol
 from wpam_mj.paper import CALIBRATION_HEADROOM
 from wpam_mj.physics.params import Params
 from wpam_mj.errors import ParameterError
-from wpam_mj.reproduction import feedforward_fit, findings
+from wpam_mj.reproduction import findings
 from wpam_mj.reproduction.calibrate import PaperTargets
 
 SHORTFALL_CAP = 3.0  # scale units: one far miss counts as three near ones, no more
@@ -140,15 +140,16 @@ class Targets:
         """The runs the controller's model is fitted to (none: it is the nominal one)."""
         if self.feedforward == "nominal":
             return []
-        return open_loop_tasks(params, self.protocol, dt=self.dt)
+        return self._model().calibration_tasks(params)
 
     def calibrated(self, params: Params, results: list) -> tuple[Params, "Targets"]:
         """`params` with the controller's model fitted to `results` of
-        `calibration_tasks` (the plant kept), and the targets that reuse those runs."""
+        `calibration_tasks` (the plant kept), and the targets that reuse those runs
+        (`PaperTargets.calibrated`)."""
         if not results:
             return params, self
-        model, _ = feedforward_fit.fitted_to(params, results)
-        return model, replace(self, open_loops=tuple(results))
+        model, paper = self._model().calibrated(params, results)
+        return model, replace(self, open_loops=paper.open_loops)
 
     def _model(self) -> PaperTargets:
         return PaperTargets(self.dt, self.protocol, self.open_loops)
