@@ -284,6 +284,7 @@ def test_reproduce_writes_every_output(files, capsys):
     assert (sum(c["passed"] for c in counted), len(counted)) == (9, 13)
     verdict = {c["name"]: c["passed"] for c in checks}
     assert verdict["lag_order_low_freq"] and verdict["pid_leads_pi"]
+    assert verdict["lag_order_low_freq_strict"]  # and in every pair: an extra
     assert not verdict["pid_leads_pi_everywhere"]
     report = (rep / "report.md").read_text()
     assert "9 of 13 of the paper's sentences hold" in report

@@ -64,9 +64,17 @@ STEP_PP_MM = 0.2
 # loads): lags within 5 deg of each other at each frequency from 0.5 Hz (our reading of
 # "almost the same" on Fig. 17's lag axis)
 LAG_SAME_DEG = 5.0
+# The least difference of phase lag a reader sees in Fig. 17 (lag axis 0-180 deg): every
+# lag comparison the checks make (`LAG_FALL_TOL_DEG`, `PID_LEAD_MIN_DEG`,
+# `LAG_ORDER_TOL_DEG`) reads the figure at this resolution
+LAG_RESOLVED_DEG = 1.0
 # "the phase delay is smaller when the PID controller is used" (§4.2, 150 N): a lead a
-# reader sees in Fig. 17, at least the 1 deg a figure resolves (LAG_FALL_TOL_DEG)
-PID_LEAD_MIN_DEG = 1.0
+# reader sees in Fig. 17
+PID_LEAD_MIN_DEG = LAG_RESOLVED_DEG
+# "in the slower frequency band, the phase lag tends to be smaller at lower loads" (§4.2,
+# PI): no lighter load's lag visibly above the next heavier one's, and the heaviest
+# load's visibly above the lightest's at one frequency at least
+LAG_ORDER_TOL_DEG = LAG_RESOLVED_DEG
 # "in the case of open loop ... after 60 s, the W-PAM is hardly extended" (§4.1, Fig. 12):
 # while the targets step down from 50 mm to 0 (60-110 s, 100 N, Po = 0), x gives back at
 # most a fifth of the contraction it had at 60 s (our reading of "hardly")
@@ -76,7 +84,7 @@ OPEN_LOOP_TURN_S = 60.0  # §4.1: "the W-PAM contracts from 0 to 60 s, and after
 # increased" (abstract, Fig. 17): wiggles smaller than these between neighbouring
 # frequencies are below what a figure of gain 0-1 and lag 0-180 deg resolves
 GAIN_RISE_TOL = 0.01
-LAG_FALL_TOL_DEG = 1.0
+LAG_FALL_TOL_DEG = LAG_RESOLVED_DEG
 # Calibration aims past each limit by this fraction of the margin's scale, so that the
 # fitted model keeps its findings under small changes (dt, another machine's libm).
 CALIBRATION_HEADROOM = 0.1

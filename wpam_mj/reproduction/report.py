@@ -147,12 +147,12 @@ GIVEN_UP = {
         "32-37 mm/s, extension 118-68 mm/s from 50 to 150 N under a saturated Po command, "
         "set by the lines: the ITV2031's valve passes 5-14 times more, and the regulators' "
         "lag moves it a few per cent; scripts/limit_velocity.py)."),
-    "lag_order_low_freq": (
-        "with Po resting on the regulator's floor at the light load, the feedback cannot "
-        "lower it to lead the light load's contraction: the order needs the light load held "
-        "further past its branch, so that Po rests above the floor (docs/physics.md, 'The "
-        "feedforward's Po decides the low-frequency lag order'; the controller model "
-        "fitted to the plant's own loops does that)."),
+    "lag_order_low_freq_strict": (
+        "at 0.1-0.2 Hz the loads' lags lie within a degree of each other, below what "
+        "Fig. 17 resolves, and which of two neighbours lags more moves with where Po rests "
+        "against the regulator's floor (docs/physics.md, 'The feedforward's Po decides the "
+        "low-frequency lag order'); the counted reading asks the order at Fig. 17's "
+        "resolution."),
     "lag_same_high_freq": (
         "a load-dependent limit velocity, as for the gains: only a regulator whose own "
         "valve is the bottleneck, a tenth of the ITV2031's, contracts at one speed for "
