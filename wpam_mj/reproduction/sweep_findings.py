@@ -7,6 +7,8 @@ them)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from wpam_mj.paper import (FIG18_FREQ_HZ, FIG18_LOAD_N, GAIN_LOAD_RTOL, GAIN_RISE_TOL,
@@ -121,18 +123,27 @@ def _lag_rises_with_load(sw):
     return out
 
 
+def _seen(differences: list[Margin], spans: list[Margin], tol: float) -> list[Margin]:
+    """A lag order as a reader of Fig. 17 sees it, at its `tol` [deg] resolution: none of
+    the `differences` visibly negative (each >= -tol) and the largest of the `spans`
+    visibly positive (>= tol)."""
+    return [*(replace(m, limit=-tol) for m in differences),
+            replace(max(spans, key=lambda m: m.value), limit=tol)]
+
+
 def _lag_tends_to_rise(sw):
-    """Fig. 17 as a reader sees it: no neighbouring pair of loads visibly out of order
-    (each heavier lag >= the lighter's - 1 deg) and the heaviest load visibly behind the
-    lightest (>= 1 deg) at one frequency at least."""
+    """No neighbouring pair of loads visibly out of order (each heavier lag >= the
+    lighter's - 1 deg) and the heaviest load visibly behind the lightest (>= 1 deg) at one
+    frequency at least (`_seen`)."""
     pairs = _lag_rises_with_load(sw)
     if pairs is None:
         return None
-    spans = [Margin(lags[-1] - lags[0], LAG_ORDER_TOL_DEG, +1, 10.0, load=sw.loads[-1],
-                    freq=f, controller="pi")
-             for f in _low_freqs(sw) for lags in [_lags(sw, f, "pi")]]
-    return [*(Margin(m.value, -LAG_ORDER_TOL_DEG, +1, m.scale, m.load, m.freq, m.controller)
-              for m in pairs), max(spans, key=lambda m: m.value)]
+    spans = []
+    for f in _low_freqs(sw):
+        lags = _lags(sw, f, "pi")
+        spans.append(Margin(lags[-1] - lags[0], 0.0, +1, 10.0, load=sw.loads[-1], freq=f,
+                            controller="pi"))
+    return _seen(pairs, spans, LAG_ORDER_TOL_DEG)
 
 
 def _lag_order_text(sw, freqs) -> str:
@@ -196,13 +207,10 @@ def _pid_leads(sw) -> list[Margin] | None:
 
 
 def _pid_leads_pi(sw):
-    """Fig. 17 as a reader sees it: PID's lag nowhere visibly above PI's (the lead >= -1
-    deg at every frequency) and visibly below it (>= 1 deg) at one frequency at least."""
+    """PID's lag nowhere visibly above PI's (the lead >= -1 deg at every frequency) and
+    visibly below it (>= 1 deg) at one frequency at least (`_seen`)."""
     leads = _pid_leads(sw)
-    if leads is None:
-        return None
-    behind = [Margin(m.value, -PID_LEAD_MIN_DEG, +1, m.scale, m.load, m.freq) for m in leads]
-    return [*behind, max(leads, key=lambda m: m.value)]
+    return None if leads is None else _seen(leads, leads, PID_LEAD_MIN_DEG)
 
 
 def _lead_text(leads) -> str:
