@@ -120,6 +120,31 @@ def test_the_summary_counts_plants_and_a_failed_plant_holds_nothing():
     assert "50% (2 of 4)" in md and "**fragile**" in md and "could not be run" in md
 
 
+def test_the_held_fraction_comes_with_its_wilson_interval_which_narrows_with_the_sample():
+    """The interval is Wilson's closed form (z = 1.96), holds the sample's fraction, and
+    a four times larger sample with the same fraction halves its width, about."""
+    name = "po_reaches_cap"
+
+    def interval(k: int, n: int) -> tuple[float, float]:
+        result = robustness.Robustness(tuple(_outcome({name: i < k}) for i in range(n)),
+                                       0.05, 0)
+        return result.held_interval()[name]
+
+    z, k, n = 1.959964, 23, 32
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z / (1 + z * z / n) * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    lo, hi = interval(k, n)
+    assert (lo, hi) == pytest.approx((centre - half, centre + half), abs=1e-6)
+    assert lo < p < hi and hi < robustness.HOLD_TARGET + 0.1
+    lo4, hi4 = interval(4 * k, 4 * n)
+    assert lo < lo4 < p < hi4 < hi and (hi4 - lo4) / (hi - lo) == pytest.approx(0.5, abs=0.05)
+    assert interval(n, n)[1] == pytest.approx(1.0) and interval(n, n)[0] > 0.85
+    md = robustness.Robustness((_outcome({name: True}), _outcome({name: False})), 0.05,
+                               0).markdown()
+    assert "95 % interval" in md and "| 50% (1 of 2) | 9%-91% |" in md
+
+
 def test_the_summary_splits_the_plants_by_the_feedforwards_authority():
     """Over-contracted plants (share >= 1) and the others are counted apart, and the φ
     that would over-contract a fraction of them is that quantile of their needed shares."""

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
-from scipy.stats import qmc
+from scipy.stats import binomtest, qmc
 
 from wpam_mj import paper
 from wpam_mj.experiments.paper_studies import StepTask, sweep_batch
@@ -197,11 +197,30 @@ class Robustness:
         holds none; a finding its data cannot check, nan)."""
         return self._held(self.outcomes)
 
+    def held_interval(self, confidence: float = 0.95) -> dict[str, tuple[float, float]]:
+        """Per finding, the Wilson score interval of its held fraction at `confidence`
+        (scipy's binomtest): how far the fraction of the whole box could lie from the
+        sample's. It treats the plants as independent draws; a Latin hypercube spreads
+        them more evenly than that, so for a finding that moves with the deviations the
+        interval is, if anything, too wide. (nan, nan) where no plant could check it."""
+        out = {}
+        for name in findings.FINDINGS:
+            known = self._verdicts(self.outcomes, name)
+            ci = binomtest(sum(known), len(known)).proportion_ci(confidence, "wilson") \
+                if known else None
+            out[name] = (ci.low, ci.high) if ci else (math.nan, math.nan)
+        return out
+
+    @staticmethod
+    def _verdicts(outcomes, name: str) -> list[bool]:
+        """The plants' verdicts on finding `name`, those that could not check it left out."""
+        return [v for v in (o.holds(name) for o in outcomes) if v is not None]
+
     @staticmethod
     def _held(outcomes) -> dict[str, float]:
         out = {}
         for name in findings.FINDINGS:
-            known = [v for v in (o.holds(name) for o in outcomes) if v is not None]
+            known = Robustness._verdicts(outcomes, name)
             out[name] = sum(known) / len(known) if known else math.nan
         return out
 
@@ -279,9 +298,13 @@ class Robustness:
                  "feedforward's Pi reaches at Po = p_min at every load and staircase target "
                  "(§4.1's excessive contraction; Po can only hold a contraction back), and "
                  "the others.", "",
-                 "| finding | plants holding it | | decided by | over-contracted | others |",
-                 "|---|---|---|---|---|---|"]
+                 "95 % interval: the fractions of the whole box the sample is consistent "
+                 "with (Wilson score; the plants taken as independent draws).", "",
+                 "| finding | plants holding it | 95 % interval | | decided by | "
+                 "over-contracted | others |",
+                 "|---|---|---|---|---|---|---|"]
         sens = self.sensitivity()
+        interval = self.held_interval()
         over, short = self.over_contracted()
         held_over, held_short = self._held(over), self._held(short)
 
@@ -294,7 +317,9 @@ class Robustness:
                                                      "**fragile**")
             extra = "" if f.counted else " (extra)"
             count = "n/a" if math.isnan(frac) else f"{frac:.0%} ({round(frac * n)} of {n})"
-            lines.append(f"| {f.short}{extra} | {count} | "
+            lo, hi = interval[name]
+            ci = "n/a" if math.isnan(lo) else f"{lo:.0%}-{hi:.0%}"
+            lines.append(f"| {f.short}{extra} | {count} | {ci} | "
                          f"{mark} | {sens[name].describe() if name in sens else '-'} | "
                          f"{share(held_over[name], len(over))} | "
                          f"{share(held_short[name], len(short))} |")
@@ -408,6 +433,8 @@ def write_robustness(out: Path, result: Robustness) -> list[Path]:
                "model_error_median": result.model_errors(),
                "hold_target": HOLD_TARGET,
                "held_fraction": result.held_fraction(),
+               "held_interval_95": {name: list(ci) for name, ci
+                                    in result.held_interval().items()},
                "over_contracted": len(result.over_contracted()[0]),
                "steps_decided_at_landing": dict(zip(("landed", "missed"),
                                                     result.decided_at_landing())),

@@ -16,9 +16,10 @@ from wpam_mj.reproduction import findings  # noqa: E402
 
 
 def robustness_figure(result) -> Figure:
-    """Left: fraction of plants holding each finding (the 80 % target dashed), split into
-    the plants the controller's feedforward over-contracts (solid) and the others (pale); right:
-    Table 2's cells of every plant (dots) and the paper's (black bars), log scale."""
+    """Left: fraction of plants holding each finding with its 95 % interval (the 80 %
+    target dashed), split into the plants the controller's feedforward over-contracts
+    (solid) and the others (pale); right: Table 2's cells of every plant (dots) and the
+    paper's (black bars), log scale."""
     from wpam_mj.reproduction.robustness import CELLS, HOLD_TARGET  # noqa: PLC0415
 
     held = result.held_fraction()
@@ -37,6 +38,11 @@ def robustness_figure(result) -> Figure:
             ax1.barh([0], [0], color="0.35", alpha=alpha, label=label)  # legend key only
     else:
         ax1.barh(range(len(names)), [100 * held[n] for n in names], color=colours)
+    interval = result.held_interval()
+    ax1.errorbar([100 * held[n] for n in names], range(len(names)), fmt="none", ecolor="k",
+                 elinewidth=1, capsize=3, label="95 % interval (Wilson)",
+                 xerr=[[100 * (held[n] - interval[n][0]) for n in names],
+                       [100 * (interval[n][1] - held[n]) for n in names]])
     ax1.set_yticks(range(len(names)),
                    [findings.FINDINGS[n].short + ("" if findings.FINDINGS[n].counted
                                                   else " (extra)") for n in names],
