@@ -6,7 +6,7 @@ whether a world's run depends on how many worlds share its batch (needs the gpu 
 
 With --copies K every case also runs K times in one batch of 6 K worlds; each copy must
 reproduce the batch of one world's run of its case bit for bit. Exits 1 where a gap is
-outside its tolerance (`wpam_mj.simulation.warp_parity.TOLERANCE`) or a copy differs.
+outside its tolerance (`wpam_mj.experiments.warp_parity.TOLERANCE`) or a copy differs.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import numpy as np
 
 from wpam_mj.simulation import warp_muscle
 from wpam_mj.simulation.simulate import simulate_run
-from wpam_mj.simulation.warp_parity import CASES, TOLERANCE, gaps, parity_runs, within
+from wpam_mj.experiments.warp_parity import CASES, TOLERANCE, gaps, parity_runs, within
 
 FIELDS = ("x", "pi", "po", "tension", "friction")
 UNITS = {"x": "m", "pi": "Pa", "po": "Pa", "tension": "N", "friction": "N"}

@@ -29,7 +29,7 @@ from wpam_mj.simulation import plugin, warp_muscle
 from wpam_mj.simulation.execution import SimulationTask, execute
 from wpam_mj.simulation.context import RunContext
 from wpam_mj.simulation.simulate import Run, simulate_run
-from wpam_mj.simulation.warp_parity import (CASES, STUCK_M_S, TOLERANCE, gaps, parity_runs,
+from wpam_mj.experiments.warp_parity import (CASES, STUCK_M_S, TOLERANCE, gaps, parity_runs,
                                             within)
 
 DEVICE = os.environ.get("WPAM_WARP_DEVICE", "cpu")  # where the parity tests run
