@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.stats import qmc
 
 from wpam_mj.control.controllers import pi_feedforward
 from wpam_mj.experiments.analysis import frequency_response
@@ -144,3 +145,34 @@ def line_grid(factors=LINE_FACTORS) -> dict[str, dict[str, float]]:
     return {f"Pi line x{a:g}, Po line x{b:g}": {"pneumatics.inner_conductance": a,
                                                 "pneumatics.outer_conductance": b}
             for a in factors for b in factors if (a, b) != (1.0, 1.0)}
+
+
+# The pneumatic structure between the regulators and the bags, which no paper value pins,
+# and the range each element may take on a rig like the paper's (`structure_sample`):
+# name -> (low, high, drawn on a log scale).
+STRUCTURE_BOX = {
+    # a 1.1 mm orifice up to the ITV2031's own valve (each line's plausible range)
+    "pneumatics.inner_conductance": (1e-9, 3.6e-8, True),
+    "pneumatics.outer_conductance": (1e-9, 3.6e-8, True),
+    "pneumatics.tube_volume": (0.0, 1e-4, False),  # no tube up to 8 m of 4 mm bore
+    # an ITV1000-class relief (200 L/min) up to the supply side's 1500 L/min
+    "pneumatics.exhaust_valve_conductance": (3.6e-9, 3.6e-8, True),
+    "pneumatics.critical_ratio": (0.2, 0.7, False),  # ISO 6358 b of fittings and tubes
+    "pneumatics.polytropic_index": (1.0, 1.4, False),  # isothermal to adiabatic chambers
+    "pneumatics.time_constant": (0.05, 0.1, False),  # the regulators' plausible ranges
+    "pneumatics.dead_time": (0.02, 0.045, False),
+}
+
+
+def structure_sample(params: Params, n: int, seed: int = 0) -> list[Params]:
+    """`n` plants, each STRUCTURE_BOX element drawn within its range by a seeded Latin
+    hypercube (scipy.stats.qmc), the rest of `params` kept."""
+    u = qmc.LatinHypercube(d=len(STRUCTURE_BOX), seed=seed).random(n)
+    out = []
+    for row in u:
+        values = {}
+        for (name, (lo, hi, log)), q in zip(STRUCTURE_BOX.items(), row):
+            values[name] = float(np.exp(np.log(lo) + q * np.log(hi / lo)) if log
+                                 else lo + q * (hi - lo))
+        out.append(params.with_values(values))
+    return out
