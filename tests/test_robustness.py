@@ -276,3 +276,42 @@ def test_from_half_a_hertz_the_pi_loop_works_at_its_limits(load):
     assert fast.at_floor + fast.at_cap > 0.8
     assert fast.gain < 0.8 * slow.gain and fast.lag_deg > 5.0 * slow.lag_deg
     assert min(fast.contraction, fast.extension) < 2 * math.pi * 0.5 * 0.025
+
+
+def test_the_structure_sample_fills_its_box_one_stratum_a_value():
+    """`structure_sample`: every element within its range, each of its n strata used
+    once (log strata for the conductances), the same seed the same plants, the rest of the
+    plant untouched."""
+    from wpam_mj.experiments.limit_velocity import STRUCTURE_BOX, structure_sample  # noqa: PLC0415
+
+    params, n = preset("wpam"), 16
+    plants = structure_sample(params, n, seed=3)
+    for name, (lo, hi, log) in STRUCTURE_BOX.items():
+        v = np.array([p.value(name) for p in plants])
+        assert np.all((v >= lo) & (v <= hi)), name
+        q = np.log(v / lo) / np.log(hi / lo) if log else (v - lo) / (hi - lo)
+        assert sorted(np.floor(q * n).astype(int)) == list(range(n)), name
+    again = structure_sample(params, n, seed=3)
+    assert [p.pneumatics for p in plants] == [p.pneumatics for p in again]
+    assert all(p.muscle == params.muscle and p.controller == params.controller
+               for p in plants)
+
+
+def test_structure_sweep_script_writes_its_fractions_from_its_rows(tmp_path):
+    """scripts/structure_sweep.py on two plants at 1 Hz: the JSON's fractions are the CSV's
+    verdicts counted, and checks that need another frequency are left out."""
+    import csv  # noqa: PLC0415
+    from pathlib import Path  # noqa: PLC0415
+
+    script = Path(__file__).resolve().parents[1] / "scripts" / "structure_sweep.py"
+    proc = subprocess.run([sys.executable, str(script), "--samples", "2", "--freqs", "1",
+                           "--jobs", "2", "--out", str(tmp_path)],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    rows = list(csv.DictReader((tmp_path / "structure_sweep.csv").open()))
+    summary = json.loads((tmp_path / "structure_sweep.json").read_text())
+    assert len(rows) == 2 == summary["ran"] and summary["freqs_hz"] == [1.0]
+    for name, frac in summary["held_fraction"].items():
+        assert frac == sum(r[f"{name}_holds"] == "true" for r in rows) / 2, name
+    assert "lag_order_low_freq" not in summary["held_fraction"]  # needs < 0.5 Hz
+    assert (tmp_path / "structure_sweep.png").stat().st_size > 0
