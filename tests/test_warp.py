@@ -89,6 +89,63 @@ def test_run_warp_refuses_a_controller_only_python_defines():
         run_warp([run])
 
 
+FAIL_STEP = 20  # a recorded step of _short_runs (a sample every 10 steps)
+
+
+class _StubBatch:
+    """A WarpBatch whose state is known: world w's recorded fields read 1000 w + step, and
+    world 1 sets its status at step FAIL_STEP (runs without the gpu extra)."""
+
+    dt = 1e-3
+
+    def __init__(self, specs, device):
+        from wpam_mj.simulation.loop_contract import REC_FIELDS  # noqa: PLC0415
+
+        self.wp = type("wp", (), {"synchronize": staticmethod(lambda: None)})
+        self.fields = [plugin.FIELD[name] for name in REC_FIELDS[1:]]
+        self.values = np.zeros((len(specs), max(plugin.FIELD.values()) + 1), np.float32)
+        self.steps = 0
+
+    def reset(self):
+        self.steps = 0
+
+    def set_ctrl(self, u):
+        pass
+
+    def step(self, k):
+        self.steps += k
+        step = self.steps - 1
+        self.values[:, self.fields] = (1000 * np.arange(len(self.values)) + step)[:, None]
+        if step == FAIL_STEP:
+            self.values[1, plugin.FIELD["status"]] = 1
+
+    @property
+    def state(self):
+        return type("arr", (), {"numpy": lambda _: self.values.copy()})()
+
+
+def test_each_worlds_record_is_its_own_and_stops_where_it_fails(monkeypatch):
+    """warp_backend._run_group records every world's samples in one array: each world's
+    record holds its own values at every recorded step, and a world that fails keeps its
+    record up to its failing step (recorded too) and zeros after, with the step named."""
+    from wpam_mj.simulation import warp_backend  # noqa: PLC0415 (imports without Warp)
+
+    monkeypatch.setattr(warp_backend, "WarpBatch", _StubBatch)
+    run = _short_runs(0.045)[0]
+    (rec0, fail0), (rec1, fail1), (rec2, fail2) = warp_backend._run_group([run] * 3, "cpu")
+    steps = np.arange(0, len(run.inputs), run.record_every)
+    assert run.record_every == 10 and FAIL_STEP in steps
+    assert fail0 is None and fail2 is None and fail1[0] == FAIL_STEP and fail1[1]
+    for w, rec in ((0, rec0), (2, rec2)):
+        np.testing.assert_array_equal(rec[0], steps * 1e-3)
+        np.testing.assert_array_equal(rec[1:], np.broadcast_to(1000 * w + steps,
+                                                                rec[1:].shape))
+    kept = steps <= FAIL_STEP
+    np.testing.assert_array_equal(rec1[1:, kept], np.broadcast_to(1000 + steps[kept],
+                                                                  rec1[1:, kept].shape))
+    assert not rec1[:, ~kept].any()
+
+
 @dataclasses.dataclass(frozen=True)
 class _Peaks(SimulationTask):
     """A task of runs and a reduction: each run's largest contraction [m]."""

@@ -324,25 +324,30 @@ def _run_group(runs: list, device: str) -> list[tuple[np.ndarray, tuple[int, str
     wp = batch.wp
     n, every = len(runs[0].inputs), runs[0].record_every
     nrec = (n - 1) // every + 1
-    recorded = [plugin.FIELD[name] for name in REC_FIELDS[1:]]
+    first = plugin.FIELD[REC_FIELDS[1]]
+    recorded = slice(first, first + REC_ROWS - 1)  # side by side, as simulate reads them
     status = plugin.FIELD["status"]
-    recs = [np.zeros((REC_ROWS, nrec)) for _ in runs]
+    # every world's sample j in one contiguous block recs[j], written whole: the host's work
+    # per step must not grow with a Python loop over thousands of worlds
+    recs = np.zeros((nrec, len(runs), REC_ROWS))
     failures: list[tuple[int, str] | None] = [None] * len(runs)
-    inputs = np.stack([run.inputs for run in runs])  # (worlds, steps, channels)
+    alive = np.ones(len(runs), bool)  # no failure yet: a failed world's record stops there
+    inputs = np.stack([run.inputs for run in runs], axis=1)  # (steps, worlds, channels)
     batch.reset()
     for step in range(n):
-        batch.set_ctrl(inputs[:, step])
+        batch.set_ctrl(inputs[step])
         batch.step(1)
         state = batch.state.numpy()
-        bad = np.flatnonzero(state[:, status] != 0)
-        for i in bad:
-            if failures[i] is None:
-                failures[i] = (step, state_failure(state[i].astype(float)))
-        if step % every == 0:
-            j = step // every
-            for i, rec in enumerate(recs):
-                if failures[i] is None or failures[i][0] >= step:
-                    rec[0, j] = step * batch.dt
-                    rec[1:, j] = state[i, recorded]
+        if step % every == 0:  # the failing step itself is still recorded
+            sample = recs[step // every]
+            if alive.all():
+                sample[:, 0] = step * batch.dt
+                sample[:, 1:] = state[:, recorded]
+            else:
+                sample[alive, 0] = step * batch.dt
+                sample[alive, 1:] = state[alive, recorded]
+        for i in np.flatnonzero((state[:, status] != 0) & alive):
+            failures[i] = (step, state_failure(state[i].astype(float)))
+            alive[i] = False
     wp.synchronize()
-    return list(zip(recs, failures))
+    return [(recs[:, i].T, failure) for i, failure in enumerate(failures)]
