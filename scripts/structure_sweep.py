@@ -12,7 +12,9 @@ as shipped (the controller reading the plant's own values, as `wpam sweep` does)
 Fig. 17's sweep on each (3 loads, PI and PID) at `--freqs` (default 0.5 and 1 Hz, §4.2's
 "frequency band above 0.5 Hz", where the limit velocity acts; `--freqs
 0.1,0.2,0.25,0.5,1` for all of Fig. 17). Every sweep sentence the frequencies allow is
-checked on every plant (`findings.sweep_checks`; equal gains only at those frequencies).
+checked on every plant (`findings.sweep_checks`; equal gains only at those frequencies),
+and counted over the plants whose load moves in every sine (a load that stalls holds
+"alike" vacuously).
 Writes structure_sweep.csv (one row per plant: its values, each check's verdict and worst
 margin), structure_sweep.json (the fraction of plants holding each check, and the three
 high-frequency sentences together) and structure_sweep.png; prints the fractions. On
@@ -75,21 +77,27 @@ def main(argv: list[str] | None = None) -> int:
             row["error"] = str(sw.error).splitlines()[0] if str(sw.error) else "failed"
         else:
             row["error"] = ""
+            row["moved"] = all(p.load_moved for p in sw.points)
+            row["least_gain"] = min(p.gain for p in sw.points)
             for c in findings.sweep_checks(sw):
                 row[f"{c.name}_holds"] = c.passed
                 row[f"{c.name}_margin"] = c.worst_margin
         rows.append(row)
     ran = [r for r in rows if not r["error"]]
+    # a plant whose load does not move in some sine (`feasibility.load_moved`) holds the
+    # sentences about alike gains and lags vacuously: only plants that move are counted
+    moving = [r for r in ran if r["moved"]]
     names = [f.name for f in findings.SWEEP_FINDINGS  # those the frequencies let it check
              if any(r.get(f"{f.name}_holds") is not None for r in ran)]
-    held = {n: (sum(bool(r.get(f"{n}_holds")) for r in ran) / len(ran) if ran else math.nan)
-            for n in names}
-    together = [r for r in ran if all(r.get(f"{n}_holds") for n in HIGH_FREQ)]
-    summary = {"plants": len(rows), "ran": len(ran), "seed": args.seed, "freqs_hz": freqs,
+    held = {n: (sum(bool(r.get(f"{n}_holds")) for r in moving) / len(moving) if moving
+                else math.nan) for n in names}
+    together = [r for r in moving if all(r.get(f"{n}_holds") for n in HIGH_FREQ)]
+    summary = {"plants": len(rows), "ran": len(ran), "moving": len(moving),
+               "seed": args.seed, "freqs_hz": freqs,
                "backend": args.backend, "device": args.device, "wall_s": wall,
                "box": {n: list(v[:2]) for n, v in STRUCTURE_BOX.items()},
                "held_fraction": held, "high_freq_sentences": list(HIGH_FREQ),
-               "high_freq_together": len(together) / len(ran) if ran else math.nan,
+               "high_freq_together": len(together) / len(moving) if moving else math.nan,
                "high_freq_together_plants": [r["plant"] for r in together]}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -97,18 +105,19 @@ def main(argv: list[str] | None = None) -> int:
     write_text_atomic(out / "structure_sweep.json", json.dumps(summary, indent=2) + "\n")
     _figure(rows, out / "structure_sweep.png")
     print(f"{len(ran)} of {len(rows)} plants ran ({wall:.0f} s, {args.backend}"
-          f"{'/' + args.device if args.device else ''}); plants holding each sweep sentence:")
+          f"{'/' + args.device if args.device else ''}); {len(moving)} of them move in every "
+          "sine; of those, holding each sweep sentence:")
     for n in names:
         print(f"  {n:28s} {held[n]:6.1%}")
-    print(f"  the three high-frequency sentences together: {len(together)} of {len(ran)}")
+    print(f"  the three high-frequency sentences together: {len(together)} of {len(moving)}")
     print(f"wrote {out}/structure_sweep.csv, .json, .png")
     return 0
 
 
 def _figure(rows: list[dict], path: Path) -> None:
-    """The two lines' conductances of every plant, coloured by the worst margin of the
-    three high-frequency sentences (>= 0: all three hold)."""
-    ran = [r for r in rows if not r["error"]]
+    """The two lines' conductances of every plant that moves, coloured by the worst margin
+    of the three high-frequency sentences (>= 0: all three hold)."""
+    ran = [r for r in rows if not r["error"] and r["moved"]]
     fig, ax = plt.subplots(figsize=(7, 5))
     if ran:
         worst = [min(r.get(f"{n}_margin", -np.inf) for n in HIGH_FREQ) for r in ran]
@@ -122,7 +131,7 @@ def _figure(rows: list[dict], path: Path) -> None:
     ax.set_yscale("log")
     ax.set_xlabel("Pi line conductance [m³/(s Pa)]")
     ax.set_ylabel("Po line conductance [m³/(s Pa)]")
-    ax.set_title(f"{len(ran)} plants over the pneumatic structure (Latin hypercube)")
+    ax.set_title(f"{len(ran)} plants that move, over the pneumatic structure")
     ax.legend(loc="lower right")
     fig.tight_layout()
     tmp = path.with_suffix(".tmp.png")
