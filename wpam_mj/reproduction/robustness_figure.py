@@ -24,7 +24,8 @@ def robustness_figure(result) -> Figure:
 
     held = result.held_fraction()
     names = [n for n in held if not math.isnan(held[n])]
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 5), gridspec_kw=dict(width_ratios=[3, 2]))
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 5.8),
+                                   gridspec_kw=dict(width_ratios=[3, 2]))
     colours = ["tab:green" if held[n] >= HOLD_TARGET else "tab:red" for n in names]
     over, short = result.over_contracted()
     if over or short:  # each plant's share of the bar, by whether it is over-contracted
@@ -55,7 +56,8 @@ def robustness_figure(result) -> Figure:
              else "controller's model nominal")
     ax1.set_title(f"{len(result.outcomes)} plants, unmeasured values within "
                   f"{result.box()}; {model}", fontsize=10)
-    ax1.legend(loc="upper right", fontsize=8)
+    # below the bars: any corner of the axes may hold a bar of 100 % or 0 %
+    ax1.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2, fontsize=8)
     for i, (row, load) in enumerate(CELLS):
         v = [o.cells[(row, load)] for o in result.outcomes if (row, load) in o.cells]
         ax2.plot([i] * len(v), v, "o", color="tab:blue", alpha=0.4, ms=4,
