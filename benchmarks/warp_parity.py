@@ -15,9 +15,11 @@ import argparse
 import json
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
+from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.simulation import warp_muscle
 from wpam_mj.simulation.simulate import simulate_run
 from wpam_mj.experiments.warp_parity import CASES, TOLERANCE, gaps, parity_runs, within
@@ -76,8 +78,7 @@ def main(argv: list[str] | None = None) -> int:
         if differing:
             bad.append(f"{differing} copies differ from their case's one-world run")
     if args.json:
-        with open(args.json, "w") as f:
-            json.dump(out, f, indent=2)
+        write_text_atomic(Path(args.json), json.dumps(out, indent=2) + "\n")
     for line in bad:
         print("outside tolerance:", line)
     return 1 if bad else 0

@@ -37,6 +37,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from wpam_mj.experiments.figures import save_figure  # noqa: E402
 from wpam_mj.experiments.limit_velocity import STRUCTURE_BOX, structure_sample  # noqa: E402
 from wpam_mj.experiments.paper_studies import sweep_batch  # noqa: E402
 from wpam_mj.infra.files import csv_text, write_text_atomic  # noqa: E402
@@ -54,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--freqs", default="0.5,1", help="sine frequencies [Hz], comma-separated")
     ap.add_argument("--out", default="out/structure_sweep")
     ap.add_argument("--backend", default="mujoco", choices=("mujoco", "warp"))
-    ap.add_argument("--device", default=None, help="Warp device (cpu, cuda)")
+    ap.add_argument("--device", default="cpu", help="Warp device (cpu, cuda)")
     ap.add_argument("--jobs", type=int, default=os.cpu_count(),
                     help="CPU cores for the mujoco backend (default: all)")
     args = ap.parse_args(argv)
@@ -63,12 +64,11 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     plants = structure_sample(preset("wpam"), args.samples, args.seed)
     start = time.perf_counter()
-    kwargs = {"backend": args.backend, **({"device": args.device} if args.device else {})}
     workers = args.jobs if args.backend == "mujoco" else None
     freqs = tuple(float(f) for f in args.freqs.split(","))
     sweeps = execute([sweep_batch(p, freqs=freqs, keep=()) for p in plants], workers,
-                     failed=Failed,
-                     progress=sys.stderr.isatty(), desc="structure sweep", **kwargs)
+                     backend=args.backend, device=args.device, failed=Failed,
+                     progress=sys.stderr.isatty(), desc="structure sweep")
     wall = time.perf_counter() - start
     rows = []
     for i, (plant, sw) in enumerate(zip(plants, sweeps)):
@@ -103,9 +103,9 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "structure_sweep.csv", csv_text(rows))
     write_text_atomic(out / "structure_sweep.json", json.dumps(summary, indent=2) + "\n")
-    _figure(rows, out / "structure_sweep.png")
-    print(f"{len(ran)} of {len(rows)} plants ran ({wall:.0f} s, {args.backend}"
-          f"{'/' + args.device if args.device else ''}); {len(moving)} of them move in every "
+    save_figure(_figure(rows, preset("wpam")), out / "structure_sweep.png")
+    print(f"{len(ran)} of {len(rows)} plants ran ({wall:.0f} s, {args.backend}/{args.device}); "
+          f"{len(moving)} of them move in every "
           "sine; of those, holding each sweep sentence:")
     for n in names:
         print(f"  {n:28s} {held[n]:6.1%}")
@@ -114,9 +114,10 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def _figure(rows: list[dict], path: Path) -> None:
+def _figure(rows: list[dict], shipped) -> plt.Figure:
     """The two lines' conductances of every plant that moves, coloured by the worst margin
-    of the three high-frequency sentences (>= 0: all three hold)."""
+    of the three high-frequency sentences (>= 0: all three hold), the `shipped` plant's
+    starred."""
     ran = [r for r in rows if not r["error"] and r["moved"]]
     fig, ax = plt.subplots(figsize=(7, 5))
     if ran:
@@ -126,7 +127,8 @@ def _figure(rows: list[dict], path: Path) -> None:
                         c=np.clip(worst, -3, 1), cmap="RdYlGn", vmin=-3, vmax=1, s=14)
         fig.colorbar(sc, ax=ax, label="worst margin of the three high-frequency sentences "
                      "(>= 0: all hold)")
-    ax.plot([2.62e-9], [6.95e-9], "k*", ms=12, label="shipped plant")
+    ax.plot([shipped.pneumatics.inner_conductance], [shipped.pneumatics.outer_conductance],
+            "k*", ms=12, label="shipped plant")
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("Pi line conductance [m³/(s Pa)]")
@@ -134,10 +136,7 @@ def _figure(rows: list[dict], path: Path) -> None:
     ax.set_title(f"{len(ran)} plants that move, over the pneumatic structure")
     ax.legend(loc="lower right")
     fig.tight_layout()
-    tmp = path.with_suffix(".tmp.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    tmp.replace(path)
+    return fig
 
 
 if __name__ == "__main__":
