@@ -20,6 +20,7 @@ Units: SI.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -47,6 +48,10 @@ FEEDFORWARD_MODEL = ("braid.braid_angle", "muscle.output_coeff", "muscle.frictio
 FEEDFORWARD_MODELS = ("calibrated", "nominal")
 GAUGE_RESOLUTION = 1e3  # Pa: the ITV2031's sensitivity, 0.2 % of its 0.5 MPa span (SMC)
 RECORD_EVERY_S = 0.1  # s: the log's sample interval (ours; 600 samples per 60 s ramp)
+# A muscle friction holds: slower than this (m/s). Stiction holds it still (the no-slip
+# solver), and on the shipped ramps no sample lies between 1e-6 and 1e-4 m/s, so the split
+# does not depend on where in that gap it is drawn.
+HELD_SPEED = 1e-5
 FIT_SPAN = 0.3  # each fitted value within +-30 % of its start: far wider than the plant's
 # uncertainty, so the bound never decides the fit
 
@@ -105,12 +110,20 @@ class FeedforwardFit:
             (n, float(truth.value(n) / model.value(n) - 1.0)) for n in names))
 
 
-def fit_feedforward(start: Params, loops: Sequence[MeasuredLoop]) -> FeedforwardFit:
+def fit_feedforward(start: Params, loops: Sequence[MeasuredLoop],
+                    slower_than: float = math.inf) -> FeedforwardFit:
     """FEEDFORWARD_MODEL fitted to `loops` from `start`'s nominal values: bounded least
-    squares of the model's x against the logged x [mm], each value within +-FIT_SPAN."""
+    squares of the model's x against the logged x [mm], each value within +-FIT_SPAN,
+    over the samples where the encoder's x moves slower than `slower_than` [m/s] (its
+    log differenced; default: every sample, the shipped reading)."""
     from scipy.optimize import least_squares  # noqa: PLC0415 (scipy: slow import)
 
     x_logged = np.concatenate([lp.x for lp in loops])
+    speed = np.concatenate([np.abs(np.gradient(lp.x, RECORD_EVERY_S)) for lp in loops])
+    keep = speed < slower_than
+    if not keep.any():
+        raise ParameterError(f"fit_feedforward: slower_than {slower_than:g} m/s keeps no "
+                             f"logged sample; it must exceed the slowest, {speed.min():g} m/s")
     first = {n: float(start.value(n)) for n in FEEDFORWARD_MODEL}
 
     def at(z: np.ndarray) -> Params:
@@ -118,7 +131,7 @@ def fit_feedforward(start: Params, loops: Sequence[MeasuredLoop]) -> Feedforward
                                                                                   z)})
 
     def residual(z: np.ndarray) -> np.ndarray:
-        return (model_contraction(at(z), loops) - x_logged) / MM
+        return ((model_contraction(at(z), loops) - x_logged) / MM)[keep]
 
     best = least_squares(residual, np.zeros(len(first)), bounds=(-FIT_SPAN, FIT_SPAN),
                          diff_step=1e-3)
@@ -133,6 +146,41 @@ def fitted_to(plant: Params, loops: Sequence[StaticLoop]) -> tuple[Params, float
     residual [m]."""
     fit = fit_feedforward(plant, [measured_loop(lp) for lp in loops])
     return fit.controller_of(plant), fit.rms
+
+
+@dataclass(frozen=True)
+class GaugeLag:
+    """Why a model fitted through the gauges is not the plant, on one simulated ramp: how
+    far the chamber's Pi [Pa] runs behind the gauge's (median |difference|) where
+    friction holds the muscle (slower than HELD_SPEED) and where it slides, and
+    the rms [m] over the sliding samples of x less the plant's own equilibrium model
+    read on the chamber's Pi and on the gauge's."""
+
+    lag_still: float
+    lag_sliding: float
+    x_error_chamber: float
+    x_error_gauge: float
+
+
+def gauge_lag(loop: StaticLoop, plant: Params) -> GaugeLag:
+    """`GaugeLag` of `loop`, a ramp of `plant` (its own values: `Params.plant`), read at
+    every recorded sample, unrounded (the gauge's resolution plays no part)."""
+    r = loop.result
+    model = MuscleModel.from_params(plant)
+
+    def on(pi: np.ndarray, po: np.ndarray) -> np.ndarray:
+        return ramp_contraction(model, pi, po, r.load, x0=float(r.x[0])) - r.x
+
+    sliding = np.abs(r.velocity) >= HELD_SPEED
+    if sliding.all() or not sliding.any():
+        raise ParameterError("gauge_lag: the ramp needs samples both held and sliding")
+    lag = np.abs(r.pi - r.pi_reg)
+
+    def rms(e: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(e[sliding] ** 2)))
+
+    return GaugeLag(float(np.median(lag[~sliding])), float(np.median(lag[sliding])),
+                    rms(on(r.pi, r.po)), rms(on(r.pi_reg, r.po_reg)))
 
 
 @dataclass(frozen=True)
