@@ -181,3 +181,27 @@ def test_a_fit_on_the_slow_samples_alone_recovers_the_model_and_refuses_an_empty
         assert fit.values[name] == pytest.approx(truth.value(name), rel=1e-3), name
     with pytest.raises(ParameterError, match="slower_than 0 m/s keeps no logged sample"):
         feedforward_fit.fit_feedforward(start, loops, slower_than=0.0)
+
+
+def test_calibration_lag_script_writes_each_ramps_lag_and_fit(tmp_path):
+    """scripts/calibration_lag.py on one fast ramp time: a row per ramp time with the six
+    ramps' lags (the chamber further behind the gauge while sliding) and the fitted
+    model's error, and a refit per speed limit."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "scripts" / "calibration_lag.py"
+    spec = importlib.util.spec_from_file_location("calibration_lag", path)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    out = tmp_path / "lag.json"
+    assert script.main(["--ramp-times", "20", "--dt", "0.002", "--slower-than", "5",
+                        "--jobs", "2", "--json", str(out)]) == 0
+    data = json.loads(out.read_text())
+    (row,) = data["ramps"]
+    assert row["ramp_time_s"] == 20 and len(row["lags"]) == 2 * len(paper.LOADS_N)
+    assert all(g["lag_still"] < g["lag_sliding"] for g in row["lags"])
+    assert set(row["model_error"]) == {n.split(".")[1] for n in
+                                       feedforward_fit.FEEDFORWARD_MODEL}
+    assert [r["slower_than_mm_s"] for r in data["slower_than"]] == [5.0]
