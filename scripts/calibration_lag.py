@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
         def span(values, scale):
             return f"{min(values) / scale:.2f}-{max(values) / scale:.2f}"
 
-        print(f"| {ramp:g} | {span([g.lag_still for g in lags], 1e3)} / "
+        print(f"| {ramp:g} | {span([g.lag_held for g in lags], 1e3)} / "
               f"{span([g.lag_sliding for g in lags], 1e3)} | "
               f"{span([g.x_error_chamber for g in lags], MM)} / "
               f"{span([g.x_error_gauge for g in lags], MM)} | "

@@ -164,7 +164,7 @@ def test_the_chamber_lags_the_gauge_while_the_muscle_slides_and_x_follows_the_ch
     millimetre; read on the gauge's, it is many times further off."""
     params, loops = simulated_loops
     lag = feedforward_fit.gauge_lag(loops[0], params.plant)
-    assert lag.lag_still < lag.lag_sliding < feedforward_fit.GAUGE_RESOLUTION
+    assert lag.lag_held < lag.lag_sliding < feedforward_fit.GAUGE_RESOLUTION
     assert lag.x_error_chamber < 0.3e-3
     assert lag.x_error_gauge > 5 * lag.x_error_chamber
 
@@ -201,7 +201,7 @@ def test_calibration_lag_script_writes_each_ramps_lag_and_fit(tmp_path):
     data = json.loads(out.read_text())
     (row,) = data["ramps"]
     assert row["ramp_time_s"] == 20 and len(row["lags"]) == 2 * len(paper.LOADS_N)
-    assert all(g["lag_still"] < g["lag_sliding"] for g in row["lags"])
+    assert all(g["lag_held"] < g["lag_sliding"] for g in row["lags"])
     assert set(row["model_error"]) == {n.split(".")[1] for n in
                                        feedforward_fit.FEEDFORWARD_MODEL}
     assert [r["slower_than_mm_s"] for r in data["slower_than"]] == [5.0]

@@ -49,8 +49,8 @@ FEEDFORWARD_MODELS = ("calibrated", "nominal")
 GAUGE_RESOLUTION = 1e3  # Pa: the ITV2031's sensitivity, 0.2 % of its 0.5 MPa span (SMC)
 RECORD_EVERY_S = 0.1  # s: the log's sample interval (ours; 600 samples per 60 s ramp)
 # A muscle friction holds: slower than this (m/s). Stiction holds it still (the no-slip
-# solver), and on the shipped ramps no sample lies between 1e-6 and 1e-4 m/s, so the split
-# does not depend on where in that gap it is drawn.
+# solver): on the shipped ramps at most 1 % of the samples move at 1e-6 to 1e-4 m/s, so
+# the split hardly depends on where in that gap it is drawn.
 HELD_SPEED = 1e-5
 FIT_SPAN = 0.3  # each fitted value within +-30 % of its start: far wider than the plant's
 # uncertainty, so the bound never decides the fit
@@ -156,7 +156,7 @@ class GaugeLag:
     the rms [m] over the sliding samples of x less the plant's own equilibrium model
     read on the chamber's Pi and on the gauge's."""
 
-    lag_still: float
+    lag_held: float
     lag_sliding: float
     x_error_chamber: float
     x_error_gauge: float
