@@ -25,6 +25,7 @@ import math
 import os
 import sys
 
+from wpam_mj.cli.arguments import float_list
 from wpam_mj.experiments.protocol import SHIPPED, open_loop_tasks
 from wpam_mj.infra.files import write_text_atomic
 from wpam_mj.physics.params import preset
@@ -33,12 +34,13 @@ from wpam_mj.simulation.execution import execute
 from wpam_mj.units import MM
 
 
-def _floats(text: str) -> list[float]:
-    return [float(v) for v in text.split(",") if v.strip()]
-
-
 def _errors(fit: ff.FeedforwardFit, plant) -> dict[str, float]:
-    return {n.split(".")[1]: v / plant.value(n) - 1.0 for n, v in fit.values.items()}
+    """The fitted model / the plant - 1, by short name (`feedforward_fit.model_error`)."""
+    return {n.split(".")[1]: e for n, e in ff.model_error(fit.controller_of(plant))}
+
+
+def _span(values, scale: float) -> str:
+    return f"{min(values) / scale:.2f}-{max(values) / scale:.2f}"
 
 
 def _model_text(errors: dict[str, float]) -> str:
@@ -48,9 +50,9 @@ def _model_text(errors: dict[str, float]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--ramp-times", type=_floats, default=[60.0, 120.0, 240.0],
+    ap.add_argument("--ramp-times", type=float_list, default=(60.0, 120.0, 240.0),
                     help="ramp times [s], each direction, comma-separated")
-    ap.add_argument("--slower-than", type=_floats, default=[],
+    ap.add_argument("--slower-than", type=float_list, default=(),
                     help="refit the first ramp time on the samples slower than these [mm/s]")
     ap.add_argument("--dt", type=float, default=1e-3)
     ap.add_argument("--jobs", type=int, default=os.cpu_count())
@@ -70,14 +72,10 @@ def main(argv: list[str] | None = None) -> int:
         row = {"ramp_time_s": ramp, "lags": [dataclasses.asdict(g) for g in lags],
                "model_error": _errors(fit, plant), "rms_mm": fit.rms / MM}
         rows.append(row)
-
-        def span(values, scale):
-            return f"{min(values) / scale:.2f}-{max(values) / scale:.2f}"
-
-        print(f"| {ramp:g} | {span([g.lag_held for g in lags], 1e3)} / "
-              f"{span([g.lag_sliding for g in lags], 1e3)} | "
-              f"{span([g.x_error_chamber for g in lags], MM)} / "
-              f"{span([g.x_error_gauge for g in lags], MM)} | "
+        print(f"| {ramp:g} | {_span([g.lag_held for g in lags], 1e3)} / "
+              f"{_span([g.lag_sliding for g in lags], 1e3)} | "
+              f"{_span([g.x_error_chamber for g in lags], MM)} / "
+              f"{_span([g.x_error_gauge for g in lags], MM)} | "
               f"{_model_text(row['model_error'])} | {row['rms_mm']:.2f} |", flush=True)
         if ramp == args.ramp_times[0]:
             for v in args.slower_than:
