@@ -37,6 +37,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from wpam_mj.cli.arguments import float_list  # noqa: E402
 from wpam_mj.experiments.figures import save_figure  # noqa: E402
 from wpam_mj.experiments.limit_velocity import STRUCTURE_BOX, structure_sample  # noqa: E402
 from wpam_mj.experiments.paper_studies import sweep_batch  # noqa: E402
@@ -52,7 +53,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--samples", type=int, default=256)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--freqs", default="0.5,1", help="sine frequencies [Hz], comma-separated")
+    ap.add_argument("--freqs", type=float_list, default="0.5,1",
+                    help="sine frequencies [Hz], comma-separated")
     ap.add_argument("--out", default="out/structure_sweep")
     ap.add_argument("--backend", default="mujoco", choices=("mujoco", "warp"))
     ap.add_argument("--device", default="cpu", help="Warp device (cpu, cuda)")
@@ -65,8 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     plants = structure_sample(preset("wpam"), args.samples, args.seed)
     start = time.perf_counter()
     workers = args.jobs if args.backend == "mujoco" else None
-    freqs = tuple(float(f) for f in args.freqs.split(","))
-    sweeps = execute([sweep_batch(p, freqs=freqs, keep=()) for p in plants], workers,
+    sweeps = execute([sweep_batch(p, freqs=args.freqs, keep=()) for p in plants], workers,
                      backend=args.backend, device=args.device, failed=Failed,
                      progress=sys.stderr.isatty(), desc="structure sweep")
     wall = time.perf_counter() - start
@@ -93,7 +94,7 @@ def main(argv: list[str] | None = None) -> int:
                 else math.nan) for n in names}
     together = [r for r in moving if all(r.get(f"{n}_holds") for n in HIGH_FREQ)]
     summary = {"plants": len(rows), "ran": len(ran), "moving": len(moving),
-               "seed": args.seed, "freqs_hz": freqs,
+               "seed": args.seed, "freqs_hz": args.freqs,
                "backend": args.backend, "device": args.device, "wall_s": wall,
                "box": {n: list(v[:2]) for n, v in STRUCTURE_BOX.items()},
                "held_fraction": held, "high_freq_sentences": list(HIGH_FREQ),
